@@ -1,0 +1,179 @@
+"""Mission schema: the scenario every part of the toolkit runs (twin, trainer, SITL).
+
+Units are SI; positions are metres in the mission frame, whose origin is the south-west
+corner of the area with x north and y east (NED, altitude positive up where it says `alt`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from plmarl_sitl.config import ConfigError, VehicleModel, _require, load_vehicle, load_yaml
+
+Mobility = Literal["gauss_markov", "random_waypoint", "rpgm", "mixed"]
+Layout = Literal["fixed", "lattice", "random"]
+
+
+@dataclass(frozen=True)
+class Area:
+    north_m: float = field(default=1000.0, metadata={"min": 100.0})
+    east_m: float = field(default=1000.0, metadata={"min": 100.0})
+
+
+@dataclass(frozen=True)
+class Users:
+    count: int = field(default=240, metadata={"min": 1})
+    cluster_size: int = field(default=60, metadata={"min": 1})
+    mobility: Mobility = "gauss_markov"
+    max_speed_mps: float = field(default=0.5, metadata={"min": 0.0})
+    cluster_std_m: float = field(default=35.0, metadata={"min": 0.0})
+    # Gauss-Markov memory per second (1 = straight lines, 0 = white noise).
+    gm_alpha: float = field(default=0.95, metadata={"min": 0.0, "max": 1.0})
+    layout: Layout = "fixed"
+    # `fixed`: one (north, east) centre per cluster. `lattice`: spacing of a centred grid.
+    cluster_centers: tuple[tuple[float, float], ...] = ()
+    cluster_spacing_m: float = field(default=300.0, metadata={"min": 1.0})
+
+    @property
+    def n_clusters(self) -> int:
+        return self.count // self.cluster_size
+
+    def __post_init__(self) -> None:
+        _require(self.count % self.cluster_size == 0, "count", "must be a multiple of cluster_size")
+        if self.layout == "fixed":
+            _require(
+                len(self.cluster_centers) == self.n_clusters,
+                "cluster_centers",
+                f"layout 'fixed' needs {self.n_clusters} centres (count / cluster_size), "
+                f"got {len(self.cluster_centers)}",
+            )
+
+
+@dataclass(frozen=True)
+class Channel:
+    """Air-to-ground (Al-Hourani) and UAV-to-UAV link parameters."""
+
+    environment: str = "urban"
+    los_a: float = 9.61
+    los_b: float = 0.16
+    eta_los_db: float = 1.0
+    eta_nlos_db: float = 20.0
+    carrier_ghz: float = field(default=2.0, metadata={"min": 0.01})
+    # A user is covered when it is inside the sensing radius AND the mean A2G path loss
+    # to it is at most this (docs/ARCHITECTURE.md, "Coverage").
+    max_path_loss_db: float = 84.0
+    u2u_carrier_ghz: float = field(default=2.4, metadata={"min": 0.01})
+    tx_power_dbm: float = 20.0
+    noise_dbm: float = -90.0
+    # Mean share of time another UAV transmits in the same slot (co-channel interference).
+    interference_activity: float = field(default=0.1, metadata={"min": 0.0, "max": 1.0})
+    sinr_threshold_db: float = 0.0
+
+
+@dataclass(frozen=True)
+class Radii:
+    sensing_m: float = field(default=100.0, metadata={"min": 1.0})
+    comm_m: float = field(default=350.0, metadata={"min": 1.0})
+    safe_m: float = field(default=20.0, metadata={"min": 0.0})
+
+
+@dataclass(frozen=True)
+class Signalling:
+    tup_s: int = field(default=15, metadata={"min": 1})
+    buffer_len: int = field(default=10, metadata={"min": 1})
+    # A neighbour silent for this many consecutive signalling instants leaves N_i.
+    drop_after_missed: int = field(default=2, metadata={"min": 1})
+
+
+@dataclass(frozen=True)
+class Timing:
+    dt_s: float = field(default=1.0, metadata={"min": 0.001})
+    decision_every_s: int = field(default=3, metadata={"min": 1})
+    episode_s: int = field(default=200, metadata={"min": 1})
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    coverage: float = 50.0
+    potential: float = 0.5
+    mobility: float = 2e-5
+    safety: float = 1.0
+
+
+@dataclass(frozen=True)
+class Reward:
+    pre_failure: RewardWeights = RewardWeights()
+    post_failure: RewardWeights = RewardWeights(50.0, 2.0, 1e-5, 1.0)
+
+
+@dataclass(frozen=True)
+class Failure:
+    at_s: float = field(metadata={"min": 0.0})
+    uav: int = field(metadata={"min": 0})
+
+
+@dataclass(frozen=True)
+class Launch:
+    """Where the swarm starts: a line of UAVs at takeoff altitude around this point."""
+
+    north_m: float = 500.0
+    east_m: float = 500.0
+    spacing_m: float = field(default=40.0, metadata={"min": 0.0})
+
+
+@dataclass(frozen=True)
+class Origin:
+    """Geodetic position of the mission frame's origin (for GLOBAL_POSITION_INT)."""
+
+    lat_deg: float = field(default=47.397742, metadata={"min": -90.0, "max": 90.0})
+    lon_deg: float = field(default=8.545594, metadata={"min": -180.0, "max": 180.0})
+    alt_m: float = 488.0
+
+
+@dataclass(frozen=True)
+class Mission:
+    name: str
+    seed: int = 0
+    n_uavs: int = field(default=4, metadata={"min": 1})
+    vehicle: str = "quadrotor"
+    area: Area = Area()
+    users: Users = Users(layout="lattice")
+    channel: Channel = Channel()
+    radii: Radii = Radii()
+    signalling: Signalling = Signalling()
+    timing: Timing = Timing()
+    reward: Reward = Reward()
+    launch: Launch = Launch()
+    origin: Origin = Origin()
+    failures: tuple[Failure, ...] = ()
+
+    def __post_init__(self) -> None:
+        for i, f in enumerate(self.failures):
+            _require(f.uav < self.n_uavs, f"failures[{i}].uav", f"must be < n_uavs ({self.n_uavs})")
+            _require(
+                f.at_s <= self.timing.episode_s,
+                f"failures[{i}].at_s",
+                f"must be <= timing.episode_s ({self.timing.episode_s})",
+            )
+        for i, (n, e) in enumerate(self.users.cluster_centers):
+            ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m
+            _require(ok, f"users.cluster_centers[{i}]", "must lie inside the area")
+
+    def vehicle_model(self) -> VehicleModel:
+        return load_vehicle(self.vehicle)
+
+    def with_tup(self, tup_s: int) -> Mission:
+        return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))
+
+
+def load_mission(path: str | Path) -> Mission:
+    """Load a mission YAML; errors are ConfigError naming the file and the key path."""
+    mission = load_yaml(Mission, path)
+    try:
+        mission.vehicle_model()
+    except ConfigError as exc:
+        raise ConfigError("vehicle", f"cannot load vehicle model {mission.vehicle!r}: {exc}", str(path)) from None
+    return mission
