@@ -120,7 +120,7 @@ class CoverageEnv:
         self.t = 0
         self._apply_failures()
         self._signal()
-        self.covered = covered_users(self.users.pos, self.pos, self.alive, self.radius(-self.pos[..., 2]))
+        self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
         return self.observe()
 
     # ---------------------------------------------------------------- dynamics
@@ -149,9 +149,9 @@ class CoverageEnv:
         self.users = step_users(self.users, m, dt, self.gen)
         self.t += 1
         self._apply_failures()
-        self.covered = covered_users(self.users.pos, self.pos, self.alive, self.radius(-self.pos[..., 2]))
+        self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
         coverage = self.covered.to(self.dtype).mean(-1)
-        terms = reward_terms(coverage, self.pos, self.vel, self.alive, self.users.pos, m)
+        terms = reward_terms(coverage, self.pos, self.vel, self.alive, self.users.xy, m)
         self._signal()
         return combine(terms, self.failed, m), coverage
 
@@ -196,7 +196,7 @@ class CoverageEnv:
         h = self.holdings
         alive_rx = self.alive.unsqueeze(-1)
         mask = h.neighbour_mask(m.signalling.drop_after_missed) & alive_rx
-        sense = sensing_features(self.pos, self.users.pos, m.radii.sensing_m, m.users.cluster_size)
+        sense = sensing_features(self.pos, self.users.xy, m.radii.sensing_m, m.users.cluster_size)
         sense = torch.where(alive_rx, sense, torch.zeros_like(sense))
         return Observation(
             t=self.t,
@@ -218,7 +218,7 @@ class CoverageEnv:
         scale_p = torch.tensor([m.area.north_m, m.area.east_m, -vm.max_alt_m], dtype=self.dtype, device=self.device)
         uav = torch.cat([self.pos / scale_p, self.vel / vm.max_speed_mps, self.alive.to(self.dtype).unsqueeze(-1)], -1)
         c, size = m.users.n_clusters, m.users.cluster_size
-        upos = self.users.pos.view(self.num_envs, c, size, 2).mean(-2)
+        upos = self.users.pos.view(self.num_envs, 2, c, size).mean(-1).transpose(1, 2)
         upos = upos / torch.tensor([m.area.north_m, m.area.east_m], dtype=self.dtype, device=self.device)
         ucov = self.covered.view(self.num_envs, c, size).to(self.dtype).mean(-1, keepdim=True)
         tail = torch.stack(

@@ -11,8 +11,13 @@ from __future__ import annotations
 
 import torch
 
-SENSING_SECTORS = 8
-SENSING_FEATURES = 3 + SENSING_SECTORS  # count, centroid offset (2), sector counts
+SENSING_FEATURES = 4  # count, centroid offset (north, east), rms distance
+
+
+def _planes(users_xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Contiguous north and east planes (..., U): elementwise ops on them run ~2x faster
+    than on the interleaved (..., U, 2) layout."""
+    return users_xy[..., 0].contiguous(), users_xy[..., 1].contiguous()
 
 
 def covered_users(
@@ -23,13 +28,14 @@ def covered_users(
     users_xy (..., U, 2); uav_pos (..., N, 3); alive (..., N); radius (..., N) metres.
     Works on squared distances only (no sqrt/log on the U x N path).
     """
+    un, ue = _planes(users_xy)
     r2 = torch.where(alive, radius * radius, torch.full_like(radius, -1.0))
-    covered = torch.zeros(users_xy.shape[:-1], dtype=torch.bool, device=users_xy.device)
-    # A loop over N keeps the temporary at (..., U) instead of (..., U, N, 2).
+    covered = torch.zeros(un.shape, dtype=torch.bool, device=un.device)
+    # A loop over N keeps every temporary at (..., U) instead of (..., U, N, 2).
     for k in range(uav_pos.shape[-2]):
-        d = users_xy - uav_pos[..., k : k + 1, :2]
-        d2 = d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1]
-        covered |= d2 <= r2[..., k : k + 1]
+        dn = un - uav_pos[..., k : k + 1, 0]
+        de = ue - uav_pos[..., k : k + 1, 1]
+        covered |= dn * dn + de * de <= r2[..., k : k + 1]
     return covered
 
 
@@ -46,29 +52,36 @@ def sensing_features(
     cluster_size: int,
     user_valid: torch.Tensor | None = None,
 ) -> torch.Tensor:
-    """What an agent senses of the users within R_s of it, as a fixed-size vector.
+    """What an agent senses of the users within R_s (ground distance), as a fixed vector.
 
     uav_pos (..., N, 3), users_xy (..., U, 2) -> (..., N, SENSING_FEATURES):
     [count / cluster_size, mean north offset / R_s, mean east offset / R_s,
-     count per 45-degree sector / cluster_size (8)].
+     rms distance / R_s] of the users inside R_s (zeros when none).
     The SITL agent calls this with the users its sensing topic lists, so the twin and
-    the deployed agent see identical features. `user_valid` masks padding entries.
+    the deployed agent see identical features. `user_valid` (..., U) masks padding.
     """
-    d = users_xy.unsqueeze(-3) - uav_pos[..., :2].unsqueeze(-2)  # (..., N, U, 2)
-    dn, de = d[..., 0], d[..., 1]
-    inside = dn * dn + de * de <= sensing_m * sensing_m
-    if user_valid is not None:
-        inside = inside & user_valid.unsqueeze(-2)
-    w = inside.to(uav_pos.dtype)
-    count = w.sum(-1)
-    denom = torch.clamp(count, min=1.0)
-    mean_n = (dn * w).sum(-1) / denom / sensing_m
-    mean_e = (de * w).sum(-1) / denom / sensing_m
-    # Sector index from signs and the larger axis: 8 wedges of 45 degrees, no atan2.
-    sector = (dn >= 0).long() * 4 + (de >= 0).long() * 2 + (dn.abs() >= de.abs()).long()
-    sectors = torch.zeros(*count.shape, SENSING_SECTORS, dtype=uav_pos.dtype, device=uav_pos.device)
-    sectors.scatter_add_(-1, sector, w)
-    feats = [count.unsqueeze(-1), mean_n.unsqueeze(-1), mean_e.unsqueeze(-1)]
-    out = torch.cat(feats, dim=-1)
-    out[..., 0] /= cluster_size
-    return torch.cat([out, sectors / cluster_size], dim=-1)
+    un, ue = _planes(users_xy)
+    r2 = sensing_m * sensing_m
+    feats = []
+    for k in range(uav_pos.shape[-2]):
+        dn = un - uav_pos[..., k : k + 1, 0]
+        de = ue - uav_pos[..., k : k + 1, 1]
+        d2 = dn * dn + de * de
+        inside = d2 <= r2
+        if user_valid is not None:
+            inside = inside & user_valid
+        w = inside.to(un.dtype)
+        count = w.sum(-1)
+        denom = torch.clamp(count, min=1.0)
+        feats.append(
+            torch.stack(
+                [
+                    count / cluster_size,
+                    (w * dn).sum(-1) / denom / sensing_m,
+                    (w * de).sum(-1) / denom / sensing_m,
+                    torch.sqrt((w * d2).sum(-1) / denom) / sensing_m,
+                ],
+                -1,
+            )
+        )
+    return torch.stack(feats, -2)

@@ -36,7 +36,7 @@ def reward_terms(
     a = alive.to(uav_pos.dtype)
     n_alive = torch.clamp(a.sum(-1, keepdim=True), min=1.0)
     net_centre = (uav_pos[..., :2] * a.unsqueeze(-1)).sum(-2) / n_alive
-    service = users_xy.mean(-2)
+    service = users_xy.mean(-2)  # (B, U, 2) view of planar storage: a fast contiguous mean
     d = torch.linalg.vector_norm(net_centre - service, dim=-1)
     potential = 1.0 - torch.clamp(d / mission.radii.comm_m, max=1.0)
     mobility = ((uav_vel * uav_vel).sum(-1) * a).sum(-1)

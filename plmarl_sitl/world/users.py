@@ -1,7 +1,10 @@
 """Ground users: cluster layouts and mobility (Gauss-Markov, Random Waypoint, RPGM).
 
 All users move on the ground plane (north, east), at most `max_speed_mps`, and reflect
-off the area's boundary. Batched over environments: tensors are (B, U, 2).
+off the area's boundary. Batched over environments. Per-user 2-vectors are stored
+*planar*, (B, 2, U): every update is then elementwise on contiguous (B, U) planes, which
+is several times faster than the interleaved (B, U, 2) layout on the twin's hot path.
+`UserState.xy` gives the (B, U, 2) view the rest of the toolkit uses.
 """
 
 from __future__ import annotations
@@ -21,16 +24,21 @@ _GROUP_RADIUS_STD = 2.0  # RPGM reference points roam within this many cluster s
 
 @dataclass(frozen=True)
 class UserState:
-    pos: torch.Tensor  # (B, U, 2) metres
-    vel: torch.Tensor  # (B, U, 2) m/s
-    home: torch.Tensor  # (B, U, 2) centre of the user's cluster
+    pos: torch.Tensor  # (B, 2, U) metres, planar
+    vel: torch.Tensor  # (B, 2, U) m/s
+    home: torch.Tensor  # (B, 2, U) centre of the user's cluster
     kind: torch.Tensor  # (B,) index into MOBILITY_KINDS
-    waypoint: torch.Tensor  # (B, U, 2) RWP target
+    waypoint: torch.Tensor  # (B, 2, U) RWP target
     pause: torch.Tensor  # (B, U) RWP seconds left to wait
     speed: torch.Tensor  # (B, U) RWP leg speed
-    group_ref: torch.Tensor  # (B, U, 2) RPGM reference point of the user's group
-    group_wp: torch.Tensor  # (B, U, 2) RPGM target of that reference point
-    offset: torch.Tensor  # (B, U, 2) RPGM user offset from the reference
+    group_ref: torch.Tensor  # (B, 2, U) RPGM reference point of the user's group
+    group_wp: torch.Tensor  # (B, 2, U) RPGM target of that reference point
+    offset: torch.Tensor  # (B, 2, U) RPGM user offset from the reference
+
+    @property
+    def xy(self) -> torch.Tensor:
+        """(B, U, 2) positions (a view of the planar storage)."""
+        return self.pos.transpose(-1, -2)
 
 
 def cluster_centres(mission: Mission, batch: int, gen: torch.Generator) -> torch.Tensor:
@@ -87,6 +95,11 @@ def _uniform(gen: torch.Generator, shape: tuple[int, ...], lo: float, hi: float,
     return lo + (hi - lo) * torch.rand(shape, generator=gen, dtype=like.dtype).to(like.device)
 
 
+def _in_disk_planar(gen: torch.Generator, centre: torch.Tensor, radius: float) -> torch.Tensor:
+    """Uniform points in disks around planar (B, 2, K) centres."""
+    return _in_disk(gen, centre.transpose(-1, -2), radius).transpose(-1, -2)
+
+
 def _in_disk(gen: torch.Generator, centre: torch.Tensor, radius: float) -> torch.Tensor:
     shape = centre.shape[:-1]
     r = radius * torch.sqrt(torch.rand(shape, generator=gen, dtype=centre.dtype))
@@ -117,14 +130,27 @@ def init_users(
     vel = _clip(sigma_v * torch.randn(home.shape, generator=gen, dtype=home.dtype), u.max_speed_mps)
 
     def cast(x: torch.Tensor) -> torch.Tensor:
+        if x.is_floating_point() and x.dim() == 3:  # (B, U, 2) -> planar (B, 2, U)
+            x = x.transpose(-1, -2).contiguous()
         return x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
 
     return UserState(*(cast(x) for x in (pos, vel, home, kind, waypoint, pause, speed, group_ref, group_wp, offset)))
 
 
 def _clip(v: torch.Tensor, vmax: float) -> torch.Tensor:
-    n = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
-    return v * torch.clamp(vmax / torch.clamp(n, min=1e-12), max=1.0)
+    """Clip interleaved (..., 2) vectors to norm <= vmax (used at initialisation)."""
+    n2 = (v * v).sum(-1, keepdim=True)
+    return v * torch.clamp(vmax * torch.rsqrt(torch.clamp(n2, min=1e-24)), max=1.0)
+
+
+def _clip_planar(v: torch.Tensor, vmax: float) -> torch.Tensor:
+    """Clip planar (B, 2, U) vectors to norm <= vmax."""
+    n2 = v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]
+    return v * torch.clamp(vmax * torch.rsqrt(torch.clamp(n2, min=1e-24)), max=1.0).unsqueeze(1)
+
+
+def _norm_planar(v: torch.Tensor) -> torch.Tensor:
+    return torch.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1])
 
 
 def _reflect_pos(pos: torch.Tensor, mission: Mission) -> torch.Tensor:
@@ -135,28 +161,35 @@ def _reflect_pos(pos: torch.Tensor, mission: Mission) -> torch.Tensor:
 
 
 def _reflect(pos: torch.Tensor, vel: torch.Tensor, mission: Mission) -> tuple[torch.Tensor, torch.Tensor]:
-    size = torch.tensor([mission.area.north_m, mission.area.east_m], dtype=pos.dtype, device=pos.device)
-    out = (pos < 0) | (pos > size)
-    return _reflect_pos(pos, mission), torch.where(out, -vel, vel)
+    """Mirror planar positions that left [0, L] back inside and flip that velocity
+    component: min(|p|, 2L - |p|). A user step (<= 0.5 m) is far smaller than the area,
+    so one mirror per edge suffices."""
+    out_p, out_v = torch.empty_like(pos), torch.empty_like(vel)
+    for k, size in enumerate((mission.area.north_m, mission.area.east_m)):
+        p = pos[:, k]
+        a = p.abs()
+        torch.minimum(a, 2.0 * size - a, out=out_p[:, k])
+        torch.where(out_p[:, k] != p, -vel[:, k], vel[:, k], out=out_v[:, k])
+    return out_p, out_v
 
 
 def _gauss_markov_vel(s: UserState, u: Users, dt: float, gen: torch.Generator) -> torch.Tensor:
     alpha = u.gm_alpha**dt
     sigma_v = 0.5 * u.max_speed_mps
     noise = torch.randn(s.vel.shape, generator=gen, dtype=s.vel.dtype).to(s.vel.device)
-    return alpha * s.vel + math.sqrt(max(0.0, 1 - alpha * alpha)) * sigma_v * noise
+    return torch.add(noise.mul_(math.sqrt(max(0.0, 1 - alpha * alpha)) * sigma_v), s.vel, alpha=alpha)
 
 
 def _rwp_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
     """Random waypoint inside the user's cluster disk: go, arrive, pause, pick again."""
     to_wp = s.waypoint - s.pos
-    dist = torch.linalg.vector_norm(to_wp, dim=-1)
+    dist = _norm_planar(to_wp)
     moving = s.pause <= 0
     arrive = moving & (s.speed * dt >= dist)
-    vel = torch.where(moving.unsqueeze(-1), to_wp / torch.clamp(dist, min=1e-9).unsqueeze(-1) * s.speed.unsqueeze(-1), 0 * to_wp)
-    vel = torch.where(arrive.unsqueeze(-1), to_wp / dt, vel)
-    new_wp = _in_disk(gen, s.home.double(), 2.5 * u.cluster_std_m).to(s.pos.dtype)
-    waypoint = torch.where(arrive.unsqueeze(-1), new_wp, s.waypoint)
+    vel = torch.where(moving.unsqueeze(1), to_wp / torch.clamp(dist, min=1e-9).unsqueeze(1) * s.speed.unsqueeze(1), 0 * to_wp)
+    vel = torch.where(arrive.unsqueeze(1), to_wp / dt, vel)
+    new_wp = _in_disk_planar(gen, s.home.double(), 2.5 * u.cluster_std_m).to(s.pos.dtype)
+    waypoint = torch.where(arrive.unsqueeze(1), new_wp, s.waypoint)
     new_pause = _uniform(gen, s.pause.shape, 0.0, _RWP_PAUSE_MAX_S, s.pause)
     new_speed = _uniform(gen, s.speed.shape, 0.1 * u.max_speed_mps, u.max_speed_mps, s.speed)
     pause = torch.where(arrive, new_pause, torch.clamp(s.pause - dt, min=0.0))
@@ -169,15 +202,15 @@ def _rpgm_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple
     waypoint walk around the cluster home; each user follows it at its own offset."""
     group_speed = 0.6 * u.max_speed_mps
     to_wp = s.group_wp - s.group_ref
-    dist = torch.linalg.vector_norm(to_wp, dim=-1, keepdim=True)
+    dist = _norm_planar(to_wp).unsqueeze(1)
     ref_vel = to_wp / torch.clamp(dist, min=1e-9) * torch.clamp(dist / dt, max=group_speed)
     group_ref = s.group_ref + ref_vel * dt
-    arrived = dist.squeeze(-1) <= group_speed * dt
+    arrived = dist.squeeze(1) <= group_speed * dt
     # All users of a cluster share the reference point: draw one new target per cluster.
-    new_wp = _in_disk(gen, s.home[:, :: u.cluster_size].double(), _GROUP_RADIUS_STD * u.cluster_std_m)
-    new_wp = new_wp.to(s.pos.dtype).repeat_interleave(u.cluster_size, dim=1)
-    group_wp = torch.where(arrived.unsqueeze(-1), new_wp, s.group_wp)
-    local = _clip((group_ref + s.offset - s.pos) / 5.0, 0.4 * u.max_speed_mps)
+    new_wp = _in_disk_planar(gen, s.home[..., :: u.cluster_size].double(), _GROUP_RADIUS_STD * u.cluster_std_m)
+    new_wp = new_wp.to(s.pos.dtype).repeat_interleave(u.cluster_size, dim=-1)
+    group_wp = torch.where(arrived.unsqueeze(1), new_wp, s.group_wp)
+    local = _clip_planar((group_ref + s.offset - s.pos) / 5.0, 0.4 * u.max_speed_mps)
     return ref_vel + local, group_ref, group_wp
 
 
@@ -191,7 +224,7 @@ def step_users(s: UserState, mission: Mission, dt: float, gen: torch.Generator) 
     def select(k: int, new: torch.Tensor, old: torch.Tensor) -> torch.Tensor:
         if len(present) == 1:
             return new
-        m = (s.kind == k).view(-1, *([1] * (new.dim() - 1)))
+        m = (s.kind == k).view(-1, *([1] * (new.dim() - 1)))  # per-environment choice
         return torch.where(m, new, old)
 
     if 0 in present:
@@ -204,6 +237,6 @@ def step_users(s: UserState, mission: Mission, dt: float, gen: torch.Generator) 
         v2, ref, gwp = _rpgm_step(s, u, dt, gen)
         vel = select(2, v2, vel)
         fields.update(group_ref=select(2, ref, s.group_ref), group_wp=select(2, gwp, s.group_wp))
-    vel = _clip(vel, u.max_speed_mps)
+    vel = _clip_planar(vel, u.max_speed_mps)
     pos, vel = _reflect(s.pos + vel * dt, vel, mission)
     return replace(s, pos=pos, vel=vel, **fields)

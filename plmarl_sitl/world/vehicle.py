@@ -95,6 +95,37 @@ def _effective_accel(
     return torch.where(coast, torch.zeros_like(acc), acc)
 
 
+def _advance(
+    pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor, t_left: torch.Tensor, lim: Limits
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Move (M, 3) states ballistically up to the first event or the end of the step."""
+    a = _effective_accel(pos, vel, acc, lim)
+    # Event 1: |v + a t| = V  ->  |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 = 0
+    va = (vel * a).sum(-1)
+    aa = (a * a).sum(-1)
+    vv = (vel * vel).sum(-1)
+    t_speed = _first_positive_root(aa, 2.0 * va, vv - lim.max_speed**2)
+    t_speed = torch.where(aa > 1e-12, t_speed, torch.full_like(t_speed, float("inf")))
+    # Event 2: altitude reaches a band edge (altitude positive up).
+    h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
+    t_ceil = _first_positive_root(0.5 * c, w, h - lim.alt_max)
+    t_floor = _first_positive_root(0.5 * c, w, h - lim.alt_min)
+    t_wall = torch.minimum(t_ceil, t_floor)
+    t = torch.minimum(t_left, torch.minimum(t_speed, t_wall))
+    tt = t.unsqueeze(-1)
+    pos = pos + vel * tt + 0.5 * a * tt * tt
+    vel = vel + a * tt
+    hit_wall = (t_wall <= t) & torch.isfinite(t_wall)
+    if bool(hit_wall.any()):
+        bound = torch.where(t_ceil <= t_floor, torch.full_like(h, lim.alt_max), torch.full_like(h, lim.alt_min))
+        pos[..., 2] = torch.where(hit_wall, -bound, pos[..., 2])
+        vel[..., 2] = torch.where(hit_wall, torch.zeros_like(h), vel[..., 2])
+    hit_speed = (t_speed <= t) & torch.isfinite(t_speed)
+    if bool(hit_speed.any()):
+        vel = torch.where(hit_speed.unsqueeze(-1), clip_norm(vel, lim.max_speed), vel)
+    return pos, vel, t_left - t
+
+
 def step_point_mass(
     pos: torch.Tensor,
     vel: torch.Tensor,
@@ -106,48 +137,27 @@ def step_point_mass(
 
     The command is clipped to `max_accel` (Euclidean norm). Returns new (pos, vel).
     """
-    acc = clip_norm(torch.nan_to_num(accel_cmd), lim.max_accel)
+    shape = pos.shape
+    acc = clip_norm(torch.nan_to_num(accel_cmd), lim.max_accel).reshape(-1, 3)
     # Start inside the limits: a state handed in slightly outside (e.g. float32 round-off
     # or a fresh spawn) is projected back so the event solver's preconditions hold.
-    alt = torch.clamp(-pos[..., 2], lim.alt_min, lim.alt_max)
-    pos = torch.cat([pos[..., :2], (-alt).unsqueeze(-1)], dim=-1)
-    vel = clip_norm(vel, lim.max_speed)
-    t_left = torch.full(pos.shape[:-1], float(dt), dtype=pos.dtype, device=pos.device)
-    for _ in range(_MAX_EVENTS):
-        a = _effective_accel(pos, vel, acc, lim)
-        # Event 1: |v + a t| = V  ->  |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 = 0
-        va = (vel * a).sum(-1)
-        aa = (a * a).sum(-1)
-        vv = (vel * vel).sum(-1)
-        t_speed = _first_positive_root(aa, 2.0 * va, vv - lim.max_speed**2)
-        t_speed = torch.where(aa > 1e-12, t_speed, torch.full_like(t_speed, float("inf")))
-        # Event 2: altitude reaches a band edge (altitude positive up).
-        h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
-        t_ceil = _first_positive_root(0.5 * c, w, h - lim.alt_max)
-        t_floor = _first_positive_root(0.5 * c, w, h - lim.alt_min)
-        t_wall = torch.minimum(t_ceil, t_floor)
-        t = torch.minimum(t_left, torch.minimum(t_speed, t_wall))
-        tt = t.unsqueeze(-1)
-        pos = pos + vel * tt + 0.5 * a * tt * tt
-        vel = vel + a * tt
-        t_left = t_left - t
-        hit_wall = (t_wall <= t) & torch.isfinite(t_wall)
-        hit_speed = (t_speed <= t) & torch.isfinite(t_speed)
-        if bool(hit_wall.any()):
-            bound = torch.where(t_ceil <= t_floor, torch.full_like(h, lim.alt_max), torch.full_like(h, lim.alt_min))
-            z = torch.where(hit_wall, -bound, pos[..., 2])
-            vz = torch.where(hit_wall, torch.zeros_like(z), vel[..., 2])
-            pos = torch.cat([pos[..., :2], z.unsqueeze(-1)], dim=-1)
-            vel = torch.cat([vel[..., :2], vz.unsqueeze(-1)], dim=-1)
-        if bool(hit_speed.any()):
-            vel = torch.where(hit_speed.unsqueeze(-1), clip_norm(vel, lim.max_speed), vel)
-        if not bool((t_left > 0).any()):
+    p = pos.reshape(-1, 3).clone()
+    p[:, 2] = -torch.clamp(-p[:, 2], lim.alt_min, lim.alt_max)
+    v = clip_norm(vel.reshape(-1, 3), lim.max_speed)
+    t_left = torch.full(p.shape[:1], float(dt), dtype=p.dtype, device=p.device)
+    p, v, t_left = _advance(p, v, acc, t_left, lim)
+    # Only vehicles that met an event this step have time left: iterate on that subset.
+    idx = torch.nonzero(t_left > 0).flatten()
+    for _ in range(_MAX_EVENTS - 1):
+        if idx.numel() == 0:
             break
+        ps, vs, ts = _advance(p[idx], v[idx], acc[idx], t_left[idx], lim)
+        p[idx], v[idx] = ps, vs
+        idx = idx[ts > 0]
     # Round-off guard: the analytic solution already respects the limits.
-    vel = clip_norm(vel, lim.max_speed)
-    alt = torch.clamp(-pos[..., 2], lim.alt_min, lim.alt_max)
-    pos = torch.cat([pos[..., :2], (-alt).unsqueeze(-1)], dim=-1)
-    return pos, vel
+    v = clip_norm(v, lim.max_speed)
+    p[:, 2] = -torch.clamp(-p[:, 2], lim.alt_min, lim.alt_max)
+    return p.reshape(shape), v.reshape(shape)
 
 
 def velocity_tracking_accel(

@@ -1,0 +1,5 @@
+import sys
+
+from plmarl_sitl.cli import main
+
+sys.exit(main())
