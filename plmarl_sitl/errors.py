@@ -9,3 +9,37 @@ class PlmarlError(Exception):
 
 class UserError(PlmarlError):
     """Something the user gave is wrong (a flag, a file); the message says what to fix."""
+
+
+class CommandRejected(PlmarlError):
+    """A vehicle answered a MAVLink command with a COMMAND_ACK other than ACCEPTED.
+
+    `result` is the MAV_RESULT number and `result_name` its name, so callers can tell a
+    transient refusal (TEMPORARILY_REJECTED) from a permanent one (DENIED, UNSUPPORTED).
+    """
+
+    def __init__(self, sysid: int, command: int, result: int, result_name: str = "") -> None:
+        self.sysid = sysid
+        self.command = command
+        self.result = result
+        self.result_name = result_name or str(result)
+        super().__init__(f"vehicle {sysid}: command {command} rejected ({self.result_name})")
+
+
+class VehicleTimeout(PlmarlError):
+    """A vehicle did not answer in time (`what` says what we waited for)."""
+
+    def __init__(self, sysid: int, what: str, timeout_s: float) -> None:
+        self.sysid = sysid
+        self.what = what
+        self.timeout_s = timeout_s
+        super().__init__(f"vehicle {sysid}: no {what} within {timeout_s:g} s")
+
+
+class PolicyFileError(UserError):
+    """A policy file (predictor.pt, policy.pt, card.yaml) is missing, corrupt or mismatched."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        self.path = path
+        self.problem = problem
+        super().__init__(f"{path}: {problem}")
