@@ -307,6 +307,25 @@ def _timesync(v: Vehicle, msg: Message, addr: Addr) -> None:
         v.send(v.codec.mav.timesync_encode(int(v.host.now * 1e9), msg.ts1), addr)
 
 
+_FTP_NAK, _FTP_OPEN_RO = 129, 4
+_FTP_ERR_FAIL, _FTP_ERR_NOT_FOUND = 1, 10
+
+
+def _ftp(v: Vehicle, msg: Message, addr: Addr) -> None:
+    """MAVFTP: there are no files. A prompt NAK lets MAVProxy fall back to PARAM_REQUEST_LIST
+    at once instead of after its FTP timeout."""
+    if msg.target_system not in (0, v.sysid) or len(msg.payload) < 12:
+        return
+    pl = bytes(msg.payload)
+    seq, session, opcode = pl[0] | pl[1] << 8, pl[2], pl[3]
+    err = _FTP_ERR_NOT_FOUND if opcode == _FTP_OPEN_RO else _FTP_ERR_FAIL
+    reply = bytes([(seq + 1) & 0xFF, (seq + 1) >> 8 & 0xFF, session, _FTP_NAK, 1, opcode, 0, 0, 0, 0, 0, 0, err])
+    v.send(
+        v.codec.mav.file_transfer_protocol_encode(0, msg.get_srcSystem(), msg.get_srcComponent(), list(reply.ljust(251, b"\0"))),
+        addr,
+    )
+
+
 Handler = Callable[[Vehicle, Message, Addr], None]
 
 HANDLERS: dict[int, Handler] = {
@@ -321,4 +340,5 @@ HANDLERS: dict[int, Handler] = {
     d.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: _mission_clear_all,
     d.MAVLINK_MSG_ID_MISSION_COUNT: _mission_count,
     d.MAVLINK_MSG_ID_TIMESYNC: _timesync,
+    d.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: _ftp,
 }
