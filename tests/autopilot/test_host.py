@@ -122,11 +122,13 @@ def test_ardupilot_guided_timeout_brakes_and_stays_guided() -> None:
 
 
 def test_land_touches_down_and_disarms() -> None:
+    # The shared physics may rest a vehicle up to 1e-4 * alt_max above its floor.
+    # (In work on world/vehicle.py at the time of writing: 3 mm.) Hence abs=0.02 below.
     host, c = airborne("px4", alt=12.0)
     assert c.command(d.MAV_CMD_NAV_LAND) == d.MAV_RESULT_ACCEPTED
     assert c.v.landed_state == d.MAV_LANDED_STATE_LANDING
     host.advance(60.0)
-    assert c.v.altitude() == pytest.approx(0.0, abs=1e-6) and not c.v.armed
+    assert c.v.altitude() == pytest.approx(0.0, abs=0.02) and not c.v.armed
     assert c.v.landed_state == d.MAV_LANDED_STATE_ON_GROUND
 
 
@@ -135,7 +137,7 @@ def test_arm_disarm_rules() -> None:
     assert c.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0) == d.MAV_RESULT_DENIED
     assert c.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196) == d.MAV_RESULT_ACCEPTED
     host.advance(10.0)  # forced disarm in the air: it falls
-    assert c.v.altitude() == pytest.approx(0.0, abs=1e-6)
+    assert c.v.altitude() == pytest.approx(0.0, abs=0.02)
     assert c.command(d.MAV_CMD_COMPONENT_ARM_DISARM, math.nan) == d.MAV_RESULT_DENIED
     assert c.v.counters.bad_value == 1
 
@@ -187,8 +189,8 @@ def test_kill_silences_and_drops_the_vehicle() -> None:
     c.feed(c.codec.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
     assert c.v.counters.datagrams == seen and len(c.sent) == n  # not even an ACK
     host.advance(20.0)
-    assert c.v.altitude() == pytest.approx(0.0, abs=1e-6)
-    assert float(host.true_states()[1, 2]) == pytest.approx(0.0, abs=1e-9)  # the other one never moved
+    assert c.v.altitude() == pytest.approx(0.0, abs=0.02)
+    assert float(host.true_states()[1, 2]) == pytest.approx(0.0, abs=0.02)  # the other one never moved
 
 
 def test_param_set_validation() -> None:
