@@ -11,6 +11,7 @@ import importlib
 import json
 
 TARGETS = {
+    "autopilot": "vehicles one autopilot-emulator process sustains at 1x, and the speedup 20 vehicles sustain",
     "dt": "speed of the vectorised digital twin (agent-steps/s) and of one Oracle episode",
 }
 

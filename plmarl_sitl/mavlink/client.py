@@ -57,6 +57,7 @@ class VehicleLink:
         self.latest: dict[str, Message] = {}
         self.counts: Counter[str] = Counter()
         self.bad_datagrams = 0
+        self.sent = 0
         self._waiters: list[tuple[str, Predicate, asyncio.Future[Message]]] = []
         self._transport: asyncio.DatagramTransport | None = None
 
@@ -145,6 +146,7 @@ class VehicleLink:
         if self._transport is None:
             raise RuntimeError("link not open")
         self._transport.sendto(self.codec.encode(msg))
+        self.sent += 1
 
     def send_heartbeat(self) -> None:
         self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))
