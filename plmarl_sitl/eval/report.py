@@ -1,0 +1,215 @@
+"""Tables, plots and the RESULTS.md section for an evaluation."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _rows_by(res: dict) -> dict[tuple[str, int], dict]:
+    rows = {(r["method"], r["tup"]): dict(r) for r in res["results"]}
+    for e in res["extra"]["rows"]:
+        rows[(e["method"], e["tup"])].update(e)
+    return rows
+
+
+def coverage_table_md(res: dict) -> str:
+    rows = _rows_by(res)
+    methods = list(dict.fromkeys(r["method"] for r in res["results"]))
+    tups = sorted({r["tup"] for r in res["results"]})
+    has_oracle = "oracle" in methods
+    head = "| T_up (s) | " + " | ".join(methods) + " |"
+    lines = [head, "|" + "---|" * (len(methods) + 1)]
+    for t in tups:
+        cells = []
+        for m in methods:
+            r = rows[(m, t)]
+            c = f"{r['coverage_mean']:.3f} [{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]"
+            if has_oracle and m != "oracle":
+                c += f" ({100 * r['fraction_of_oracle_mean']:.0f}%)"
+            cells.append(c)
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def lambda_table_md(res: dict) -> str:
+    rows = _rows_by(res)
+    methods = list(dict.fromkeys(r["method"] for r in res["results"]))
+    tups = sorted({r["tup"] for r in res["results"]})
+    lines = ["| T_up (s) | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 1)]
+    for t in tups:
+        lines.append(f"| {t} | " + " | ".join(f"{rows[(m, t)]['lambda2_mean']:.2f}" for m in methods) + " |")
+    return "\n".join(lines)
+
+
+def full_table_md(res: dict) -> str:
+    rows = _rows_by(res)
+    methods = list(dict.fromkeys(r["method"] for r in res["results"]))
+    tups = sorted({r["tup"] for r in res["results"]})
+    lines = ["| T_up (s) | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 1)]
+    for t in tups:
+        lines.append(f"| {t} | " + " | ".join(f"{rows[(m, t)]['coverage_full_mean']:.3f}" for m in methods) + " |")
+    return "\n".join(lines)
+
+
+def pvalue_table_md(res: dict) -> str:
+    others = list(dict.fromkeys(p["versus"] for p in res["p_values"]))
+    tups = sorted({p["tup"] for p in res["p_values"]})
+    pv = {(p["versus"], p["tup"]): p["p"] for p in res["p_values"]}
+    lines = ["| T_up (s) | " + " | ".join(f"vs {o}" for o in others) + " |", "|" + "---|" * (len(others) + 1)]
+    for t in tups:
+        lines.append(f"| {t} | " + " | ".join(f"{pv[(o, t)]:.2g}" for o in others) + " |")
+    return "\n".join(lines)
+
+
+def plot_coverage_vs_tup(res: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = _rows_by(res)
+    methods = list(dict.fromkeys(r["method"] for r in res["results"]))
+    tups = sorted({r["tup"] for r in res["results"]})
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for m in methods:
+        y = np.array([rows[(m, t)]["coverage_mean"] for t in tups])
+        lo = np.array([rows[(m, t)]["coverage_ci95"][0] for t in tups])
+        hi = np.array([rows[(m, t)]["coverage_ci95"][1] for t in tups])
+        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m == "oracle" else "-")
+        ax.fill_between(tups, lo, hi, alpha=0.2)
+    ax.set_xlabel("signalling interval T_up (s)")
+    ax.set_ylabel(f"steady-state coverage (t > {res['extra']['from_s']} s)")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"Coverage vs T_up, deterministic, {res['extra']['episodes']} episodes")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_training_curves(curves: dict[str, list[dict]], oracle: float | None, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for m, rows in curves.items():
+        x = np.array([r["episodes"] for r in rows])
+        y = np.array([r["charts/coverage"] for r in rows])
+        k = 5
+        ys = np.convolve(y, np.ones(k) / k, mode="valid") if len(y) >= k else y
+        ax.plot(x[len(x) - len(ys):], ys, label=m)
+        ax.plot(x, y, alpha=0.2, color=ax.lines[-1].get_color())
+    if oracle is not None:
+        ax.axhline(oracle, ls="--", color="k", label="Oracle bound")
+    ax.set_xlabel("training episode")
+    ax.set_ylabel("coverage C (stochastic policy, episode mean)")
+    ax.set_ylim(0, 1)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Training convergence (Fig. 3a)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def load_curves(loaded: dict) -> dict[str, list[dict]]:
+    curves = {}
+    for m, lp in loaded.items():
+        f = Path(lp.directory) / "curve.jsonl"
+        if f.is_file():
+            curves[m] = [json.loads(x) for x in f.read_text().splitlines() if x.strip()]
+    return curves
+
+
+def results_markdown(res: dict, figs_rel: dict[str, str], command: str) -> str:
+    ex = res["extra"]
+    parts = [
+        f"Command: `{command}`",
+        "",
+        f"Deterministic policies, {ex['episodes']} paired episodes per cell (same twin seeds for every method), "
+        f"failure probability {ex['failure_prob']}. Coverage = mean C(t) for t > {ex['from_s']} s "
+        "(steady state), mean [95% CI]; in brackets the mean per-episode fraction of the Oracle's coverage on the same episodes.",
+        "",
+        coverage_table_md(res),
+        "",
+        "Whole-episode mean coverage (t = 1..200 s, includes the fly-out from the launch line):",
+        "",
+        full_table_md(res),
+        "",
+        "Mean algebraic connectivity lambda_2 (weighted comm graph, same window):",
+        "",
+        lambda_table_md(res),
+    ]
+    if res["p_values"]:
+        parts += ["", "Mann-Whitney U (two-sided) p-values, PL-MARL vs each method, per-episode coverage:", "", pvalue_table_md(res)]
+    for title, rel in figs_rel.items():
+        parts += ["", f"![{title}]({rel})"]
+    return "\n".join(parts) + "\n"
+
+
+def splice_section(md_path: Path, heading_prefix: str, body: str, marker: str = "eval") -> None:
+    """Replace the block between <!-- {marker}:begin --> and <!-- {marker}:end --> inside the
+    section whose heading starts with `heading_prefix` (appending the block if absent)."""
+    text = md_path.read_text() if md_path.is_file() else ""
+    begin, end = f"<!-- {marker}:begin -->", f"<!-- {marker}:end -->"
+    block = f"{begin}\n{body}{end}\n"
+    if begin in text and end in text:
+        a, b = text.index(begin), text.index(end) + len(end)
+        text = text[:a] + block.rstrip("\n") + text[b:]
+    else:
+        lines = text.splitlines(keepends=True)
+        idx = next((i for i, ln in enumerate(lines) if ln.startswith(heading_prefix)), None)
+        if idx is None:
+            text = text.rstrip("\n") + f"\n\n{heading_prefix}\n\n{block}"
+        else:
+            j = next((k for k in range(idx + 1, len(lines)) if lines[k].startswith("## ")), len(lines))
+            body_lines = [ln for ln in lines[idx + 1 : j] if ln.strip() != "(pending)"]
+            lines[idx + 1 : j] = body_lines + ["\n", block, "\n"]
+            text = "".join(lines)
+    md_path.write_text(text)
+
+
+def write_outputs(res: dict, mission, loaded: dict, out: Path, results_md: str | None, args) -> None:  # noqa: ANN001
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(res, indent=1))
+    plot_coverage_vs_tup(res, out / "coverage_vs_tup.png")
+    oracle = [r["coverage_mean"] for r in res["results"] if r["method"] == "oracle"]
+    curves = load_curves(loaded)
+    figs = {"Coverage vs T_up": "coverage_vs_tup.png"}
+    if curves:
+        plot_training_curves(curves, float(np.mean(oracle)) if oracle else None, out / "training_curves.png")
+        figs["Training curves"] = "training_curves.png"
+    command = "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[0].endswith("plmarl") else " ".join(shlex.quote(a) for a in sys.argv)
+    (out / "results.md").write_text(results_markdown(res, figs, command))
+    if results_md:
+        md = Path(results_md)
+        try:
+            rel = {k: str((out / v).resolve().relative_to(md.resolve().parent)) for k, v in figs.items()}
+        except ValueError:
+            rel = {k: str((out / v).resolve()) for k, v in figs.items()}
+        splice_section(md, "## Learning", results_markdown(res, rel, command))
+
+
+def print_tables(res: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = _rows_by(res)
+    t = Table(title=f"coverage (t > {res['extra']['from_s']} s), deterministic, {res['extra']['episodes']} episodes")
+    for c in ("method", "T_up", "coverage", "95% CI", "of Oracle", "full episode", "lambda2", "p vs PL-MARL"):
+        t.add_column(c)
+    pv = {(p["versus"], p["tup"]): p["p"] for p in res["p_values"]}
+    for (m, tup), r in rows.items():
+        frac = f"{100 * r['fraction_of_oracle_mean']:.0f}%" if "fraction_of_oracle_mean" in r else "-"
+        p = f"{pv[(m, tup)]:.2g}" if (m, tup) in pv else "-"
+        t.add_row(m, str(tup), f"{r['coverage_mean']:.3f}", f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]",
+                  frac, f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
+    Console().print(t)
