@@ -108,6 +108,7 @@ class AutopilotHost:
             for msgid, hz in self._rates.items():
                 self.scheduler.set_rate(v.index, msgid, hz, 0.0)
         self._transports: list[asyncio.DatagramTransport] = []
+        self._logged_drops: dict[int, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -165,9 +166,12 @@ class AutopilotHost:
         return [v.counters for v in self.vehicles]
 
     def log_counters(self) -> None:
+        """One warning line per vehicle whose dropped-input counters moved since the last call."""
         for v in self.vehicles:
-            if v.counters.dropped:
-                log.info("vehicle %d: %d datagrams, dropped %s", v.sysid, v.counters.datagrams, v.counters.summary())
+            dropped = v.counters.dropped
+            if dropped != self._logged_drops.get(v.index, 0):
+                self._logged_drops[v.index] = dropped
+                log.warning("vehicle %d: %d datagrams, dropped %s", v.sysid, v.counters.datagrams, v.counters.summary())
 
     def unix_time_s(self) -> float:
         return self._unix_at_boot + self.now

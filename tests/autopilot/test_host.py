@@ -204,3 +204,18 @@ def test_param_set_validation() -> None:
     assert host.guidance.max_speed[0, 0] == 8.0
     pv = [m for m in c.sent if m.get_type() == "PARAM_VALUE"]
     assert pv[-1].param_value == 8.0
+
+
+def test_counters_logged_once_per_change(caplog) -> None:
+    host = AutopilotHost(1)
+    c = Client(host, 0)
+    with caplog.at_level("WARNING", logger="plmarl.autopilot"):
+        handlers.on_datagram(c.v, b"\x00garbage", ADDR)
+        handlers.on_datagram(c.v, b"\x01garbage", ADDR)
+        host.log_counters()
+        host.log_counters()
+    lines = [r.getMessage() for r in caplog.records]
+    assert sum("first occurrence" in x for x in lines) == 1
+    assert sum("dropped garbage=2" in x for x in lines) == 1
+    texts = [m.text for m in c.sent if m.get_type() == "STATUSTEXT"]
+    assert texts == ["Dropped garbage input"]
