@@ -32,6 +32,8 @@ from plmarl_sitl.world.vehicle import Limits, step_point_mass
 
 log = logging.getLogger("plmarl.autopilot")
 
+MAX_SYSID = 250  # PX4's MAV_SYS_ID range; 255 is by convention a ground station
+
 
 class _VehicleProtocol(asyncio.DatagramProtocol):
     """One UDP port per vehicle, as PX4 SITL gives each instance 14540 + i."""
@@ -51,7 +53,7 @@ class _VehicleProtocol(asyncio.DatagramProtocol):
 
 
 class AutopilotHost:
-    """Hosts `count` vehicles; vehicle i has sysid i + 1 and listens on base_port + i.
+    """Hosts `count` vehicles; vehicle i has sysid i + 1 (or `sysids[i]`) and listens on base_port + i.
 
     `home_offsets_ned[i]` is where vehicle i's home (and local NED origin) sits in the
     mission frame, whose geodetic origin is `origin`. `streams` overrides the default
@@ -72,9 +74,16 @@ class AutopilotHost:
         gcs: tuple[str, int] | None = None,
         physics_hz: float = 50.0,
         streams: Mapping[str | int, float] | None = None,
+        sysids: Sequence[int] | None = None,
     ) -> None:
         if count < 1:
             raise ValueError("count must be >= 1")
+        sysids = list(sysids) if sysids is not None else list(range(1, count + 1))
+        if len(sysids) != count or not all(1 <= s <= MAX_SYSID for s in sysids):
+            raise ValueError(
+                f"need {count} system ids in 1..{MAX_SYSID} (MAVLink has 8-bit ids: more than {MAX_SYSID} "
+                "vehicles need repeated ids, each on its own port)"
+            )
         if physics_hz < 50.0:
             raise ValueError("physics_hz must be >= 50 (the contract is >= 50 Hz of sim time)")
         self.personality: Personality = personality(personality_name)
@@ -102,7 +111,7 @@ class AutopilotHost:
         for k, hz in (streams or {}).items():
             self._rates[telemetry.message_id(k)] = float(hz)
         self.vehicles = [
-            Vehicle(self, i, i + 1, self.personality, self.model, tuple(offsets[i]), signing_key) for i in range(count)
+            Vehicle(self, i, sysids[i], self.personality, self.model, tuple(offsets[i]), signing_key) for i in range(count)
         ]
         for v in self.vehicles:
             for msgid, hz in self._rates.items():

@@ -8,7 +8,8 @@ measurement window, (1) the vehicle clock (time_boot_ms seen by the client) adva
 >= 95 % of the requested speedup, (2) every vehicle delivers >= 95 % of its
 LOCAL_POSITION_NED messages and >= 90 % of its heartbeats, and (3) the host received
 >= 97 % of the setpoints sent (UDP drops mean overload). The search doubles the load until
-a trial fails, then bisects to ~10 %.
+a trial fails, then bisects to ~10 %. Past 250 vehicles system ids repeat (MAVLink ids
+are 8 bits; one host serves at most 250 distinct ids), each vehicle still on its own port.
 """
 
 from __future__ import annotations
@@ -119,6 +120,9 @@ async def _trial_async(count: int, speedup: float, warmup: float, window: float)
             count,
             base_port=random.randrange(20000, 60000 - count),
             streams={"HEARTBEAT": HB_HZ, "LOCAL_POSITION_NED": LPN_HZ, **{k: 0 for k in _OTHER_STREAMS}},
+            # Beyond 250 vehicles MAVLink's 8-bit system ids repeat; each vehicle still has its
+            # own port and link, so capacity can be measured past the id limit.
+            sysids=[i % 250 + 1 for i in range(count)],
         )
         try:
             await host.start()

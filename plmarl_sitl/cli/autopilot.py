@@ -74,8 +74,8 @@ def parse_key(text: str) -> bytes:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.count < 1:
-        raise UserError("--count must be >= 1")
+    if not 1 <= args.count <= 250:
+        raise UserError("--count must be in 1..250 (one MAVLink system id per vehicle)")
     if not args.speedup > 0:
         raise UserError("--speedup must be > 0")
     if not 1 <= args.base_port <= 65535 - args.count + 1:

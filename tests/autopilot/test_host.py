@@ -219,3 +219,10 @@ def test_counters_logged_once_per_change(caplog) -> None:
     assert sum("dropped garbage=2" in x for x in lines) == 1
     texts = [m.text for m in c.sent if m.get_type() == "STATUSTEXT"]
     assert texts == ["Dropped garbage input"]
+
+
+def test_sysid_limits() -> None:
+    with pytest.raises(ValueError, match="system ids"):
+        AutopilotHost(251)
+    host = AutopilotHost(3, sysids=[7, 7, 9])
+    assert [v.sysid for v in host.vehicles] == [7, 7, 9]
