@@ -43,6 +43,11 @@ class Users:
 
     def __post_init__(self) -> None:
         _require(self.count % self.cluster_size == 0, "count", "must be a multiple of cluster_size")
+        _require(
+            self.layout == "fixed" or not self.cluster_centers,
+            "cluster_centers",
+            "only used with layout 'fixed' (remove it or set layout: fixed)",
+        )
         if self.layout == "fixed":
             _require(
                 len(self.cluster_centers) == self.n_clusters,
@@ -158,7 +163,8 @@ class Mission:
                 f"failures[{i}].at_s",
                 f"must be <= timing.episode_s ({self.timing.episode_s})",
             )
-        for i, (n, e) in enumerate(self.users.cluster_centers):
+        centres = self.users.cluster_centers if self.users.layout == "fixed" else ()
+        for i, (n, e) in enumerate(centres):
             ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m
             _require(ok, f"users.cluster_centers[{i}]", "must lie inside the area")
 

@@ -54,17 +54,19 @@ class OracleController:
         cov = self._cover_matrix(users)
         b = users.shape[0]
         uncovered = torch.ones(b, users.shape[1], dtype=users.dtype)
-        allowed = torch.ones(b, self.cells.shape[0], dtype=torch.bool)
+        n_cells = self.cells.shape[0]
+        near = torch.zeros(b, n_cells, dtype=torch.bool)  # within link range of a placed UAV
+        apart = torch.ones(b, n_cells, dtype=torch.bool)  # far enough from every placed UAV
+        allowed = torch.ones(b, n_cells, dtype=torch.bool)
         chosen = []
-        for k in range(n_place):
+        for _ in range(n_place):
             gain = torch.einsum("bcu,bu->bc", cov, uncovered)
-            # Prefer covering users; break ties toward the area centre by a tiny penalty.
             gain = torch.where(allowed, gain, torch.full_like(gain, -1.0))
-            best = gain.argmax(-1)  # (b,)
+            best = gain.argmax(-1)  # (b,) ties go to the lowest cell index: deterministic
             chosen.append(best)
             uncovered = uncovered * (1.0 - cov[torch.arange(b), best])
-            near = self.link_ok[best] if k == 0 else (near | self.link_ok[best])
-            apart = self.apart_ok[best] if k == 0 else (apart & self.apart_ok[best])
+            near = near | self.link_ok[best]
+            apart = apart & self.apart_ok[best]
             allowed = near & apart
         idx = torch.stack(chosen, -1)
         covered = users.shape[1] - uncovered.sum(-1)

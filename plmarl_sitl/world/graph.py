@@ -40,6 +40,7 @@ def algebraic_connectivity(adj: torch.Tensor, alive: torch.Tensor | None = None)
     n = adj.shape[-1]
     if alive is None:
         alive = torch.ones(adj.shape[:-1], dtype=torch.bool, device=adj.device)
+    adj = adj * (alive.unsqueeze(-1) & alive.unsqueeze(-2)).to(adj.dtype)  # dead nodes lose their edges
     lap = torch.diag_embed(adj.sum(-1)) - adj
     big = 1e9
     lap = lap + torch.diag_embed(torch.where(alive, 0.0, big).to(lap.dtype))

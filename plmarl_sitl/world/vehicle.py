@@ -28,6 +28,7 @@ import torch
 from plmarl_sitl.config import VehicleModel
 
 _TIME_TOL = 1e-7  # s: roots closer to "now" than this are the event we are sitting on
+_COAST_TOL = 1e-6  # s: at V_max, a dip below the limit shorter than this counts as pushing
 _MAX_EVENTS = 5  # speed, wall, speed again after the wall, plus numerical slack
 
 
@@ -58,58 +59,100 @@ def clip_norm(x: torch.Tensor, max_norm: float) -> torch.Tensor:
     return x * scale
 
 
-def _first_positive_root(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """Smallest t > tol with half_c t^2 + b t + d = 0, else +inf (elementwise)."""
+def _first_upcrossing(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """Smallest t > tol where f(t) = half_c t^2 + b t + d crosses zero *upward*, else +inf.
+
+    Only up-crossings are limit events: a state that starts a hair outside a limit
+    through float round-off and is moving back in must not "hit" it again (that would
+    fire an event every few nanoseconds and stall the step).
+    """
     inf = torch.full_like(b, float("inf"))
-    # Linear case.
-    lin = torch.where(b.abs() > 1e-12, -d / torch.where(b.abs() > 1e-12, b, torch.ones_like(b)), inf)
-    lin = torch.where(lin > _TIME_TOL, lin, inf)
-    # Quadratic case.
+    quad = half_c.abs() > 1e-12
+    # Linear case: f' = b must be positive.
+    safe_b = torch.where(b.abs() > 1e-12, b, torch.ones_like(b))
+    lin = torch.where((b > 1e-12) & (-d / safe_b > _TIME_TOL), -d / safe_b, inf)
+    # Quadratic case: of the two roots, the up-crossing is where f' = 2 half_c t + b > 0.
     disc = b * b - 4.0 * half_c * d
     sq = torch.sqrt(torch.clamp(disc, min=0.0))
-    safe_c = torch.where(half_c.abs() > 1e-12, half_c, torch.ones_like(half_c))
+    safe_c = torch.where(quad, half_c, torch.ones_like(half_c))
     r1 = (-b - sq) / (2.0 * safe_c)
     r2 = (-b + sq) / (2.0 * safe_c)
-    r1 = torch.where(r1 > _TIME_TOL, r1, inf)
-    r2 = torch.where(r2 > _TIME_TOL, r2, inf)
-    quad = torch.where(disc >= 0, torch.minimum(r1, r2), inf)
-    return torch.where(half_c.abs() > 1e-12, quad, lin)
+    r1 = torch.where((r1 > _TIME_TOL) & (2.0 * half_c * r1 + b > 0), r1, inf)
+    r2 = torch.where((r2 > _TIME_TOL) & (2.0 * half_c * r2 + b > 0), r2, inf)
+    return torch.where(quad, torch.where(disc >= 0, torch.minimum(r1, r2), inf), lin)
+
+
+def _wall_tol(x: torch.Tensor, lim: Limits) -> float:
+    """How close to a band edge counts as "on" it: a few ulps of the altitude's dtype."""
+    return 16.0 * torch.finfo(x.dtype).eps * max(1.0, lim.alt_max)
+
+
+def _speed_snap(x: torch.Tensor) -> float:
+    """Relative distance below V_max that counts as "at" it: a few ulps of the dtype.
+    (Looser would start coasting before a real dip below the limit has ended.)"""
+    return 16.0 * torch.finfo(x.dtype).eps
 
 
 def _effective_accel(
     pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor, lim: Limits
 ) -> torch.Tensor:
+    """The command with what the limits forbid removed: no vertical push into a band edge
+    the vehicle rests on, and nothing while at V_max that would raise the speed."""
     alt = -pos[..., 2]
     v_up = -vel[..., 2]
-    a_up = -acc[..., 2]
-    tol = 1e-4 * max(1.0, lim.alt_max)
-    on_floor = (alt <= lim.alt_min + tol) & (v_up <= 1e-6)
-    on_ceiling = (alt >= lim.alt_max - tol) & (v_up >= -1e-6)
-    a_up = torch.where(on_floor, torch.clamp(a_up, min=0.0), a_up)
-    a_up = torch.where(on_ceiling, torch.clamp(a_up, max=0.0), a_up)
-    acc = torch.cat([acc[..., :2], (-a_up).unsqueeze(-1)], dim=-1)
-    speed = torch.linalg.vector_norm(vel, dim=-1)
-    at_limit = speed >= lim.max_speed * (1.0 - 1e-6)
-    pushing = (vel * acc).sum(-1) >= 0.0
-    coast = (at_limit & pushing).unsqueeze(-1)
-    return torch.where(coast, torch.zeros_like(acc), acc)
+    tol = _wall_tol(pos, lim)
+    on_floor = (alt <= lim.alt_min + tol) & (v_up <= 0)
+    on_ceiling = (alt >= lim.alt_max - tol) & (v_up >= 0)
+    acc = acc.clone()
+    # NED: pushing down (into the floor) is acc_z > 0, up (into the ceiling) is acc_z < 0.
+    acc[..., 2] = torch.where(on_floor, torch.clamp(acc[..., 2], max=0.0), acc[..., 2])
+    acc[..., 2] = torch.where(on_ceiling, torch.clamp(acc[..., 2], min=0.0), acc[..., 2])
+    # At V_max (see _snap_speed) the command keeps raising the speed unless it first
+    # dips below the limit for longer than _COAST_TOL: |v + a t| < V for 0 < t < -2 v.a / |a|^2.
+    at_limit = (vel * vel).sum(-1) >= (lim.max_speed * (1.0 - _speed_snap(vel))) ** 2
+    pushing = (vel * acc).sum(-1) >= -0.5 * _COAST_TOL * (acc * acc).sum(-1)
+    return acc * (~(at_limit & pushing)).unsqueeze(-1).to(acc.dtype)
+
+
+def _snap_walls(pos: torch.Tensor, vel: torch.Tensor, lim: Limits) -> tuple[torch.Tensor, torch.Tensor]:
+    """A vehicle on a band edge cannot keep moving through it: put it exactly on the edge
+    and zero that vertical speed (what the wall event would have done)."""
+    alt, v_up = -pos[..., 2], -vel[..., 2]
+    tol = _wall_tol(pos, lim)
+    low = (alt <= lim.alt_min + tol) & (v_up < 0)
+    high = (alt >= lim.alt_max - tol) & (v_up > 0)
+    stopped = low | high
+    if not bool(stopped.any()):
+        return pos, vel
+    pos, vel = pos.clone(), vel.clone()
+    pos[..., 2] = torch.where(low, -lim.alt_min, torch.where(high, -lim.alt_max, pos[..., 2]))
+    vel[..., 2] = torch.where(stopped, torch.zeros_like(v_up), vel[..., 2])
+    return pos, vel
+
+
+def _snap_speed(vel: torch.Tensor, lim: Limits) -> torch.Tensor:
+    """Put speeds within a few ulps of V_max exactly on it, so "at the limit" is exact."""
+    speed = torch.linalg.vector_norm(vel, dim=-1, keepdim=True)
+    near = speed >= lim.max_speed * (1.0 - _speed_snap(vel))
+    return torch.where(near, vel * (lim.max_speed / torch.clamp(speed, min=1e-12)), vel)
 
 
 def _advance(
     pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor, t_left: torch.Tensor, lim: Limits
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Move (M, 3) states ballistically up to the first event or the end of the step."""
+    pos, vel = _snap_walls(pos, vel, lim)
+    vel = _snap_speed(vel, lim)
     a = _effective_accel(pos, vel, acc, lim)
-    # Event 1: |v + a t| = V  ->  |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 = 0
-    va = (vel * a).sum(-1)
-    aa = (a * a).sum(-1)
-    vv = (vel * vel).sum(-1)
-    t_speed = _first_positive_root(aa, 2.0 * va, vv - lim.max_speed**2)
-    t_speed = torch.where(aa > 1e-12, t_speed, torch.full_like(t_speed, float("inf")))
-    # Event 2: altitude reaches a band edge (altitude positive up).
+    # Three up-crossings solved in one batched call (small-tensor ops cost per call):
+    # speed:   |v + a t|^2 - V^2 = |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 rises through 0
+    # ceiling: h + w t + c t^2 / 2 - alt_max rises through 0 (altitude positive up)
+    # floor:   alt_min - (h + w t + c t^2 / 2) rises through 0
     h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
-    t_ceil = _first_positive_root(0.5 * c, w, h - lim.alt_max)
-    t_floor = _first_positive_root(0.5 * c, w, h - lim.alt_min)
+    half_c = torch.stack([(a * a).sum(-1), 0.5 * c, -0.5 * c])
+    lin = torch.stack([2.0 * (vel * a).sum(-1), w, -w])
+    const = torch.stack([(vel * vel).sum(-1) - lim.max_speed**2, h - lim.alt_max, lim.alt_min - h])
+    t_speed, t_ceil, t_floor = _first_upcrossing(half_c, lin, const)
     t_wall = torch.minimum(t_ceil, t_floor)
     t = torch.minimum(t_left, torch.minimum(t_speed, t_wall))
     tt = t.unsqueeze(-1)
@@ -147,13 +190,22 @@ def step_point_mass(
     t_left = torch.full(p.shape[:1], float(dt), dtype=p.dtype, device=p.device)
     p, v, t_left = _advance(p, v, acc, t_left, lim)
     # Only vehicles that met an event this step have time left: iterate on that subset.
-    idx = torch.nonzero(t_left > 0).flatten()
+    idx = torch.nonzero(t_left > _TIME_TOL).flatten()
     for _ in range(_MAX_EVENTS - 1):
         if idx.numel() == 0:
             break
         ps, vs, ts = _advance(p[idx], v[idx], acc[idx], t_left[idx], lim)
-        p[idx], v[idx] = ps, vs
-        idx = idx[ts > 0]
+        p[idx], v[idx], t_left[idx] = ps, vs, ts
+        idx = idx[ts > _TIME_TOL]
+    if idx.numel():
+        # More events than expected in one step (a numerically pathological state): finish
+        # the step ballistically under the constrained command; the guard below clamps.
+        p[idx], v[idx] = _snap_walls(p[idx], v[idx], lim)
+        v[idx] = _snap_speed(v[idx], lim)
+        a = _effective_accel(p[idx], v[idx], acc[idx], lim)
+        tt = t_left[idx].unsqueeze(-1)
+        p[idx] = p[idx] + v[idx] * tt + 0.5 * a * tt * tt
+        v[idx] = v[idx] + a * tt
     # Round-off guard: the analytic solution already respects the limits.
     v = clip_norm(v, lim.max_speed)
     p[:, 2] = -torch.clamp(-p[:, 2], lim.alt_min, lim.alt_max)

@@ -1,0 +1,100 @@
+"""Point-mass dynamics: limits are never exceeded and integration is exact."""
+
+import math
+
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from plmarl_sitl.world.vehicle import Limits, goto_accel, step_point_mass
+
+LIM = Limits(max_speed=20.0, max_accel=5.0, alt_min=40.0, alt_max=150.0)
+f64 = torch.float64
+
+coord = st.floats(-30.0, 30.0)
+vec = st.tuples(coord, coord, coord)
+
+
+def _state(alt, v, a):
+    pos = torch.tensor([[10.0, -5.0, -alt]], dtype=f64)
+    vel = torch.tensor([v], dtype=f64)
+    acc = torch.tensor([a], dtype=f64)
+    return pos, vel, acc
+
+
+@settings(max_examples=300, deadline=None)
+@given(alt=st.floats(40.0, 150.0), v=vec, a=vec, dt=st.floats(0.01, 20.0))
+def test_limits_never_exceeded(alt, v, a, dt):
+    pos, vel, acc = _state(alt, v, a)
+    p, u = step_point_mass(pos, vel, acc, dt, LIM)
+    assert float(torch.linalg.vector_norm(u)) <= LIM.max_speed * (1 + 1e-9)
+    assert LIM.alt_min - 1e-9 <= float(-p[0, 2]) <= LIM.alt_max + 1e-9
+
+
+@settings(max_examples=200, deadline=None)
+@given(alt=st.floats(40.0, 150.0), v=vec, a=vec, dt=st.floats(0.1, 10.0), k=st.integers(2, 13))
+def test_substeps_equal_one_step(alt, v, a, dt, k):
+    """Exact integration: k steps of dt/k land where one step of dt does, limits included."""
+    pos, vel, acc = _state(alt, v, a)
+    p1, v1 = step_point_mass(pos, vel, acc, dt, LIM)
+    p2, v2 = pos, vel
+    for _ in range(k):
+        p2, v2 = step_point_mass(p2, v2, acc, dt / k, LIM)
+    assert torch.allclose(p1, p2, atol=1e-6), (p1, p2)
+    assert torch.allclose(v1, v2, atol=1e-6), (v1, v2)
+
+
+def test_matches_closed_form_without_limits():
+    pos = torch.tensor([[0.0, 0.0, -100.0]], dtype=f64)
+    vel = torch.tensor([[1.0, -2.0, 0.5]], dtype=f64)
+    acc = torch.tensor([[0.6, 0.8, 0.0]], dtype=f64)
+    p, v = step_point_mass(pos, vel, acc, 3.0, LIM)
+    assert torch.allclose(p, pos + vel * 3.0 + 0.5 * acc * 9.0)
+    assert torch.allclose(v, vel + acc * 3.0)
+
+
+def test_accel_command_clipped():
+    pos, vel, acc = _state(100.0, (0.0, 0.0, 0.0), (30.0, 40.0, 0.0))
+    _, v = step_point_mass(pos, vel, acc, 1.0, LIM)
+    assert math.isclose(float(torch.linalg.vector_norm(v)), 5.0, rel_tol=1e-12)
+
+
+def test_speed_saturates_then_coasts():
+    pos, vel, acc = _state(100.0, (0.0, 0.0, 0.0), (5.0, 0.0, 0.0))
+    p, v = step_point_mass(pos, vel, acc, 10.0, LIM)
+    # 4 s to reach 20 m/s (40 m), then 6 s at 20 m/s (120 m).
+    assert math.isclose(float(v[0, 0]), 20.0, rel_tol=1e-12)
+    assert math.isclose(float(p[0, 0]) - 10.0, 160.0, rel_tol=1e-9)
+
+
+def test_floor_stops_descent():
+    pos, vel, acc = _state(45.0, (0.0, 0.0, 2.0), (0.0, 0.0, 3.0))  # NED: +z is down
+    p, v = step_point_mass(pos, vel, acc, 10.0, LIM)
+    assert float(-p[0, 2]) == 40.0 and float(v[0, 2]) == 0.0
+
+
+def test_nan_command_is_ignored():
+    pos, vel, acc = _state(100.0, (1.0, 0.0, 0.0), (float("nan"), 0.0, float("inf")))
+    p, v = step_point_mass(pos, vel, acc, 1.0, LIM)
+    assert torch.isfinite(p).all() and torch.isfinite(v).all()
+
+
+def test_float32_batch_agrees_with_float64():
+    g = torch.Generator().manual_seed(3)
+    pos = torch.cat([torch.rand(256, 2, generator=g, dtype=f64) * 1000, -(40 + 110 * torch.rand(256, 1, generator=g, dtype=f64))], -1)
+    vel = (torch.rand(256, 3, generator=g, dtype=f64) * 2 - 1) * 11
+    acc = (torch.rand(256, 3, generator=g, dtype=f64) * 2 - 1) * 5
+    p64, v64 = step_point_mass(pos, vel, acc, 3.0, LIM)
+    p32, v32 = step_point_mass(pos.float(), vel.float(), acc.float(), 3.0, LIM)
+    assert torch.allclose(p32.double(), p64, atol=1e-2)
+    assert torch.allclose(v32.double(), v64, atol=1e-3)
+
+
+def test_goto_reaches_target_and_stops():
+    pos = torch.tensor([[0.0, 0.0, -100.0]], dtype=f64)
+    vel = torch.zeros(1, 3, dtype=f64)
+    target = torch.tensor([[300.0, -200.0, -80.0]], dtype=f64)
+    for _ in range(200):
+        pos, vel = step_point_mass(pos, vel, goto_accel(pos, vel, target, 20.0, 5.0), 0.5, LIM)
+    assert float(torch.linalg.vector_norm(pos - target)) < 1.0
+    assert float(torch.linalg.vector_norm(vel)) < 0.5
