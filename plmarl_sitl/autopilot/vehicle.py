@@ -97,6 +97,7 @@ class Vehicle:
     def armed(self, value: bool) -> None:
         if value != self._armed:
             self._armed = value
+            self._refresh_deadline()
             self._announce_state()
 
     @property
@@ -107,7 +108,25 @@ class Vehicle:
     def mode_spec(self, spec: ModeSpec) -> None:
         if spec != self._mode_spec:
             self._mode_spec = spec
+            self._refresh_deadline()
             self._announce_state()
+
+    def _refresh_deadline(self) -> None:
+        """Publish when this vehicle's setpoint stream times out (inf: no timeout armed).
+
+        The host compares all deadlines with the clock in one numpy call per substep, so
+        vehicles that are simply flying setpoints cost nothing per substep.
+        """
+        dl = math.inf
+        if (
+            self._mode_spec.behaviour == Behaviour.OFFBOARD
+            and self._armed
+            and self.setpoint is not None
+            and not self.setpoint_timed_out
+            and not self.killed
+        ):
+            dl = self.setpoint_time + self.params["offboard_timeout_s"]
+        self.host.sp_deadline[self.index] = dl
 
     def _announce_state(self) -> None:
         """Send a HEARTBEAT right away on a mode or arming change.
@@ -214,13 +233,15 @@ class Vehicle:
 
     def params_changed(self) -> None:
         self._apply_limits()
+        self._refresh_deadline()
         if self.taking_off:
             self.host.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
 
     def _guide(self, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
         self.host.guidance.set(self.index, kind, target)
         self._apply_limits()
-        self.host.watch(self)
+        if kind in (Kind.LAND, Kind.FALL) or self.taking_off:
+            self.host.watch(self)
 
     def _hold_here(self) -> None:
         """Brake at half the acceleration limit and hold where the vehicle stops."""
@@ -276,6 +297,7 @@ class Vehicle:
             self._apply_setpoint()
         elif self.armed:
             self._hold_here()
+        self._refresh_deadline()
         return ACCEPTED
 
     def arm(self, force: bool) -> int:
@@ -345,6 +367,7 @@ class Vehicle:
         self.setpoint_timed_out = False
         if self._offboard_in_control():
             self._apply_setpoint()
+        self._refresh_deadline()
 
     def kill(self) -> None:
         """Node failure: the vehicle goes silent and, if flying, falls."""
@@ -355,7 +378,10 @@ class Vehicle:
 
     # ------------------------------------------------------------------ per substep
     def update(self, now: float) -> bool:
-        """Advance the state machine after a physics substep. False: stop watching me."""
+        """Takeoff/landing/falling progress after a physics substep. False: stop watching me.
+
+        Setpoint loss is not checked here but through `_refresh_deadline`.
+        """
         g = self.host.guidance
         kind = int(g.kind[self.index])
         if kind == Kind.FALL or kind == Kind.LAND:
@@ -370,10 +396,9 @@ class Vehicle:
         if self.taking_off:
             if abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3:
                 self._takeoff_done()
+                return False
             return True
-        if self.behaviour == Behaviour.OFFBOARD and self.armed and self.setpoint is not None:
-            self._check_setpoint_loss(now)
-        return self.armed
+        return False
 
     def _touchdown(self) -> None:
         was_armed = self.armed
@@ -394,6 +419,11 @@ class Vehicle:
 
     def _setpoint_stale(self) -> bool:
         return self.host.now - self.setpoint_time > self.params["offboard_timeout_s"]
+
+    def check_setpoint_loss(self, now: float) -> None:
+        """Called by the host once this vehicle's setpoint deadline has passed."""
+        self._check_setpoint_loss(now)
+        self._refresh_deadline()
 
     def _check_setpoint_loss(self, now: float) -> None:
         if self.setpoint_timed_out or not self._setpoint_stale():
