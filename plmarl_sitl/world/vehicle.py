@@ -101,8 +101,9 @@ def _effective_accel(
     alt = -pos[..., 2]
     v_up = -vel[..., 2]
     tol = _wall_tol(pos, lim)
-    on_floor = (alt <= lim.alt_min + tol) & (v_up <= 0)
-    on_ceiling = (alt >= lim.alt_max - tol) & (v_up >= 0)
+    v_tol = _speed_snap(vel) * lim.max_speed  # a vertical speed this small is resting
+    on_floor = (alt <= lim.alt_min + tol) & (v_up <= v_tol)
+    on_ceiling = (alt >= lim.alt_max - tol) & (v_up >= -v_tol)
     acc = acc.clone()
     # NED: pushing down (into the floor) is acc_z > 0, up (into the ceiling) is acc_z < 0.
     acc[..., 2] = torch.where(on_floor, torch.clamp(acc[..., 2], max=0.0), acc[..., 2])
@@ -209,6 +210,7 @@ def step_point_mass(
     # Round-off guard: the analytic solution already respects the limits.
     v = clip_norm(v, lim.max_speed)
     p[:, 2] = -torch.clamp(-p[:, 2], lim.alt_min, lim.alt_max)
+    p, v = _snap_walls(p, v, lim)
     return p.reshape(shape), v.reshape(shape)
 
 

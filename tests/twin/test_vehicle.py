@@ -3,7 +3,7 @@
 import math
 
 import torch
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from plmarl_sitl.world.vehicle import Limits, goto_accel, step_point_mass
@@ -33,6 +33,13 @@ def test_limits_never_exceeded(alt, v, a, dt):
 
 @settings(max_examples=200, deadline=None)
 @given(alt=st.floats(40.0, 150.0), v=vec, a=vec, dt=st.floats(0.1, 10.0), k=st.integers(2, 13))
+# Found by hypothesis: at V_max with a nearly perpendicular command; on the floor still
+# moving down; on the floor with a denormal upward speed; a dip below V_max ending
+# inside a substep.
+@example(alt=40.0, v=(20.0, -1.175494351e-38, 0.0), a=(0.0, 1.0, 0.0), dt=1.0, k=2)
+@example(alt=40.0, v=(0.5, 0.0, 20.0), a=(1.0, 0.0, 19.0), dt=1.0, k=2)
+@example(alt=40.0, v=(0.0, 0.0, -3.8692477758379256e-280), a=(0.0, 0.0, 1.0), dt=1.0, k=2)
+@example(alt=40.0, v=(30.0, -30.0, -30.0), a=(-10.143614542508722, -30.0, 20.0), dt=0.1, k=6)
 def test_substeps_equal_one_step(alt, v, a, dt, k):
     """Exact integration: k steps of dt/k land where one step of dt does, limits included."""
     pos, vel, acc = _state(alt, v, a)

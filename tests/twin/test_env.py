@@ -1,0 +1,94 @@
+"""The vectorised environment: determinism, observations, failures, controllers."""
+
+import dataclasses
+
+import torch
+
+from plmarl_sitl.dt.env import CoverageEnv
+from plmarl_sitl.dt.heuristic import HeuristicController
+from plmarl_sitl.dt.oracle import OracleController
+from plmarl_sitl.dt.rollout import run_episodes
+from plmarl_sitl.mission import Failure, Launch, load_mission
+from plmarl_sitl.world.coverage import SENSING_FEATURES
+
+MISSION = load_mission("missions/paper_urban.yaml")
+
+
+def _rollout(env, steps, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    out = []
+    for _ in range(steps):
+        obs, r, info = env.step((torch.rand(env.num_envs, env.n, 3, generator=g) * 2 - 1) * 5)
+        out.append((obs.ego.clone(), r.clone(), info.coverage.clone()))
+    return out
+
+
+def test_same_seed_same_numbers_different_seed_differs():
+    a = _rollout(CoverageEnv(MISSION, 3, seed=7), 10)
+    b = _rollout(CoverageEnv(MISSION, 3, seed=7), 10)
+    c = _rollout(CoverageEnv(MISSION, 3, seed=8), 10)
+    assert all(torch.equal(x, y) for sa, sb in zip(a, b, strict=True) for x, y in zip(sa, sb, strict=True))
+    assert not torch.equal(a[-1][2], c[-1][2])
+
+
+def test_observation_shapes_and_timing():
+    env = CoverageEnv(MISSION, 2, seed=0)
+    obs = env.reset()
+    n = MISSION.n_uavs
+    assert obs.ego.shape == (2, n, 6) and obs.nbr_state.shape == (2, n, n, 6)
+    assert obs.sense.shape == (2, n, SENSING_FEATURES) and obs.nbr_mask.shape == (2, n, n)
+    assert not obs.nbr_mask[:, torch.arange(n), torch.arange(n)].any()
+    assert env.global_state().shape == (2, env.global_state_dim())
+    decisions = 0
+    while not env.done:
+        env.step(torch.zeros(2, n, 3))
+        decisions += 1
+    assert env.t == 200 and decisions == 67
+
+
+def test_paoi_sawtooth_in_the_twin():
+    env = CoverageEnv(MISSION.with_tup(5), 1, seed=0)
+    env.reset()
+    ages = []
+    for _ in range(20):
+        env.physics_step(torch.zeros(1, MISSION.n_uavs, 3))
+        ages.append(float(env.observe().nbr_aoi[0, 0, 1]))
+    assert ages == [1, 2, 3, 4, 1] * 4
+
+
+def test_neighbour_beyond_comm_range_receives_nothing():
+    far = dataclasses.replace(MISSION, launch=Launch(north_m=500, east_m=500, spacing_m=360.0), n_uavs=2)
+    obs = CoverageEnv(far, 1, seed=0).reset()
+    assert not obs.nbr_mask.any()
+    near = dataclasses.replace(far, launch=Launch(north_m=500, east_m=500, spacing_m=300.0))
+    assert CoverageEnv(near, 1, seed=0).reset().nbr_mask[0, 0, 1]
+
+
+def test_node_failure_removes_the_uav_and_switches_the_reward():
+    m = dataclasses.replace(MISSION.with_tup(5), failures=(Failure(at_s=10, uav=2),))
+    env = CoverageEnv(m, 1, seed=0)
+    env.reset()
+    flags = []
+    while env.t < 30:
+        obs, _, info = env.step(torch.zeros(1, m.n_uavs, 3))
+        flags.append((env.t, bool(info.failed[0]), obs.nbr_mask[0, 0, 2].item(), obs.fail_flag[0, 0].item()))
+    assert not env.alive[0, 2] and env.alive[0, [0, 1, 3]].all()
+    assert all(failed == (t >= 10) for t, failed, _, _ in flags)
+    # Silent from t = 10: missed at 10 and 15 (drop_after_missed = 2), dropped from t = 15.
+    assert all(mask == (t < 15) for t, _, mask, _ in flags)
+    assert all(f == (t >= 15) for t, _, _, f in flags)
+
+
+def test_failure_curriculum_fails_the_requested_share():
+    env = CoverageEnv(MISSION, 400, seed=0, failure_prob=0.2, failure_at_s=100.0)
+    env.reset()
+    planned = torch.isfinite(env.fail_at).any(-1).float().mean()
+    assert 0.13 < float(planned) < 0.27
+
+
+def test_oracle_is_high_and_heuristic_below_it():
+    oracle = run_episodes(MISSION, lambda env: OracleController(env), episodes=4, seed=3)
+    heur = run_episodes(MISSION, lambda env: HeuristicController(env.mission), episodes=4, seed=3)
+    assert oracle.coverage.mean() >= 0.9
+    assert heur.coverage.mean() < oracle.coverage.mean() - 0.1
+    assert oracle.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
