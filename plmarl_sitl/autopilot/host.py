@@ -15,6 +15,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import socket
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -34,6 +35,22 @@ from plmarl_sitl.world.vehicle import Limits, step_point_mass
 log = logging.getLogger("plmarl.autopilot")
 
 MAX_SYSID = 250  # PX4's MAV_SYS_ID range; 255 is by convention a ground station
+
+
+RECEIVE_BUFFER_BYTES = 1 << 20
+
+
+def _grow_receive_buffer(transport: asyncio.BaseTransport) -> None:
+    """Ask for a 1 MiB socket receive buffer (the kernel caps it at net.core.rmem_max).
+
+    The default (~200 KiB, a few hundred small datagrams) overflows when a sped-up run
+    gets 400 setpoints/s per vehicle and the loop is busy stepping physics for a few ms.
+    """
+    sock = transport.get_extra_info("socket")
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+    except OSError as exc:
+        log.debug("cannot enlarge UDP receive buffer: %s", exc)
 
 
 class _VehicleProtocol(asyncio.DatagramProtocol):
@@ -131,6 +148,7 @@ class AutopilotHost:
                     lambda v=v: _VehicleProtocol(v), local_addr=(self.bind_host, self.base_port + v.index)
                 )
                 self._transports.append(t)  # type: ignore[arg-type]
+                _grow_receive_buffer(t)
         except OSError:
             self.close()
             raise

@@ -17,6 +17,8 @@ from plmarl_sitl.autopilot.host import AutopilotHost
 
 log = logging.getLogger("plmarl.autopilot")
 
+CHUNK_SUBSTEPS = 4
+
 
 @dataclass
 class RunStats:
@@ -65,8 +67,16 @@ async def run_realtime(
                 stats.late_ticks += delay < -period
                 await asyncio.sleep(0)  # let datagrams in even when overloaded
             now = time.perf_counter()
-            host.advance(min(now - last, max_catchup_ticks * period) * speedup)
+            todo = min(now - last, max_catchup_ticks * period) * speedup
             last = now
+            # At high speedups one tick is many substeps: hand the loop back between chunks
+            # so incoming datagrams are read steadily instead of piling up in the socket.
+            chunk = CHUNK_SUBSTEPS * host.physics_dt
+            while todo > chunk:
+                host.advance(chunk)
+                todo -= chunk
+                await asyncio.sleep(0)
+            host.advance(todo)
             stats.ticks += 1
             next_tick = max(next_tick + period, now - period)
             if duration_s is not None and now - t0 >= duration_s:
