@@ -21,8 +21,8 @@ import torch
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.world.channel import CoverageRadius
 from plmarl_sitl.world.coverage import SENSING_FEATURES, covered_users, sensing_features
-from plmarl_sitl.world.graph import algebraic_connectivity, link_mask, pairwise_separation, weighted_adjacency
-from plmarl_sitl.world.reward import combine, reward_terms
+from plmarl_sitl.world.graph import algebraic_connectivity, link_mask, weighted_adjacency
+from plmarl_sitl.world.reward import RewardTerms, combine, reward_terms
 from plmarl_sitl.world.signalling import Holdings, is_signalling_instant, signalling_update
 from plmarl_sitl.world.users import UserState, init_users, step_users
 from plmarl_sitl.world.vehicle import Limits, step_point_mass
@@ -137,8 +137,8 @@ class CoverageEnv:
         rx, _ = link_mask(self.pos, self.alive, self.mission.channel, self.mission.radii.comm_m)
         self.holdings = signalling_update(self.holdings, float(self.t), rx, self.true_state(), sig.drop_after_missed)
 
-    def physics_step(self, accel: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """One dt of everything; returns (reward (B,), coverage (B,))."""
+    def physics_step(self, accel: torch.Tensor) -> tuple[torch.Tensor, RewardTerms]:
+        """One dt of everything; returns (reward (B,), its terms incl. coverage (B,))."""
         m = self.mission
         dt = m.timing.dt_s
         live = self.alive.unsqueeze(-1)
@@ -153,7 +153,7 @@ class CoverageEnv:
         coverage = self.covered.to(self.dtype).mean(-1)
         terms = reward_terms(coverage, self.pos, self.vel, self.alive, self.users.xy, m)
         self._signal()
-        return combine(terms, self.failed, m), coverage
+        return combine(terms, self.failed, m), terms
 
     @property
     def failed(self) -> torch.Tensor:
@@ -171,11 +171,10 @@ class CoverageEnv:
         rewards, covs, lams = [], [], []
         min_sep = torch.full((self.num_envs,), float("inf"), dtype=self.dtype, device=self.device)
         for _ in range(k):
-            r, c = self.physics_step(accel)
+            r, terms = self.physics_step(accel)
             rewards.append(r)
-            covs.append(c)
-            sep = pairwise_separation(self.pos, self.alive)
-            min_sep = torch.minimum(min_sep, sep.flatten(-2).min(-1).values)
+            covs.append(terms.coverage)
+            min_sep = torch.minimum(min_sep, terms.min_separation)
             if self.track_lambda2:
                 lams.append(self.lambda2())
         info = StepInfo(
@@ -231,7 +230,8 @@ class CoverageEnv:
         return 7 * self.n + 3 * self.mission.users.n_clusters + 3
 
     def replace_mission(self, **changes: object) -> None:
-        """For sweeps: change mission fields (e.g. signalling) before the next reset."""
+        """For sweeps and curricula: change mission fields (e.g. signalling) for the next
+        reset. Fields fixed at construction (n_uavs, vehicle, channel) must not change."""
         self.mission = dataclasses.replace(self.mission, **changes)
 
 

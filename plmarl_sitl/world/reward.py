@@ -27,6 +27,7 @@ class RewardTerms:
     potential: torch.Tensor
     mobility: torch.Tensor
     safety: torch.Tensor
+    min_separation: torch.Tensor  # smallest live-pair distance (inf with < 2 live UAVs)
 
 
 def reward_terms(
@@ -40,14 +41,14 @@ def reward_terms(
     d = torch.linalg.vector_norm(net_centre - service, dim=-1)
     potential = 1.0 - torch.clamp(d / mission.radii.comm_m, max=1.0)
     mobility = ((uav_vel * uav_vel).sum(-1) * a).sum(-1)
+    sep = pairwise_separation(uav_pos, alive)
     safe = mission.radii.safe_m
     if safe > 0:
-        sep = pairwise_separation(uav_pos, alive)
         viol = torch.clamp(1.0 - sep / safe, min=0.0) ** 2
         safety = torch.triu(viol, diagonal=1).sum((-1, -2))
     else:
         safety = torch.zeros_like(coverage)
-    return RewardTerms(coverage, potential, mobility, safety)
+    return RewardTerms(coverage, potential, mobility, safety, sep.flatten(-2).min(-1).values)
 
 
 def combine(terms: RewardTerms, failed: torch.Tensor, mission: Mission) -> torch.Tensor:
