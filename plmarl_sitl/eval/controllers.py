@@ -12,7 +12,6 @@ from torch import nn
 
 from plmarl_sitl.dt.env import Observation
 from plmarl_sitl.nn.belief import Beliefs
-from plmarl_sitl.nn.features import twin_outranks
 
 
 class LearnedController:
@@ -26,5 +25,4 @@ class LearnedController:
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
         belief, _ = self.beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-        n = obs.ego.shape[-2]
-        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, twin_outranks(n))
+        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)

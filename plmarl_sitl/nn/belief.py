@@ -54,16 +54,14 @@ class BeliefTracker(nn.Module):
         held_state (..., M, 6): last state received from each neighbour (any value if never);
         held_t_rx (..., M): when it was received (NEVER if never); buf (..., M, L, 6) and
         seen_t_rx (..., M): the tracker's state from the previous call (or `init_state`).
-        Returns (belief (..., M, 6), aoi (..., M), buf, seen_t_rx).
+        Returns (belief (..., M, 6), aoi (..., M) (capped at MAX_AOI), buf, seen_t_rx).
         """
         fresh = (held_t_rx > seen_t_rx) & (held_t_rx <= t)
-        first = fresh & (seen_t_rx <= self.never * 0.5)
-        aoi = torch.clamp(t - held_t_rx, min=1.0)
-        lead = buf.shape[:-2]
-        flat = buf.reshape(-1, self.buffer_len, 6)
-        pred = self.predictor(flat, torch.clamp(aoi, max=self.max_aoi).reshape(-1)).reshape(lead + (6,))
+        aoi = torch.clamp(t - held_t_rx, 1.0, self.max_aoi)  # Eq. (1); capped for never-heard slots
+        pred = self.predictor(buf, aoi)
         belief = torch.where(fresh.unsqueeze(-1), held_state, pred)
         new_buf = torch.cat([buf[..., 1:, :], belief.unsqueeze(-2)], -2)
+        first = fresh & (seen_t_rx <= self.never * 0.5)
         if bool(first.any()):  # rare: skip the work on the per-second fast path
             # Back-fill a first-heard neighbour with its constant-velocity past.
             k = torch.arange(self.buffer_len - 1, -1, -1, dtype=buf.dtype, device=buf.device) * self.dt

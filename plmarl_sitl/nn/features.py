@@ -12,10 +12,6 @@ y east, z down; m/s), see docs/POLICY_IO.md:
 * mask (..., M) bool: neighbour j is in N_i (heard recently enough and alive)
 * sense (..., 11): `plmarl_sitl.world.coverage.sensing_features` of the agent
 * fail_flag (...) bool: the agent's local failure state f
-* outranks (..., M) bool: neighbour j has priority over the agent (a lower UAV index).
-  A fixed, swarm-size-free tie-breaker: with shared weights and near-identical states,
-  agents otherwise take identical actions and stack on one cluster. (The heuristic
-  controller breaks ties the same way.) In the twin: outranks[i, j] = j < i.
 
 Normalisation (constants in `FeatureScales`, stored in the exported policy):
 ego position -> [-1, 1] over the area and altitude band, velocity / V_max; neighbour
@@ -33,7 +29,7 @@ from plmarl_sitl.world.coverage import SENSING_FEATURES
 
 STATE_DIM = 6
 EGO_FEATURES = 6 + SENSING_FEATURES + 1  # normalised state, sensing, failure flag
-NBR_FEATURES = 7  # normalised belief state + priority (Encoder input)
+NBR_FEATURES = 6  # normalised belief state (Encoder input)
 REL_FEATURES = 3  # relative displacement / R_comm (PE input)
 
 
@@ -69,31 +65,23 @@ def state_norm(area_n: float, area_e: float, alt_max: float, v_max: float) -> to
     return torch.stack([scale, offset])
 
 
-def twin_outranks(n: int) -> torch.Tensor:
-    """(N, N) bool [i, j] = j < i: the `outranks` argument for the twin's agent layout."""
-    return torch.ones(n, n, dtype=torch.bool).tril(-1)
-
-
 def build_policy_input(
     ego: torch.Tensor,
     beliefs: torch.Tensor,
     mask: torch.Tensor,
     sense: torch.Tensor,
     fail_flag: torch.Tensor,
-    outranks: torch.Tensor,
     norm: torch.Tensor,
     r_comm: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 7), rel_x (..., M, 3), mask (..., M) bool).
+    """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool).
 
-    `norm` is `state_norm(...)` (or `FeatureScales.norm()`). Masked neighbours get zero
-    features (their beliefs may be anything, e.g. a failed neighbour's stale state), so
-    nothing downstream depends on them.
+    `norm` is `state_norm(...)` (or `FeatureScales.norm()`). Neighbour slots outside the
+    mask are ignored by the attention (their weight is exactly 0), so they may hold any
+    FINITE values (a failed neighbour's stale state, zeros for a never-heard slot).
     """
-    scale, offset = norm[0].to(ego.dtype), norm[1].to(ego.dtype)
-    ego_x = torch.cat([ego * scale + offset, sense.to(ego.dtype), fail_flag.to(ego.dtype).unsqueeze(-1)], -1)
-    m = mask.unsqueeze(-1).to(ego.dtype)
-    prio = outranks.to(ego.dtype).unsqueeze(-1) * 2.0 - 1.0 + torch.zeros_like(beliefs[..., 0:1])  # broadcast
-    nbr_x = torch.cat([beliefs * scale + offset, prio], -1) * m
-    rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) * (m / r_comm)
+    scale, offset = norm[0], norm[1]
+    ego_x = torch.cat([ego * scale + offset, sense, fail_flag.unsqueeze(-1).to(ego.dtype)], -1)
+    nbr_x = beliefs * scale + offset
+    rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) * (1.0 / r_comm)
     return ego_x, nbr_x, rel_x, mask

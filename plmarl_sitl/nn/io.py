@@ -50,6 +50,17 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
         return torch.jit.script(module.eval())
 
 
+TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
+POLICY_ATTRS = ["area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm"]
+
+
+def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
+    """Script and freeze (weights and attributes become constants: fewer interpreter ops
+    per call, which is most of the cost at these sizes), keeping the public API `keep`."""
+    with quiet_torchscript():
+        return torch.jit.freeze(torch.jit.script(module.eval()), preserved_attrs=keep)
+
+
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
@@ -59,8 +70,8 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with quiet_torchscript():
-        torch.jit.save(script(tracker), str(out / "predictor.pt"))
-        torch.jit.save(script(policy), str(out / "policy.pt"))
+        torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
+        torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
     card = dict(card)
     card["card_version"] = CARD_VERSION
     card["io"] = {
@@ -154,8 +165,7 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
             buf, seen = tracker.init_state(held)
             belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
             policy(
-                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False),
-                torch.tensor([True, False]),
+                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)
             )
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc

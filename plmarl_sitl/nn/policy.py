@@ -30,28 +30,32 @@ def _ortho(layer: nn.Linear, gain: float = 2**0.5) -> nn.Linear:
 
 
 class AttentionFusion(nn.Module):
+    """Single-head GAT over the neighbour beliefs. Encoder and PE are linear maps, so
+    h_hat_ij = Encoder(s_hat_ij) + PE(dp_ij) costs two small matmuls per agent; the
+    attention vector a = [a1; a2] is applied as two dot products (same maths as
+    a^T [W h_i || W h_hat_ij], without materialising the concatenation)."""
+
     def __init__(self, ego_dim: int = EGO_FEATURES, d: int = 32) -> None:
         super().__init__()
         self.d = d
         self.ego_enc = _ortho(nn.Linear(ego_dim, d))
-        self.encoder = nn.Sequential(_ortho(nn.Linear(NBR_FEATURES, d)), nn.Tanh(), _ortho(nn.Linear(d, d)))
-        self.pe = _ortho(nn.Linear(REL_FEATURES, d))
+        self.encoder = _ortho(nn.Linear(NBR_FEATURES, d))
+        self.pe = _ortho(nn.Linear(REL_FEATURES, d), 1.0)
         self.W = _ortho(nn.Linear(d, d, bias=False), 1.0)
-        self.a = _ortho(nn.Linear(2 * d, 1, bias=False), 1.0)
+        self.a1 = nn.Parameter(torch.randn(d) / d**0.5)
+        self.a2 = nn.Parameter(torch.randn(d) / d**0.5)
 
     def forward(
         self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """-> (h_i (..., d), m_i (..., d), alpha (..., M))."""
         h = torch.tanh(self.ego_enc(ego_x))
-        hh = self.encoder(nbr_x) + self.pe(rel_x)
-        wh = self.W(h)
-        whh = self.W(hh)
-        pair = torch.cat([wh.unsqueeze(-2).expand(whh.shape), whh], -1)
-        e = F.leaky_relu(self.a(pair).squeeze(-1), 0.2)
-        e = torch.where(mask, e, torch.full_like(e, -1.0e9))
+        whh = self.W(self.encoder(nbr_x) + self.pe(rel_x))  # (..., M, d)
+        # (W h_i) . a1 = h_i . (W^T a1): a constant vector once the file is frozen.
+        e = F.leaky_relu(whh @ self.a2 + (h @ (self.W.weight.t() @ self.a1)).unsqueeze(-1), 0.2)
+        e = e.masked_fill(~mask, -1.0e9)
         alpha = torch.softmax(e, -1) * mask.to(e.dtype)  # all-masked rows: uniform * 0 = 0
-        m = F.elu((alpha.unsqueeze(-1) * whh).sum(-2))
+        m = F.elu((alpha.unsqueeze(-2) @ whh).squeeze(-2))
         return h, m, alpha
 
 
@@ -69,6 +73,9 @@ class Actor(nn.Module):
         """Mean of the normalised action u (..., 3), in (-1, 1)."""
         h, m, _ = self.fusion(ego_x, nbr_x, rel_x, mask)
         return torch.tanh(self.mu(self.trunk(torch.cat([h, m, ego_x], -1))))
+
+    def act(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        return self.forward(ego_x, nbr_x, rel_x, mask)
 
     def dist(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.distributions.Normal:
         mean = self.forward(ego_x, nbr_x, rel_x, mask)
@@ -96,7 +103,7 @@ class DeployedPolicy(nn.Module):
     """What `policy.pt` is: raw physical inputs -> deterministic acceleration (m/s^2, NED).
 
     forward(ego (..., 6), beliefs (..., M, 6), mask (..., M) bool, sense (..., S),
-    fail_flag (...) bool, outranks (..., M) bool) -> accel (..., 3). Normalisation constants are attributes, so
+    fail_flag (...) bool) -> accel (..., 3). Normalisation constants are attributes, so
     the file carries them (see docs/POLICY_IO.md).
     """
 
@@ -114,7 +121,6 @@ class DeployedPolicy(nn.Module):
         mask: torch.Tensor,
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
-        outranks: torch.Tensor,
     ) -> torch.Tensor:
-        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, outranks, self.norm, self.r_comm)
-        return action_to_accel(self.actor(ego_x, nbr_x, rel_x, m), self.a_max)
+        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, self.norm, self.r_comm)
+        return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)

@@ -35,7 +35,7 @@ from torch import nn
 from plmarl_sitl.dt.env import CoverageEnv
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.nn.belief import Beliefs, BeliefTracker
-from plmarl_sitl.nn.features import EGO_FEATURES, NBR_FEATURES, FeatureScales, build_policy_input, twin_outranks
+from plmarl_sitl.nn.features import EGO_FEATURES, NBR_FEATURES, FeatureScales, build_policy_input
 from plmarl_sitl.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.nn.predictor import make_predictor
 from plmarl_sitl.train.trajectories import mixed_mobility
@@ -73,8 +73,12 @@ class Args:
     # Exploring starts: this share of rollouts starts the swarm at random positions instead
     # of the launch line (the twin has no start-position argument yet; see scatter_start).
     random_start_frac: float = 0.0
+    # Oracle-imitation warm start (plmarl_sitl.train.imitation), 0 rounds = MAPPO from scratch.
+    imitation_rounds: int = 4
+    imitation_episodes_per_round: int = 32
+    critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
-    log_std_init: float = -0.5
+    log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start
     out: str = "runs/pl-marl"
     threads: int = 1
     checkpoint_every: int = 10  # iterations
@@ -162,7 +166,6 @@ def train(args: Args, progress=None) -> dict:
     mission = mixed_mobility(base) if args.mixed_mobility else base
     scales = FeatureScales.from_mission(mission)
     norm = scales.norm()
-    outranks = twin_outranks(mission.n_uavs)
     env = CoverageEnv(mission, args.num_envs, args.seed, failure_at_s=args.failure_at_s)
     B, N = args.num_envs, env.n
     T = math.ceil(env.horizon / mission.timing.decision_every_s)  # decisions per episode
@@ -172,6 +175,14 @@ def train(args: Args, progress=None) -> dict:
     actor = Actor(args.embed_dim, log_std_init=args.log_std_init)
     critic = Critic(G)
     vnorm = ValueNorm()
+    warm: dict = {}
+    if args.imitation_rounds > 0:
+        from plmarl_sitl.train.imitation import ImitationArgs, imitate_oracle
+
+        warm = imitate_oracle(
+            actor, tracker, mission,
+            ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed),
+        )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
     opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)
     iterations = math.ceil(args.episodes / B)
@@ -220,7 +231,7 @@ def train(args: Args, progress=None) -> dict:
             for step in range(T):
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                 ego_x, nbr_x, rel_x, mask = build_policy_input(
-                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, outranks, norm, scales.r_comm
+                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, scales.r_comm
                 )
                 gs = env.global_state()
                 dist = actor.dist(ego_x, nbr_x, rel_x, mask)
@@ -279,10 +290,12 @@ def train(args: Args, progress=None) -> dict:
                 v_loss = torch.max((v - f_ret[rows]) ** 2, (v_clip - f_ret[rows]) ** 2).mean()
                 opt_a.zero_grad()
                 opt_c.zero_grad()
-                (pg - ent_coef * ent + args.vf_coef * v_loss).backward()
+                actor_on = it >= args.critic_warmup_iters
+                ((pg - ent_coef * ent) * float(actor_on) + args.vf_coef * v_loss).backward()
                 nn.utils.clip_grad_norm_(actor.parameters(), args.max_grad_norm)
                 nn.utils.clip_grad_norm_(critic.parameters(), args.max_grad_norm)
-                opt_a.step()
+                if actor_on:
+                    opt_a.step()
                 opt_c.step()
                 with torch.no_grad():
                     log_ratio = logp - f_logp[mb]
@@ -326,4 +339,4 @@ def train(args: Args, progress=None) -> dict:
             )
     curve_f.close()
     return {"actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
-            "episodes": episodes_done, "last": summary, "curve": str(curve_path)}
+            "episodes": episodes_done, "last": summary, "curve": str(curve_path), "imitation": warm}

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import platform
 import shutil
 import subprocess
 import time
@@ -17,6 +16,7 @@ from pathlib import Path
 
 import torch
 
+from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.nn.belief import BeliefTracker
 from plmarl_sitl.nn.features import FeatureScales
@@ -24,7 +24,13 @@ from plmarl_sitl.nn.io import export_policy
 from plmarl_sitl.nn.policy import DeployedPolicy
 from plmarl_sitl.nn.predictor import make_predictor
 from plmarl_sitl.train.mappo import METHOD_PREDICTOR, Args, train
-from plmarl_sitl.train.predictor import PredictorArgs, pair_rows, position_errors, train_predictor
+from plmarl_sitl.train.predictor import (
+    PredictorArgs,
+    dead_reckoning_tracker,
+    pair_rows,
+    position_errors,
+    train_predictor,
+)
 
 
 def git_commit() -> str:
@@ -46,13 +52,18 @@ def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, l
     gen = torch.Generator().manual_seed(seed)
     xs, os_ = zip(*(pair_rows(v, gen) for v in train_set.values()), strict=True)
     tracker = BeliefTracker(make_predictor(kind, mission.signalling.buffer_len, mission.timing.dt_s, vm.max_speed_mps, vm.max_accel_mps2))
-    pargs = PredictorArgs(iters=iters or (800 if kind == "mlp" else 300), rows=512 if kind == "mlp" else 256, seed=seed)
+    pargs = PredictorArgs(iters=iters or (1500 if kind == "mlp" else 300), rows=512 if kind == "mlp" else 256, seed=seed)
     curve = train_predictor(tracker, torch.cat(xs), torch.cat(os_), pargs, log=log)
     path = out / f"predictor_{kind}_state.pt"
     torch.save(tracker.predictor.state_dict(), path)
     (out / "predictor_curve.json").write_text(json.dumps(curve))
+    wall = time.time() - t0
     errors = {c: position_errors(tracker, pair_rows(v, gen)[0]) for c, v in test_set.items()}
-    return str(path), {"wall_s": time.time() - t0, "iters": pargs.iters, "position_error_m": errors, "args": dataclasses.asdict(pargs)}
+    dr = {c: position_errors(dead_reckoning_tracker(mission.signalling.buffer_len), pair_rows(v, gen)[0]) for c, v in test_set.items()}
+    args = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(pargs).items()}
+    return str(path), {"wall_s": wall, "iters": pargs.iters, "position_error_m": errors,
+                       "dead_reckoning_position_error_m": dr, "test_episodes": {c: int(v.shape[0]) for c, v in test_set.items()},
+                       "args": args}
 
 
 def run_training(
@@ -72,20 +83,26 @@ def run_training(
 ) -> dict:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
+    work = Path("runs") / f"train-{method}-seed{seed}"  # intermediate files; `out` gets only what ships
+    work.mkdir(parents=True, exist_ok=True)
     mission = load_mission(mission_path)
     card: dict = {"method": method, "mission": mission.name, "seed": seed, "git_commit": git_commit(), "training": {}}
     kind = METHOD_PREDICTOR[method]
     if kind in ("mlp", "gru") and predictor_state is None:
         log(f"fitting the {kind} inference engine ...")
-        predictor_state, info = fit_predictor(kind, mission, seed, predictor_iters, out, log)
+        predictor_state, info = fit_predictor(kind, mission, seed, predictor_iters, work, log)
         card["training"]["predictor_wall_s"] = info["wall_s"]
         card["predictor"] = info
     args = Args(method=method, mission=mission_path, predictor_state=predictor_state, seed=seed, episodes=episodes,
-                num_envs=num_envs, out=str(out / "run"), threads=threads, **(args_overrides or {}))
+                num_envs=num_envs, out=str(work / "mappo"), threads=threads, **(args_overrides or {}))
     res = train(args, progress=on_iter)
+    if res.get("imitation"):
+        card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
+        card["imitation"] = res["imitation"]
     card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],
-                             "machine": f"{platform.machine()} {platform.processor() or ''} threads={threads}".strip()})
+                             "machine": machine_info(), "torch_threads": threads})
     card["config"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}
+    card["training"]["total_wall_s"] = sum(card["training"].get(k, 0.0) for k in ("predictor_wall_s", "imitation_wall_s", "mappo_wall_s"))
     shutil.copy(res["curve"], out / "curve.jsonl")
     tracker = res["tracker"]
     for p in tracker.parameters():

@@ -37,14 +37,21 @@ def fixed_pe(dp: torch.Tensor) -> torch.Tensor:
     return torch.cat([torch.sin(x), torch.cos(x)], -1).flatten(-2)
 
 
-def schedule(t_len: int, tup: torch.Tensor, p_drop: float, gen: torch.Generator | None) -> torch.Tensor:
-    """(R,) T_up per row -> held_t_rx (R, t_len): last received signalling time <= t (NEVER before)."""
+def schedule(
+    t_len: int, tup: torch.Tensor, p_drop: float, gen: torch.Generator | None, phase: torch.Tensor | None = None
+) -> torch.Tensor:
+    """(R,) T_up per row -> held_t_rx (R, t_len): last received signalling time <= t (NEVER before).
+
+    Updates arrive at t = phase + k T_up (phase 0 by default), each lost with p_drop
+    (never the first one).
+    """
     t = torch.arange(t_len).unsqueeze(0)
-    instant = (t % tup.unsqueeze(1)) == 0
+    ph = torch.zeros_like(tup) if phase is None else phase
+    instant = ((t - ph.unsqueeze(1)) % tup.unsqueeze(1) == 0) & (t >= ph.unsqueeze(1))
     if p_drop > 0:
         drop = torch.rand(instant.shape, generator=gen) < p_drop
-        drop[:, 0] = False
-        instant = instant & ~drop
+        first = instant & (torch.cumsum(instant.long(), 1) == 1)
+        instant = instant & (~drop | first)
     rx_t = torch.where(instant, t.expand_as(instant).to(torch.float32), torch.full(instant.shape, NEVER))
     return torch.cummax(rx_t, 1).values
 
@@ -121,18 +128,24 @@ def train_predictor(
 
 
 @torch.no_grad()
-def position_errors(tracker: BeliefTracker, traj: torch.Tensor, ages: tuple[int, ...] = (10, 25, 50), tup: int = 100) -> dict[int, float]:
-    """Mean position error (m) at each P-AoI in `ages` with every update delivered at T_up = `tup`.
+def position_errors(
+    tracker: BeliefTracker, traj: torch.Tensor, ages: tuple[int, ...] = (10, 25, 50), tup: int = 60, seed: int = 0
+) -> dict[int, float]:
+    """Mean position error (m) at each P-AoI in `ages`, every update delivered at T_up = `tup`.
 
-    A long T_up makes every age up to tup - 1 occur; buffers hold earlier beliefs, as in
-    operation.
+    Each row's updates start at a random phase in [0, tup), so errors are averaged over
+    all flight phases (not only from the launch line); buffers hold earlier beliefs, as
+    in operation. T_up = 60 s makes every age up to 59 s occur.
     """
-    rx = schedule(traj.shape[1], torch.full((traj.shape[0],), tup), 0.0, None)
+    gen = torch.Generator().manual_seed(seed)
+    phase = torch.randint(0, tup, (traj.shape[0],), generator=gen)
+    rx = schedule(traj.shape[1], torch.full((traj.shape[0],), tup), 0.0, None, phase)
     beliefs, aoi = rollout(tracker, traj, rx)
     err = torch.linalg.vector_norm(beliefs[..., :3] - traj[..., :3], dim=-1)
+    heard = rx > NEVER / 2
     out = {}
     for a in ages:
-        sel = (aoi == a) & (rx < torch.arange(traj.shape[1]).unsqueeze(0))
+        sel = (aoi == a) & heard
         out[a] = float(err[sel].mean()) if bool(sel.any()) else float("nan")
     return out
 

@@ -27,7 +27,8 @@ from plmarl_sitl.train.predictor import (
 )
 from plmarl_sitl.train.trajectories import mixed_mobility, record
 
-DATA_MIX = {"oracle": 48, "heuristic": 96, "waypoint": 160, "ou": 96}
+# The Oracle share is the largest: trained policies imitate it first (train/imitation.py).
+DATA_MIX = {"oracle": 96, "heuristic": 64, "waypoint": 96, "ou": 64}
 
 
 def build_dataset(mission, seed: int, scale: float = 1.0) -> dict[str, torch.Tensor]:
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("mission")
     ap.add_argument("--out", default="runs/predictors")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--mlp-iters", type=int, default=800)
+    ap.add_argument("--mlp-iters", type=int, default=1500)
     ap.add_argument("--gru-iters", type=int, default=300)
     ap.add_argument("--kinds", default="mlp,gru")
     a = ap.parse_args(argv)

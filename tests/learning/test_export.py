@@ -54,8 +54,8 @@ def test_round_trip_equals_eager(tmp_path: Path, mission, kind: str) -> None:
     mask = torch.tensor([True, True, False])
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     for fail in (False, True):
-        want = policy(ego, e1, mask, sense, torch.tensor(fail), torch.tensor([True, False, False]))
-        got = loaded.policy(ego, e2, mask, sense, torch.tensor(fail), torch.tensor([True, False, False]))
+        want = policy(ego, e1, mask, sense, torch.tensor(fail))
+        got = loaded.policy(ego, e2, mask, sense, torch.tensor(fail))
         assert torch.allclose(want, got, atol=1e-6)
 
 

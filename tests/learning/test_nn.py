@@ -15,7 +15,7 @@ from plmarl_sitl.nn import (
     build_policy_input,
     make_predictor,
 )
-from plmarl_sitl.nn.features import EGO_FEATURES, NBR_FEATURES, state_norm, twin_outranks
+from plmarl_sitl.nn.features import EGO_FEATURES, NBR_FEATURES, state_norm
 from plmarl_sitl.world.coverage import SENSING_FEATURES
 
 SCALES = (1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
@@ -36,7 +36,7 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     ego, bel, sense = _inputs(5, m, gen)
     mask = torch.zeros(5, m, dtype=torch.bool)
     mask[:, :n_nbrs] = True
-    ego_x, nbr_x, rel_x, mk = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), torch.zeros(5, m, dtype=torch.bool), state_norm(*SCALES[:4]), SCALES[5])
+    ego_x, nbr_x, rel_x, mk = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), state_norm(*SCALES[:4]), SCALES[5])
     assert ego_x.shape == (5, EGO_FEATURES) and nbr_x.shape == (5, m, NBR_FEATURES) and rel_x.shape == (5, m, 3)
     fusion = AttentionFusion()
     h, msg, alpha = fusion(ego_x, nbr_x, rel_x, mk)
@@ -51,9 +51,8 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     bel2 = bel.clone()
     bel2[:, n_nbrs:] = torch.randn_like(bel2[:, n_nbrs:]) * 1e4
     pol = DeployedPolicy(Actor(), *SCALES)
-    rank = torch.zeros(5, m, dtype=torch.bool)
-    a1 = pol(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), rank)
-    a2 = pol(ego, bel2, mask, sense, torch.zeros(5, dtype=torch.bool), rank)
+    a1 = pol(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool))
+    a2 = pol(ego, bel2, mask, sense, torch.zeros(5, dtype=torch.bool))
     assert torch.equal(a1, a2)
     assert a1.shape == (5, 3) and torch.all(a1.abs() <= 5.0)
 
@@ -72,14 +71,12 @@ def test_failed_neighbour_in_twin_batch_shape() -> None:
     fail[0, 2] = False
     torch.manual_seed(1)
     pol = DeployedPolicy(Actor(), *SCALES)
-    out = pol(ego, bel, mask, sense, fail, twin_outranks(n))
+    out = pol(ego, bel, mask, sense, fail)
     assert out.shape == (b, n, 3) and torch.isfinite(out).all()
     # The fail flag is an input: flipping it changes the action of an agent.
     fail2 = fail.clone()
     fail2[1, 0] = True
-    assert not torch.equal(pol(ego, bel, mask, sense, fail2, twin_outranks(n))[1, 0], out[1, 0])
-    # So is the priority of a neighbour (the swarm-size-free tie-breaker).
-    assert not torch.equal(pol(ego, bel, mask, sense, fail, twin_outranks(n).T)[1, 1], out[1, 1])
+    assert not torch.equal(pol(ego, bel, mask, sense, fail2)[1, 0], out[1, 0])
 
 
 def _cv_tracker() -> BeliefTracker:

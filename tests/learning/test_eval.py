@@ -1,0 +1,73 @@
+"""Statistics against scipy, and `plmarl eval --json` end to end on tiny exported policies."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy import stats
+
+from plmarl_sitl.cli import main
+from plmarl_sitl.cli.eval import _tups
+from plmarl_sitl.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.mission import load_mission
+from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
+from plmarl_sitl.nn.io import export_policy
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_mean_ci95_matches_scipy_t_interval() -> None:
+    x = np.random.default_rng(0).normal(0.8, 0.05, size=37)
+    mean, (lo, hi) = mean_ci95(x)
+    want = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
+    assert mean == pytest.approx(x.mean())
+    assert (lo, hi) == pytest.approx(want)
+
+
+def test_mann_whitney_matches_scipy() -> None:
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(0.8, 0.05, 100), rng.normal(0.78, 0.05, 100)
+    assert mann_whitney_p(a, b) == pytest.approx(stats.mannwhitneyu(a, b, alternative="two-sided").pvalue)
+    assert mann_whitney_p(a, a + 1.0) < 1e-10
+
+
+def test_tup_ranges() -> None:
+    assert _tups("5,10,...,50") == [5, 10, 15, 20, 25, 30, 35, 40, 45, 50]
+    assert _tups("5,15,50") == [5, 15, 50]
+
+
+def test_eval_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    mission = load_mission(ROOT / "missions" / "paper_urban.yaml")
+    scales = FeatureScales.from_mission(mission)
+    torch.manual_seed(0)
+    for method, kind in (("pl-marl", "mlp"), ("tag-mappo", "hold")):
+        export_policy(tmp_path / method, BeliefTracker(make_predictor(kind), 10, 1.0), DeployedPolicy(Actor(), *scales),
+                      {"method": method, "seed": 0})
+    rc = main([
+        "eval", str(ROOT / "missions" / "paper_urban.yaml"), "--methods", "pl-marl,tag-mappo,dead-reckoning",
+        "--tup", "5,50", "--episodes", "3", "--seed", "2", "--policies", str(tmp_path), "--json",
+        "--out", str(tmp_path / "out"),
+    ])
+    assert rc == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc) == {"results", "p_values"}
+    assert len(doc["results"]) == 6 and len(doc["p_values"]) == 4
+    for r in doc["results"]:
+        assert set(r) == {"method", "tup", "coverage_mean", "coverage_ci95", "lambda2_mean"}
+        assert r["coverage_ci95"][0] <= r["coverage_mean"] <= r["coverage_ci95"][1]
+    for p in doc["p_values"]:
+        assert set(p) == {"method", "versus", "tup", "p"} and p["method"] == "pl-marl" and 0 <= p["p"] <= 1
+    assert (tmp_path / "out" / "coverage_vs_tup.png").stat().st_size > 1000
+    assert "| T_up (s) |" in (tmp_path / "out" / "results.md").read_text()
+
+
+def test_eval_missing_policy_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rc = main(["eval", str(ROOT / "missions" / "paper_urban.yaml"), "--methods", "gru", "--tup", "5",
+               "--episodes", "2", "--policies", str(tmp_path)])
+    assert rc == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "gru" in err and "missing" in err
