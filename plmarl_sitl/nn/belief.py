@@ -57,12 +57,14 @@ class BeliefTracker(nn.Module):
         Returns (belief (..., M, 6), aoi (..., M) (capped at MAX_AOI), buf, seen_t_rx).
         """
         fresh = (held_t_rx > seen_t_rx) & (held_t_rx <= t)
-        aoi = torch.clamp(t - held_t_rx, 1.0, self.max_aoi)  # Eq. (1); capped for never-heard slots
+        aoi = torch.clamp(torch.rsub(held_t_rx, t), 1.0, self.max_aoi)  # Eq. (1); capped for never-heard slots
         pred = self.predictor(buf, aoi)
         belief = torch.where(fresh.unsqueeze(-1), held_state, pred)
-        new_buf = torch.cat([buf[..., 1:, :], belief.unsqueeze(-2)], -2)
-        first = fresh & (seen_t_rx <= self.never * 0.5)
-        if bool(first.any()):  # rare: skip the work on the per-second fast path
+        new_buf = torch.cat([buf.narrow(-2, 1, self.buffer_len - 1), belief.unsqueeze(-2)], -2)
+        # Back-fill only matters while some slot has never been taken: one cheap check first.
+        unseen = seen_t_rx <= self.never * 0.5
+        if bool(unseen.any()):
+            first = fresh & unseen
             # Back-fill a first-heard neighbour with its constant-velocity past.
             k = torch.arange(self.buffer_len - 1, -1, -1, dtype=buf.dtype, device=buf.device) * self.dt
             past_p = held_state[..., None, 0:3] - held_state[..., None, 3:6] * k.unsqueeze(-1)

@@ -72,16 +72,16 @@ def build_policy_input(
     sense: torch.Tensor,
     fail_flag: torch.Tensor,
     norm: torch.Tensor,
-    r_comm: float,
+    inv_r_comm: float,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool).
 
-    `norm` is `state_norm(...)` (or `FeatureScales.norm()`). Neighbour slots outside the
+    `norm` is `state_norm(...)` (or `FeatureScales.norm()`), `inv_r_comm` = 1 / R_comm. Neighbour slots outside the
     mask are ignored by the attention (their weight is exactly 0), so they may hold any
     FINITE values (a failed neighbour's stale state, zeros for a never-heard slot).
     """
     scale, offset = norm[0], norm[1]
     ego_x = torch.cat([ego * scale + offset, sense, fail_flag.unsqueeze(-1).to(ego.dtype)], -1)
     nbr_x = beliefs * scale + offset
-    rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) * (1.0 / r_comm)
+    rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) * inv_r_comm
     return ego_x, nbr_x, rel_x, mask

@@ -50,11 +50,18 @@ class AttentionFusion(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """-> (h_i (..., d), m_i (..., d), alpha (..., M))."""
         h = torch.tanh(self.ego_enc(ego_x))
-        whh = self.W(self.encoder(nbr_x) + self.pe(rel_x))  # (..., M, d)
+        # W (Encoder(s) + PE(dp)) is one linear map of [s, dp]; written so that a frozen file
+        # holds the product as a constant (one matmul at run time, same parameters).
+        w = self.W.weight
+        whh = F.linear(
+            torch.cat([nbr_x, rel_x], -1),
+            w @ torch.cat([self.encoder.weight, self.pe.weight], 1),
+            w @ (self.encoder.bias + self.pe.bias),
+        )  # (..., M, d) = W h_hat_ij
         # (W h_i) . a1 = h_i . (W^T a1): a constant vector once the file is frozen.
-        e = F.leaky_relu(whh @ self.a2 + (h @ (self.W.weight.t() @ self.a1)).unsqueeze(-1), 0.2)
-        e = e.masked_fill(~mask, -1.0e9)
-        alpha = torch.softmax(e, -1) * mask.to(e.dtype)  # all-masked rows: uniform * 0 = 0
+        e = F.leaky_relu(whh @ self.a2 + (h @ (w.t() @ self.a1)).unsqueeze(-1), 0.2)
+        alpha = torch.softmax(torch.where(mask, e, -1.0e9), -1)
+        alpha = torch.where(mask, alpha, 0.0)  # all-masked rows: exactly 0, no NaN
         m = F.elu((alpha.unsqueeze(-2) @ whh).squeeze(-2))
         return h, m, alpha
 
@@ -113,6 +120,7 @@ class DeployedPolicy(nn.Module):
         self.area_n, self.area_e, self.alt_max = float(area_n), float(area_e), float(alt_max)
         self.v_max, self.a_max, self.r_comm = float(v_max), float(a_max), float(r_comm)
         self.register_buffer("norm", state_norm(self.area_n, self.area_e, self.alt_max, self.v_max))
+        self.inv_r_comm = 1.0 / self.r_comm
 
     def forward(
         self,
@@ -122,5 +130,5 @@ class DeployedPolicy(nn.Module):
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
     ) -> torch.Tensor:
-        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, self.norm, self.r_comm)
+        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, self.norm, self.inv_r_comm)
         return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)

@@ -107,7 +107,7 @@ class KinematicPredictor(nn.Module):
         # l1 applied to (x @ T): folded into one weight, a constant once the file is frozen.
         h = torch.tanh(F.linear(x, self.l1.weight @ self.T.t(), self.l1.bias))
         u = torch.tanh(self.l3(torch.tanh(self.l2(h))))
-        return torch.cat([buf[..., -1, :], u], -1) @ self.KG
+        return torch.cat([buf.select(-2, -1), u], -1) @ self.KG
 
 
 class GRUPredictor(nn.Module):

@@ -69,7 +69,7 @@ def imitate_oracle(
         with torch.no_grad():
             while not env.done:
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, scales.r_comm)
+                ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm)
                 a_teacher = teacher.act(obs)
                 u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
                 live = obs.alive

@@ -217,8 +217,8 @@ def train(args: Args, progress=None) -> dict:
             g["lr"] = args.lr_critic * lr_mult
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
-        env.replace_mission(signalling=dataclasses.replace(env.mission.signalling, tup_s=tup))
-        env.failure_prob = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
+        p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
+        env = CoverageEnv(mission.with_tup(tup), B, args.seed * 100_003 + it, failure_prob=p_fail, failure_at_s=args.failure_at_s)
 
         # -------------------------------------------------------------- rollout
         obs = env.reset()
@@ -231,7 +231,7 @@ def train(args: Args, progress=None) -> dict:
             for step in range(T):
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                 ego_x, nbr_x, rel_x, mask = build_policy_input(
-                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, scales.r_comm
+                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm
                 )
                 gs = env.global_state()
                 dist = actor.dist(ego_x, nbr_x, rel_x, mask)
@@ -315,7 +315,7 @@ def train(args: Args, progress=None) -> dict:
             "charts/coverage": float(cov_b.mean()),
             "charts/coverage_steady": float(torch.stack(cov_last).mean()) if cov_last else float("nan"),
             "charts/tup": tup,
-            "charts/failure_prob": env.failure_prob,
+            "charts/failure_prob": p_fail,
             "charts/lr_actor": args.lr_actor * lr_mult,
             "charts/ent_coef": ent_coef,
             "charts/action_std": float(actor.log_std.detach().exp().mean()),

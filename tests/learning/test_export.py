@@ -101,3 +101,16 @@ def test_mismatched_files_are_named(tmp_path: Path, mission) -> None:
     with pytest.raises(PolicyFileError, match=r"policy\.pt: mismatched with mission 'paper_urban': r_comm"):
         load_policy(b, mission)
     assert issubclass(PolicyFileError, UserError)  # the CLI prints it as one line, exit 2
+
+
+def test_agent_with_no_neighbour_slots(tmp_path: Path, mission) -> None:
+    """M = 0 (an isolated agent): both files run and the policy still acts."""
+    _export(tmp_path, mission)
+    lp = load_policy(tmp_path, mission)
+    held = torch.zeros(0, 6)
+    buf, seen = lp.tracker.init_state(held)
+    belief, aoi, buf, seen = lp.tracker(3.0, held, torch.zeros(0), buf, seen)
+    assert belief.shape == (0, 6) and aoi.shape == (0,)
+    accel = lp.policy(torch.tensor([300.0, 400.0, -90.0, 0.0, 0.0, 0.0]), belief, torch.zeros(0, dtype=torch.bool),
+                      torch.zeros(SENSING_FEATURES), torch.tensor(False))
+    assert accel.shape == (3,) and torch.isfinite(accel).all()
