@@ -14,7 +14,7 @@ import sys
 from plmarl_sitl.config import ConfigError
 from plmarl_sitl.errors import UserError
 
-SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval"]
+SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval", "world", "agent"]
 
 EPILOG = """\
 examples:
@@ -24,7 +24,7 @@ examples:
 Every run takes --seed and prints it; the same seed gives the same numbers."""
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="plmarl",
         description="PL-MARL swarm coverage: digital twin, training and MAVLink SITL deployment.",
@@ -32,13 +32,17 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
+    # `only`: register just the subcommand being run. Each subcommand module imports what
+    # it needs (scipy, the twin, ...); an agent on a companion computer must not pay
+    # start-up time and memory for the others.
+    for name in [only] if only in SUBCOMMANDS else SUBCOMMANDS:
         importlib.import_module(f"plmarl_sitl.cli.{name}").register(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(argv[0] if argv else None)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

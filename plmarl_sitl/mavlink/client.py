@@ -64,8 +64,7 @@ class VehicleLink:
     # ------------------------------------------------------------------ lifecycle
     async def open(self, timeout: float = 5.0) -> None:
         """Bind, say hello, and wait for the vehicle's autopilot heartbeat."""
-        loop = asyncio.get_running_loop()
-        self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), remote_addr=self.addr)
+        await self._open_transport()
         want = self.target_sysid
 
         def is_autopilot(m: Message) -> bool:
@@ -83,6 +82,15 @@ class VehicleLink:
             greeter.cancel()
         self.target_sysid = hb.get_srcSystem()
         self.personality = personality_for_autopilot(hb.autopilot)
+
+    async def _open_transport(self) -> None:
+        """udpout: a connected UDP socket (subclasses in `mavlink.connect` add udpin, tcp, serial)."""
+        loop = asyncio.get_running_loop()
+        self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), remote_addr=self.addr)
+
+    def _write(self, data: bytes) -> None:
+        assert self._transport is not None
+        self._transport.sendto(data)
 
     def close(self) -> None:
         if self._transport is not None:
@@ -145,7 +153,7 @@ class VehicleLink:
     def send(self, msg: Message) -> None:
         if self._transport is None:
             raise RuntimeError("link not open")
-        self._transport.sendto(self.codec.encode(msg))
+        self._write(self.codec.encode(msg))
         self.sent += 1
 
     def send_heartbeat(self) -> None:

@@ -1,0 +1,513 @@
+"""The deployable agent: one asyncio process per UAV, next to its autopilot.
+
+Startup: heartbeat (-> personality), position and home valid, setpoints streaming, mode
+(PX4 OFFBOARD after the stream is up, ArduPilot GUIDED), arm and take off (or attach to
+an airborne vehicle with `takeoff=False`), then wait for the mission start.
+
+Flying, everything keyed to the VEHICLE clock (LOCAL_POSITION_NED.time_boot_ms), so a
+`--speedup` run behaves like a real-time one. Mission second k = boot_s - t0:
+
+* at k (k % T_up == 0): publish the autopilot-reported state to tx/<id>;
+* at k + settle (updates of instant k have had time to arrive): close the signalling
+  instant (misses, drops, failure state f), advance Algorithm 1's tracker one second
+  (`predictor.pt`), and every tau seconds run `policy.pt` on
+  (ego, beliefs, N_i mask, sensing features, f) -> acceleration, held until the next decision;
+* every telemetry message (>= 20 Hz of vehicle time) re-sends the current setpoint
+  (type_mask 0x0C3F), with a wall-clock watchdog so the stream never stops while the
+  process lives.
+
+A broker outage only stops updates: the tracker keeps predicting, the bus reconnects with
+backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE), exit.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import math
+import os
+import random
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+import torch
+
+from plmarl_sitl.agent.frames import home_offset_ned
+from plmarl_sitl.agent.guard import band_guard
+from plmarl_sitl.agent.neighbours import NeighbourTable
+from plmarl_sitl.bus.schema import (
+    Malformed,
+    RxCounters,
+    SeqFilter,
+    StateMsg,
+    Topics,
+    decode_json,
+    decode_sense,
+    decode_state,
+    encode_state,
+)
+from plmarl_sitl.bus.transport import MqttBus
+from plmarl_sitl.errors import CommandRejected, UserError, VehicleTimeout
+from plmarl_sitl.mavlink.client import VehicleLink
+from plmarl_sitl.mavlink.connect import connect
+from plmarl_sitl.mavlink.personality import personality
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.nn.io import LoadedPolicy
+from plmarl_sitl.world.coverage import SENSING_FEATURES, sensing_features
+
+log = logging.getLogger("plmarl.agent")
+
+TELEMETRY_HZ = 20.0  # LOCAL_POSITION_NED rate we ask for (vehicle time); also the setpoint rate
+WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
+HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    uav_id: int
+    connect_url: str
+    broker_url: str
+    mission: Mission
+    autopilot: str = "auto"  # auto | px4 | ardupilot
+    tup_s: int | None = None  # None: mission.signalling.tup_s
+    swarm: str = "sitl"
+    bus_mode: str = "sitl"  # sitl: the world relays tx -> rx/<id>; direct: subscribe tx/+
+    takeoff: bool = True
+    wait_start: bool = True  # wait for the world's start announcement (else start now)
+    settle_s: float = 0.2  # vehicle seconds after an instant before it is closed
+    connect_timeout_s: float = 30.0
+    takeoff_timeout_s: float = 120.0  # vehicle seconds
+    trace_path: Path | None = None
+    stats_path: Path | None = None
+
+
+@dataclass
+class LoopStats:
+    """Decision-loop timing: telemetry message handled -> setpoint sent (wall ms)."""
+
+    all_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200_000))
+    decision_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200_000))
+    startup_s: float | None = None
+    decisions: int = 0
+    seconds: int = 0
+
+    def summary(self) -> dict[str, float | int | None]:
+        def pct(xs: deque[float], q: float) -> float | None:
+            if not xs:
+                return None
+            s = sorted(xs)
+            return s[min(len(s) - 1, int(q * len(s)))]
+
+        return {
+            "loop_p50_ms": pct(self.decision_ms, 0.5),
+            "loop_p99_ms": pct(self.decision_ms, 0.99),
+            "all_p50_ms": pct(self.all_ms, 0.5),
+            "all_p99_ms": pct(self.all_ms, 0.99),
+            "startup_s": self.startup_s,
+            "decisions": self.decisions,
+            "seconds": self.seconds,
+        }
+
+
+def rss_mb() -> float:
+    try:
+        import psutil
+
+        return float(psutil.Process().memory_info().rss / 2**20)
+    except Exception:  # noqa: BLE001 - best effort
+        return float("nan")
+
+
+def process_start_time() -> float:
+    """Unix time this process started (so start-up includes the interpreter and imports)."""
+    try:
+        import psutil
+
+        return float(psutil.Process().create_time())
+    except Exception:  # noqa: BLE001 - psutil missing or /proc unavailable: count from now
+        return time.time()
+
+
+class Agent:
+    def __init__(self, cfg: AgentConfig, lp: LoadedPolicy) -> None:
+        self.cfg = cfg
+        m = cfg.mission
+        self.mission = m
+        self.n = m.n_uavs
+        if not 0 <= cfg.uav_id < self.n:
+            raise UserError(f"--id {cfg.uav_id}: the mission has {self.n} UAVs (ids 0..{self.n - 1})")
+        self.me = cfg.uav_id
+        self.tracker, self.policy = lp.tracker, lp.policy
+        self.vm = m.vehicle_model()
+        self.tup = int(cfg.tup_s or m.signalling.tup_s)
+        self.tau = int(m.timing.decision_every_s)
+        self.topics = Topics(cfg.swarm)
+        self.table = NeighbourTable(self.n, self.me, m.signalling.drop_after_missed)
+        self.rx = RxCounters()
+        self.seq_filter = SeqFilter()
+        self.session = random.getrandbits(16)
+        self.seq = 0
+        subs = [self.topics.sense(self.me), self.topics.start, self.topics.ctl]
+        subs.append(self.topics.tx("+") if cfg.bus_mode == "direct" else self.topics.rx(self.me))
+        self.bus = MqttBus(cfg.broker_url, f"plmarl-{cfg.swarm}-agent-{self.me}-{self.session:04x}", subs, self._on_message,
+                           name=f"agent{self.me}-bus")
+        self.link: VehicleLink | None = None
+        self.stats = LoopStats()
+        self.t_proc0 = process_start_time()
+        self.stop_event = asyncio.Event()
+        # Vehicle-side state
+        self.home = torch.zeros(3)
+        self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
+        self.boot_s = 0.0
+        self.accel = (0.0, 0.0, 0.0)  # the command in force (before the band guard)
+        self.hold_target: torch.Tensor | None = None
+        self.flying = False
+        # Mission clock and Algorithm 1 state
+        self.t0: float | None = None
+        self.next_pub_k: int | None = None
+        self.next_k = 0
+        self.ego_at: dict[int, torch.Tensor] = {}
+        self.buf: torch.Tensor | None = None
+        self.seen: torch.Tensor | None = None
+        self.belief = torch.zeros(self.n, 6)
+        self.aoi = torch.ones(self.n)
+        self.sensed: torch.Tensor | None = None  # (K, 2) users in R_s, latest sensing message
+        self.sense_warned = False
+        self.last_send_wall = 0.0
+        self._trace: IO[str] | None = None
+
+    # ------------------------------------------------------------------ bus input
+    def _on_message(self, topic: str, payload: bytes) -> None:
+        t = self.topics
+        if topic == t.sense(self.me):
+            try:
+                msg = decode_sense(payload)
+            except Malformed as exc:
+                self.rx.bad(f"sense_{exc.reason}")
+                return
+            self.sensed = torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)
+        elif topic == t.start:
+            if not payload:
+                return  # the world clears a previous run's retained start with an empty payload
+            try:
+                obj = decode_json(payload)
+                t0 = float(obj["t0_boot_s"])
+            except (Malformed, KeyError, TypeError, ValueError):
+                self.rx.bad("start")
+                return
+            n = obj.get("n_uavs", self.n)
+            if n != self.n:
+                log.error("the world has %s UAVs, this agent was started for %d (--n-uavs)", n, self.n)
+            if self.t0 is None and self.cfg.wait_start:
+                self._set_t0(t0)
+        elif topic == t.ctl:
+            if not payload:
+                return
+            try:
+                tup = int(decode_json(payload)["tup_s"])
+            except (Malformed, KeyError, TypeError, ValueError):
+                self.rx.bad("ctl")
+                return
+            if tup >= 1 and tup != self.tup:
+                log.info("T_up changed %d -> %d s", self.tup, tup)
+                self.tup = tup
+                if self.t0 is not None:
+                    k = math.ceil(self.boot_s - self.t0)
+                    self.next_pub_k = -(-k // tup) * tup
+        else:
+            self._on_state(payload)
+
+    def _on_state(self, payload: bytes) -> None:
+        try:
+            msg = decode_state(payload)
+        except Malformed as exc:
+            self.rx.bad(exc.reason)
+            return
+        if msg.sender == self.me:
+            self.rx.self_echo += 1
+            return
+        if not 0 <= msg.sender < self.n:
+            self.rx.unknown_sender += 1
+            return
+        why = self.seq_filter.check(msg)
+        if why == "duplicate":
+            self.rx.duplicate += 1
+        elif why == "out_of_order":
+            self.rx.out_of_order += 1
+        elif self.table.on_state(msg.sender, msg.t_s, msg.state):
+            self.rx.accepted += 1
+        else:
+            self.rx.out_of_order += 1
+
+    # ------------------------------------------------------------------ clock
+    def _set_t0(self, t0: float) -> None:
+        self.t0 = t0
+        k = max(0, math.ceil(self.boot_s - t0 - 1e-9))
+        self.next_k = k
+        self.next_pub_k = -(-k // self.tup) * self.tup
+        log.info("mission clock: t0 = boot %.3f s (first second %d)", t0, k)
+
+    def _on_telemetry(self, m: object) -> None:
+        """One LOCAL_POSITION_NED: advance the mission clock, decide, send the setpoint."""
+        t_in = time.perf_counter()
+        self.boot_s = m.time_boot_ms / 1000.0  # type: ignore[attr-defined]
+        local = torch.tensor([m.x, m.y, m.z, m.vx, m.vy, m.vz], dtype=torch.float32)  # type: ignore[attr-defined]
+        self.ego = torch.cat([local[:3] + self.home, local[3:]])
+        decided = False
+        if self.t0 is not None:
+            tm = self.boot_s - self.t0
+            while self.next_pub_k is not None and tm >= self.next_pub_k - 1e-9:
+                self._publish_state(self.next_pub_k)
+                self.next_pub_k += self.tup
+            for k in range(self.next_k, math.floor(tm + 1e-9) + 1):
+                self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
+            while tm >= self.next_k + self.cfg.settle_s - 1e-9:
+                decided |= self._second(self.next_k)
+                self.next_k += 1
+        if self.flying:
+            self._send_setpoint()
+        dt_ms = (time.perf_counter() - t_in) * 1e3
+        self.stats.all_ms.append(dt_ms)
+        if decided:
+            self.stats.decision_ms.append(dt_ms)
+
+    def _publish_state(self, k: int) -> None:
+        state = tuple(float(x) for x in self.ego.tolist())
+        msg = StateMsg(self.me, self.session, self.seq, k * 1000, state)  # type: ignore[arg-type]
+        self.seq += 1
+        self.bus.publish(self.topics.tx(self.me), encode_state(msg))
+
+    # ------------------------------------------------------------------ Algorithm 1
+    @torch.inference_mode()
+    def _second(self, k: int) -> bool:
+        """Mission second k: close the instant, advance the tracker, maybe decide."""
+        self.stats.seconds += 1
+        if k % self.tup == 0:
+            for j in self.table.close_instant(float(k)):
+                log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed); f = 1", j, k, self.table.drop)
+        held, t_rx = self.table.state, self.table.t_rx
+        if self.buf is None:
+            self.buf, self.seen = self.tracker.init_state(held)
+        self.belief, self.aoi, self.buf, self.seen = self.tracker(float(k), held, t_rx, self.buf, self.seen)
+        decided = k % self.tau == 0
+        ego = self.ego_at.pop(k, self.ego)
+        for old in [s for s in self.ego_at if s < k]:
+            del self.ego_at[old]
+        mask = self.table.mask()
+        if decided:
+            sense = self._sense(ego)
+            fail = torch.tensor(self.table.lost)
+            a = self.policy(ego, self.belief, mask, sense, fail)
+            self.accel = (float(a[0]), float(a[1]), float(a[2]))
+            self.stats.decisions += 1
+        if self._trace is not None:
+            rec = {
+                "t": k,
+                "boot_s": round(self.boot_s, 3),
+                "aoi": [round(float(x), 2) for x in self.aoi],
+                "mask": [bool(x) for x in mask],
+                "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
+                "fail": self.table.lost,
+                "ego": [round(x, 2) for x in ego.tolist()],
+                "accel": [round(x, 3) for x in self.accel],
+                "decided": decided,
+            }
+            self._trace.write(json.dumps(rec) + "\n")
+        return decided
+
+    def _sense(self, ego: torch.Tensor) -> torch.Tensor:
+        m = self.mission
+        if self.sensed is None:
+            if not self.sense_warned:
+                self.sense_warned = True
+                log.warning("no sensing publisher on %s: flying as if no users are sensed", self.topics.sense(self.me))
+            return torch.zeros(SENSING_FEATURES)
+        return sensing_features(ego[:3].unsqueeze(0), self.sensed, m.radii.sensing_m, m.users.cluster_size)[0]
+
+    # ------------------------------------------------------------------ setpoints
+    def _command(self) -> tuple[float, float, float]:
+        vm = self.vm
+        alt, v_up = -float(self.ego[2]), -float(self.ego[5])
+        if self.t0 is None or self.boot_s < self.t0:
+            # Before the mission: hold where offboard control began (PD on position).
+            tgt = self.hold_target if self.hold_target is not None else self.ego[:3]
+            a = 0.6 * (tgt - self.ego[:3]) - 1.6 * self.ego[3:]
+            norm = float(torch.linalg.vector_norm(a))
+            if norm > vm.max_accel_mps2:
+                a = a * (vm.max_accel_mps2 / norm)
+            return float(a[0]), float(a[1]), float(a[2])
+        return band_guard(self.accel, alt, v_up, vm.min_alt_m, vm.max_alt_m, vm.max_accel_mps2)
+
+    def _send_setpoint(self) -> None:
+        assert self.link is not None
+        self.link.send_accel_ned(*self._command())
+        self.last_send_wall = time.perf_counter()
+
+    async def _watchdog(self) -> None:
+        """>= 10 Hz wall even if telemetry stalls (PX4 leaves OFFBOARD after 1 s without)."""
+        while True:
+            await asyncio.sleep(WATCHDOG_S / 2)
+            if self.flying and time.perf_counter() - self.last_send_wall >= WATCHDOG_S:
+                self._send_setpoint()
+
+    async def _gcs_heartbeat(self) -> None:
+        """A companion computer announces itself at 1 Hz (autopilots track their peers)."""
+        while True:
+            if self.link is not None:
+                self.link.send_heartbeat()
+            await asyncio.sleep(1.0)
+
+    # ------------------------------------------------------------------ startup
+    async def _wait_until(self, what: str, cond: object, timeout_s: float) -> None:
+        """Wait on telemetry until cond() holds; timeout in VEHICLE seconds (speedup-safe)."""
+        assert self.link is not None
+        start = self.boot_s
+        while not cond():  # type: ignore[operator]
+            m = await self.link.recv("LOCAL_POSITION_NED", 5.0)
+            self._on_telemetry(m)
+            if self.boot_s - start > timeout_s:
+                raise VehicleTimeout(self.link.sysid, what, timeout_s)
+
+    def _alt(self) -> float:
+        return -float(self.ego[2])
+
+    async def _set_mode(self, name: str) -> None:
+        assert self.link is not None
+        for attempt in range(5):
+            try:
+                await self.link.set_mode(name)
+                return
+            except CommandRejected as exc:
+                if exc.result_name != "MAV_RESULT_TEMPORARILY_REJECTED" or attempt == 4:
+                    raise
+                await asyncio.sleep(0.2)
+
+    async def _startup(self) -> None:
+        cfg = self.cfg
+        link = connect(cfg.connect_url)
+        self.link = link
+        try:
+            await link.open(timeout=cfg.connect_timeout_s)
+        except VehicleTimeout as exc:
+            raise UserError(f"no autopilot heartbeat on {cfg.connect_url} within {cfg.connect_timeout_s:g} s") from exc
+        assert link.personality is not None
+        seen = link.personality.name
+        if cfg.autopilot != "auto":
+            if cfg.autopilot != seen:
+                raise UserError(f"--autopilot {cfg.autopilot}, but the vehicle's heartbeat says {seen}")
+            link.personality = personality(cfg.autopilot)
+        p = link.personality
+        log.info("vehicle sysid %d on %s: %s personality", link.sysid, cfg.connect_url, p.name)
+        await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
+        home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
+        self.home = torch.tensor(home_offset_ned(self.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
+                                 dtype=torch.float32)
+        self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
+        # Start-up ends here: policy loaded, autopilot found, position and home valid.
+        # What follows (arming, climbing) is the vehicle's time, not the agent's.
+        self.stats.startup_s = time.time() - self.t_proc0
+        log.info("ready after %.2f s (process start -> telemetry and home valid), RSS %.0f MB", self.stats.startup_s, rss_mb())
+        hb = link.latest.get("HEARTBEAT")
+        armed = bool(hb and hb.base_mode & 128)
+        alt_tgt = min(max(self.vm.takeoff_alt_m, self.vm.min_alt_m), self.vm.max_alt_m)
+        if cfg.takeoff and not armed:
+            if p.takeoff_needs_offboard_mode:  # ArduPilot: GUIDED, arm, NAV_TAKEOFF
+                await self._set_mode(p.offboard_mode)
+                await link.arm()
+                await link.takeoff(alt_tgt)
+            else:  # PX4: arm, AUTO.TAKEOFF, then OFFBOARD once the stream is up
+                await link.arm()
+                await link.takeoff(alt_tgt, home_amsl_m=home.altitude / 1000.0)
+            await self._wait_until(
+                "takeoff", lambda: self._alt() >= alt_tgt - 0.5 and abs(float(self.ego[5])) < 0.3, cfg.takeoff_timeout_s
+            )
+        elif not armed:
+            raise UserError("--no-takeoff: the vehicle is not armed (attach only to a flying vehicle)")
+        # PX4 refuses OFFBOARD until setpoints stream: stream first (hold here), then switch.
+        self.hold_target = self.ego[:3].clone()
+        self.flying = True
+        for _ in range(5):
+            self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
+        await self._set_mode(p.offboard_mode)
+        log.info("in %s at %.1f m, %.2f s after process start", p.offboard_mode, self._alt(), time.time() - self.t_proc0)
+
+    # ------------------------------------------------------------------ main
+    async def _fly(self) -> None:
+        assert self.link is not None
+        if not self.cfg.wait_start and self.t0 is None:
+            self._set_t0(float(math.ceil(self.boot_s + 1.0)))
+        while not self.stop_event.is_set():
+            m = await self.link.recv("LOCAL_POSITION_NED", 5.0)
+            self._on_telemetry(m)
+
+    async def _hold(self) -> None:
+        """Ctrl-C: hand the vehicle to its own hold (PX4 AUTO.LOITER) or brake (ArduPilot)."""
+        link = self.link
+        if link is None or link.personality is None or not self.flying:
+            return
+        mode = "BRAKE" if link.personality.name == "ardupilot" else link.personality.hold_mode
+        try:
+            async with asyncio.timeout(3.0):
+                await self._set_mode(mode)
+            log.warning("stopped: vehicle in %s", mode)
+        except (TimeoutError, VehicleTimeout, CommandRejected) as exc:
+            log.error("stopped, but could not command %s: %s (the autopilot's own failsafe takes over)", mode, exc)
+
+    async def run(self) -> int:
+        """Run until `stop_event` is set (signal handler) or the vehicle goes silent."""
+        torch.set_num_threads(1)
+        if self.cfg.trace_path is not None:
+            self._trace = open(self.cfg.trace_path, "w", buffering=1)  # noqa: SIM115 - closed in finally
+        code = 0
+        try:
+            async with asyncio.TaskGroup() as tg:
+                helpers = [
+                    tg.create_task(self.bus.run(), name="bus"),
+                    tg.create_task(self._gcs_heartbeat(), name="gcs-heartbeat"),
+                    tg.create_task(self._watchdog(), name="setpoint-watchdog"),
+                ]
+                main = tg.create_task(self._main(), name="main")
+                helpers.append(tg.create_task(self._cancel_on_stop(main), name="stop-watch"))
+                # The helpers only serve `main`: when it ends, so do they.
+                main.add_done_callback(lambda _t: [h.cancel() for h in helpers])
+        except* VehicleTimeout as eg:
+            log.error("vehicle lost: %s", eg.exceptions[0])
+            code = 3
+        finally:
+            await self._hold()
+            if self.link is not None:
+                self.link.close()
+            if self._trace is not None:
+                self._trace.close()
+            self._write_stats()
+        return code
+
+    async def _cancel_on_stop(self, main: asyncio.Task) -> None:
+        await self.stop_event.wait()
+        main.cancel()
+
+    async def _main(self) -> None:
+        try:
+            await self._startup()
+            await self._fly()
+        except asyncio.CancelledError:
+            if not self.stop_event.is_set():
+                raise  # cancelled from outside: propagate; a requested stop ends quietly
+
+    def _write_stats(self) -> None:
+        if self.cfg.stats_path is None:
+            return
+        out = {
+            **self.stats.summary(),
+            "rss_mb": rss_mb(),
+            "rx": self.rx.as_dict(),
+            "bus": self.bus.stats.as_dict(),
+            "dropped": self.table.dropped,
+            "fail": self.table.lost,
+            "pid": os.getpid(),
+        }
+        Path(self.cfg.stats_path).write_text(json.dumps(out))

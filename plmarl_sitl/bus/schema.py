@@ -1,0 +1,207 @@
+"""The signalling wire format (version 1): compact binary state and sensing messages.
+
+docs/SIGNALLING.md is the contract. All integers little-endian. A state message is the
+sparse signalling update of Algorithm 1 (38 bytes); a sensing message lists the users a
+vehicle's payload sensor sees. Decoders never raise anything but `Malformed`, whose
+`reason` feeds the receive counters.
+
+Topics (`Topics(swarm)`): tx/<id> (agent -> link emulator or radio), rx/<id> (what the
+link delivered to <id>), sense/<id>, metrics (JSON), start (JSON, retained), ctl (JSON).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass, field
+
+VERSION = 1
+KIND_STATE = ord("S")
+KIND_SENSE = ord("U")
+MAX_ABS_POS_M = 1.0e6
+MAX_ABS_VEL_MPS = 1.0e3
+MAX_SENSED_USERS = 4096
+
+# version, kind, sender, session, seq, t_ms, p_n, p_e, p_d, v_n, v_e, v_d
+_STATE = struct.Struct("<BBHHIi6f")
+# version, kind, receiver, t_ms, count; then count x (north, east) float32
+_SENSE_HEAD = struct.Struct("<BBHiH")
+STATE_SIZE = _STATE.size
+
+
+class Malformed(ValueError):
+    """A payload that is not a valid v1 message; `reason` is a short counter key."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(reason)
+
+
+@dataclass(frozen=True)
+class StateMsg:
+    sender: int
+    session: int  # random per agent process: a restarted agent's seq starts again
+    seq: int
+    t_ms: int  # mission time of the signalling instant (ms)
+    state: tuple[float, float, float, float, float, float]  # mission frame NED [p, v]
+
+    @property
+    def t_s(self) -> float:
+        return self.t_ms / 1000.0
+
+
+def encode_state(m: StateMsg) -> bytes:
+    return _STATE.pack(VERSION, KIND_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
+
+
+def _head(payload: bytes, kind: int, size: int) -> None:
+    if len(payload) < 2:
+        raise Malformed("short")
+    if payload[0] != VERSION:
+        raise Malformed("version")
+    if payload[1] != kind:
+        raise Malformed("kind")
+    if len(payload) < size:
+        raise Malformed("short")
+
+
+def decode_state(payload: bytes) -> StateMsg:
+    _head(payload, KIND_STATE, _STATE.size)
+    if len(payload) != _STATE.size:
+        raise Malformed("length")
+    _, _, sender, session, seq, t_ms, *s = _STATE.unpack(payload)
+    if not all(math.isfinite(x) for x in s):
+        raise Malformed("not_finite")
+    if any(abs(x) > MAX_ABS_POS_M for x in s[:3]) or any(abs(x) > MAX_ABS_VEL_MPS for x in s[3:]):
+        raise Malformed("out_of_range")
+    return StateMsg(sender, session, seq, t_ms, tuple(s))  # type: ignore[arg-type]
+
+
+def peek_sender(payload: bytes) -> int:
+    """The sender id of a state message (the link emulator routes without a full decode)."""
+    return decode_state(payload).sender
+
+
+@dataclass(frozen=True)
+class SenseMsg:
+    receiver: int
+    t_ms: int
+    users: tuple[tuple[float, float], ...]  # mission-frame (north, east) of the sensed users
+
+
+def encode_sense(receiver: int, t_ms: int, users_ne: list[tuple[float, float]] | object) -> bytes:
+    pts = [(float(n), float(e)) for n, e in users_ne]  # type: ignore[union-attr]
+    if len(pts) > MAX_SENSED_USERS:
+        pts = pts[:MAX_SENSED_USERS]
+    body = struct.pack(f"<{2 * len(pts)}f", *[c for p in pts for c in p])
+    return _SENSE_HEAD.pack(VERSION, KIND_SENSE, receiver, t_ms, len(pts)) + body
+
+
+def decode_sense(payload: bytes) -> SenseMsg:
+    _head(payload, KIND_SENSE, _SENSE_HEAD.size)
+    _, _, receiver, t_ms, count = _SENSE_HEAD.unpack_from(payload)
+    if len(payload) != _SENSE_HEAD.size + 8 * count:
+        raise Malformed("length")
+    flat = struct.unpack_from(f"<{2 * count}f", payload, _SENSE_HEAD.size)
+    if not all(math.isfinite(x) and abs(x) <= MAX_ABS_POS_M for x in flat):
+        raise Malformed("not_finite")
+    return SenseMsg(receiver, t_ms, tuple(zip(flat[0::2], flat[1::2], strict=True)))
+
+
+def encode_json(obj: dict) -> bytes:
+    return json.dumps({"v": VERSION, **obj}, separators=(",", ":")).encode()
+
+
+def decode_json(payload: bytes) -> dict:
+    try:
+        obj = json.loads(payload)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise Malformed("json") from exc
+    if not isinstance(obj, dict):
+        raise Malformed("json")
+    if obj.get("v") != VERSION:
+        raise Malformed("version")
+    return obj
+
+
+@dataclass(frozen=True)
+class Topics:
+    swarm: str = "sitl"
+
+    @property
+    def root(self) -> str:
+        return f"plmarl/{self.swarm}"
+
+    def tx(self, i: int | str) -> str:
+        return f"{self.root}/tx/{i}"
+
+    def rx(self, i: int | str) -> str:
+        return f"{self.root}/rx/{i}"
+
+    def sense(self, i: int | str) -> str:
+        return f"{self.root}/sense/{i}"
+
+    @property
+    def metrics(self) -> str:
+        return f"{self.root}/metrics"
+
+    @property
+    def start(self) -> str:
+        return f"{self.root}/start"
+
+    @property
+    def ctl(self) -> str:
+        return f"{self.root}/ctl"
+
+    def id_of(self, topic: str) -> int | None:
+        """The trailing integer id of a per-vehicle topic (None if not one)."""
+        tail = topic.rsplit("/", 1)[-1]
+        return int(tail) if tail.isdigit() else None
+
+
+@dataclass
+class RxCounters:
+    """What a receiver did with incoming signalling payloads."""
+
+    accepted: int = 0
+    duplicate: int = 0
+    out_of_order: int = 0
+    malformed: int = 0
+    self_echo: int = 0
+    unknown_sender: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+
+    def bad(self, reason: str) -> None:
+        self.malformed += 1
+        self.reasons[reason] = self.reasons.get(reason, 0) + 1
+
+    def as_dict(self) -> dict[str, int]:
+        return {k: v for k, v in self.__dict__.items() if k != "reasons"} | {f"malformed_{k}": v for k, v in self.reasons.items()}
+
+
+class SeqFilter:
+    """Per-sender duplicate / out-of-order filter.
+
+    Within one sender session, a message is accepted only if its seq is larger than the
+    last accepted one. A new session (a restarted agent) is accepted when its instant is
+    not older than the last accepted one, and replaces the old session.
+    """
+
+    def __init__(self) -> None:
+        self._last: dict[int, tuple[int, int, int]] = {}  # sender -> (session, seq, t_ms)
+
+    def check(self, m: StateMsg) -> str | None:
+        """None to accept, else 'duplicate' or 'out_of_order'."""
+        last = self._last.get(m.sender)
+        if last is not None:
+            session, seq, t_ms = last
+            if m.session == session:
+                if m.seq == seq:
+                    return "duplicate"
+                if m.seq < seq or m.t_ms < t_ms:
+                    return "out_of_order"
+            elif m.t_ms < t_ms:
+                return "out_of_order"
+        self._last[m.sender] = (m.session, m.seq, m.t_ms)
+        return None

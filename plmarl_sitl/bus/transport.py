@@ -1,0 +1,170 @@
+"""MQTT transport on aiomqtt: one connection, reconnect with backoff, non-blocking publish.
+
+`MqttBus.run()` is a task that owns the connection for the life of the process. While
+connected it subscribes, drains the outgoing queue and hands every incoming message to
+`on_message(topic, payload)` (a plain callback: it must not block). When the broker goes
+away it waits an exponentially growing, jittered delay and connects again; callers are
+never blocked and keep working on what they have (the agent flies on its predictions).
+
+Publishing while disconnected drops the message and counts it: signalling states are
+useless once stale. `publish(..., sticky=True)` messages (retained announcements such as
+the mission start) are re-sent after every reconnect instead.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import random
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import aiomqtt
+
+from plmarl_sitl.bus.url import parse_broker_url
+
+log = logging.getLogger("plmarl.bus")
+
+OnMessage = Callable[[str, bytes], None]
+
+
+@dataclass
+class BusStats:
+    connects: int = 0
+    disconnects: int = 0
+    published: int = 0
+    dropped_offline: int = 0
+    dropped_queue_full: int = 0
+    received: int = 0
+    bad_payload_type: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+class MqttBus:
+    def __init__(
+        self,
+        url: str,
+        client_id: str,
+        subscriptions: Sequence[str],
+        on_message: OnMessage,
+        *,
+        backoff_min_s: float = 0.1,
+        backoff_max_s: float = 5.0,
+        connect_timeout_s: float = 3.0,
+        keepalive_s: int = 5,
+        queue_size: int = 1024,
+        name: str = "bus",
+    ) -> None:
+        self.host, self.port = parse_broker_url(url)
+        self.url = url
+        self.client_id = client_id
+        self.subscriptions = list(subscriptions)
+        self.on_message = on_message
+        self.backoff_min_s, self.backoff_max_s = backoff_min_s, backoff_max_s
+        self.connect_timeout_s = connect_timeout_s
+        self.keepalive_s = keepalive_s
+        self.name = name
+        self.connected = asyncio.Event()
+        self.stats = BusStats()
+        self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
+        self._sticky: dict[str, bytes] = {}
+        self._rng = random.Random()
+        self._was_connected = False
+
+    # ------------------------------------------------------------------ publishing
+    def publish(self, topic: str, payload: bytes, *, retain: bool = False, sticky: bool = False) -> bool:
+        """Queue a QoS 0 message; False (and counted) if it was dropped."""
+        if sticky:
+            self._sticky[topic] = payload
+            retain = True
+        if not self.connected.is_set():
+            self.stats.dropped_offline += 1
+            return False
+        try:
+            self._queue.put_nowait((topic, payload, retain))
+        except asyncio.QueueFull:
+            self.stats.dropped_queue_full += 1
+            return False
+        return True
+
+    # ------------------------------------------------------------------ connection
+    async def run(self) -> None:
+        """Connect, serve, reconnect with backoff; returns only when cancelled."""
+        delay = self.backoff_min_s
+        while True:
+            try:
+                await self._session()
+            except aiomqtt.MqttError as exc:
+                if self._was_connected:
+                    log.warning("%s: lost broker %s (%s); reconnecting", self.name, self.url, exc)
+                    delay = self.backoff_min_s
+                else:
+                    log.debug("%s: cannot reach broker %s (%s)", self.name, self.url, exc)
+            except TimeoutError:
+                self.connected.clear()
+                log.debug("%s: connect to %s timed out", self.name, self.url)
+            # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
+            await asyncio.sleep(delay * (0.5 + self._rng.random()))
+            delay = min(self.backoff_max_s, delay * 2.0)
+
+    async def _session(self) -> None:
+        self._was_connected = False
+        client = aiomqtt.Client(
+            self.host,
+            self.port,
+            identifier=self.client_id,
+            keepalive=self.keepalive_s,
+            timeout=self.connect_timeout_s,
+            clean_session=True,
+        )
+        async with asyncio.timeout(self.connect_timeout_s * 2):
+            await client.__aenter__()
+        try:
+            for topic in self.subscriptions:
+                await client.subscribe(topic, qos=0)
+            while not self._queue.empty():  # whatever was queued belongs to the old session
+                self._queue.get_nowait()
+            for topic, payload in self._sticky.items():
+                await client.publish(topic, payload, qos=0, retain=True)
+            self.stats.connects += 1
+            self.connected.set()
+            log.info("%s: connected to %s", self.name, self.url)
+            lost: aiomqtt.MqttError | None = None
+            try:
+                async with asyncio.TaskGroup() as tg:
+                    tg.create_task(self._sender(client), name=f"{self.name}-sender")
+                    tg.create_task(self._receiver(client), name=f"{self.name}-receiver")
+            except* aiomqtt.MqttError as eg:  # unwrap, so run() sees one MqttError
+                lost = eg.exceptions[0]  # type: ignore[assignment]
+            if lost is not None:
+                raise lost
+        finally:
+            self._was_connected = self.connected.is_set()
+            if self._was_connected:
+                self.stats.disconnects += 1
+            self.connected.clear()
+            try:
+                await client.__aexit__(None, None, None)
+            except aiomqtt.MqttError:
+                pass  # the connection is already gone; nothing left to close cleanly
+
+    async def _sender(self, client: aiomqtt.Client) -> None:
+        while True:
+            topic, payload, retain = await self._queue.get()
+            await client.publish(topic, payload, qos=0, retain=retain)
+            self.stats.published += 1
+
+    async def _receiver(self, client: aiomqtt.Client) -> None:
+        async for msg in client.messages:
+            self.stats.received += 1
+            payload = msg.payload
+            if not isinstance(payload, bytes | bytearray):
+                self.stats.bad_payload_type += 1
+                continue
+            try:
+                self.on_message(str(msg.topic), bytes(payload))
+            except Exception:  # a bad callback must not take the bus down
+                log.exception("%s: message handler failed on %s", self.name, msg.topic)
+        raise aiomqtt.MqttError("message stream ended")

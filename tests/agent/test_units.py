@@ -1,0 +1,167 @@
+"""Pure unit and property tests: wire schema, filters, neighbour table, guard, URLs."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import pytest
+import torch
+from hypothesis import given
+from hypothesis import strategies as st
+
+from plmarl_sitl.agent.frames import home_offset_ned
+from plmarl_sitl.agent.guard import band_guard
+from plmarl_sitl.agent.neighbours import NeighbourTable
+from plmarl_sitl.autopilot.telemetry import geodetic
+from plmarl_sitl.bus.schema import (
+    STATE_SIZE,
+    Malformed,
+    SeqFilter,
+    StateMsg,
+    Topics,
+    decode_json,
+    decode_sense,
+    decode_state,
+    encode_json,
+    encode_sense,
+    encode_state,
+)
+from plmarl_sitl.bus.url import parse_broker_url
+from plmarl_sitl.errors import UserError
+from plmarl_sitl.mavlink.connect import Endpoint, parse_url
+from plmarl_sitl.mission import Origin
+from plmarl_sitl.world.signalling import Holdings, signalling_update
+
+f32 = st.floats(-1e5, 1e5, width=32)
+
+
+@given(st.integers(0, 65535), st.integers(0, 65535), st.integers(0, 2**32 - 1), st.integers(-(2**31), 2**31 - 1),
+       st.tuples(f32, f32, f32, f32.filter(lambda x: abs(x) < 1e3), f32.filter(lambda x: abs(x) < 1e3), f32.filter(lambda x: abs(x) < 1e3)))
+def test_state_round_trip(sender, session, seq, t_ms, state) -> None:
+    m = StateMsg(sender, session, seq, t_ms, state)
+    raw = encode_state(m)
+    assert len(raw) == STATE_SIZE == 38
+    assert decode_state(raw) == m
+
+
+@given(st.binary(max_size=80))
+def test_garbage_never_crashes(data: bytes) -> None:
+    for dec in (decode_state, decode_sense, decode_json):
+        try:
+            dec(data)
+        except Malformed as exc:
+            assert exc.reason
+
+
+def test_malformed_reasons() -> None:
+    good = encode_state(StateMsg(1, 2, 3, 15000, (1.0, 2.0, -60.0, 0.0, 0.0, 0.0)))
+    assert decode_state(good).t_s == 15.0
+    cases = {
+        b"": "short",
+        bytes([2]) + good[1:]: "version",
+        good[:1] + b"U" + good[2:]: "kind",
+        good[:-1]: "short",
+        good + b"x": "length",
+        good[:14] + struct.pack("<f", math.nan) + good[18:]: "not_finite",
+        good[:14] + struct.pack("<f", 3e6) + good[18:]: "out_of_range",
+    }
+    for raw, reason in cases.items():
+        with pytest.raises(Malformed) as ei:
+            decode_state(raw)
+        assert ei.value.reason == reason
+
+
+def test_sense_and_json() -> None:
+    raw = encode_sense(3, 7000, [(1.5, 2.5), (3.0, 4.0)])
+    m = decode_sense(raw)
+    assert m.receiver == 3 and m.t_ms == 7000 and m.users == ((1.5, 2.5), (3.0, 4.0))
+    assert decode_sense(encode_sense(0, 0, [])).users == ()
+    with pytest.raises(Malformed):
+        decode_sense(raw[:-1])
+    assert decode_json(encode_json({"t0_boot_s": 4.0}))["t0_boot_s"] == 4.0
+    with pytest.raises(Malformed):
+        decode_json(b'{"v": 9}')
+    with pytest.raises(Malformed):
+        decode_json(b"[1]")
+
+
+def test_seq_filter() -> None:
+    f = SeqFilter()
+
+    def msg(seq: int, t: int, session: int = 1) -> StateMsg:
+        return StateMsg(0, session, seq, t, (0.0,) * 6)  # type: ignore[arg-type]
+
+    assert f.check(msg(5, 15000)) is None
+    assert f.check(msg(5, 15000)) == "duplicate"
+    assert f.check(msg(4, 0)) == "out_of_order"
+    assert f.check(msg(6, 30000)) is None
+    assert f.check(msg(0, 45000, session=2)) is None  # a restarted sender
+    assert f.check(msg(9, 60000, session=1)) is None  # (old session again, newer instant)
+    assert f.check(msg(1, 15000, session=3)) == "out_of_order"
+
+
+def test_topics() -> None:
+    t = Topics("s1")
+    assert t.tx(3) == "plmarl/s1/tx/3" and t.rx(0) == "plmarl/s1/rx/0" and t.sense(2) == "plmarl/s1/sense/2"
+    assert t.id_of("plmarl/s1/tx/12") == 12 and t.id_of(t.metrics) is None
+
+
+def test_neighbour_table_matches_twin_holdings() -> None:
+    """The agent's table follows world.signalling.Holdings exactly, instant by instant."""
+    n, drop = 4, 2
+    gen = torch.Generator().manual_seed(3)
+    h = Holdings.empty((), n, torch.float32)
+    tables = [NeighbourTable(n, i, drop) for i in range(n)]
+    for k in range(12):
+        t = 15.0 * k
+        rx = torch.rand(n, n, generator=gen) < 0.6
+        state = torch.randn(n, 6, generator=gen) * 100
+        h = signalling_update(h, t, rx, state, drop)
+        for i, tab in enumerate(tables):
+            for j in range(n):
+                if j != i and bool(rx[i, j]):
+                    tab.on_state(j, t, tuple(state[j].tolist()))
+            tab.close_instant(t)
+            assert torch.equal(tab.mask(), h.neighbour_mask(drop)[i])
+            assert tab.lost == bool(h.lost[i])
+            assert torch.equal(tab.t_rx, h.t_rx[i])
+            got = h.ever[i]
+            assert torch.allclose(tab.state[got], h.state[i][got])
+
+
+def test_band_guard() -> None:
+    # Inside the band and far from the edges: untouched.
+    assert band_guard((1.0, 2.0, 0.5), 90.0, 0.0, 40, 150, 5) == (1.0, 2.0, 0.5)
+    # Diving at the floor: vertical brake wins, horizontal push dropped.
+    an, ae, ad = band_guard((3.0, 3.0, 4.0), 45.0, -8.0, 40, 150, 5)
+    assert (an, ae) == (0.0, 0.0) and ad == pytest.approx(-4.5)
+    # Below the band: steered back up whatever the policy says.
+    assert band_guard((0.0, 0.0, 5.0), 20.0, 0.0, 40, 150, 5)[2] < 0
+    # Above the band: steered down.
+    assert band_guard((0.0, 0.0, -5.0), 160.0, 0.0, 40, 150, 5)[2] > 0
+    # Norm stays within A_max.
+    a = band_guard((5.0, 5.0, -3.0), 90.0, 0.0, 40, 150, 5)
+    assert math.hypot(*a) <= 5.0 + 1e-9
+
+
+def test_home_offset_inverts_emulator_geodetic() -> None:
+    o = Origin(47.397742, 8.545594, 488.0)
+    lat, lon, alt = geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
+    n, e, d = home_offset_ned(o, lat, lon, alt)
+    assert n == pytest.approx(500.0, abs=1e-6) and e == pytest.approx(430.0, abs=1e-6) and d == pytest.approx(0.0)
+
+
+def test_urls() -> None:
+    assert parse_url("udpout://127.0.0.1:14540") == Endpoint("udpout", "127.0.0.1", 14540)
+    assert parse_url("udp://127.0.0.1:14540").scheme == "udpout"
+    assert parse_url("udpin://0.0.0.0:14550") == Endpoint("udpin", "0.0.0.0", 14550)
+    assert parse_url("tcpout://127.0.0.1:5760") == Endpoint("tcpout", "127.0.0.1", 5760)
+    assert parse_url("serial:///dev/ttyACM0:57600") == Endpoint("serial", "/dev/ttyACM0", 57600)
+    for bad in ("http://x:1", "udpout://127.0.0.1", "serial:///dev/ttyACM0", "udpout://:5"):
+        with pytest.raises(UserError):
+            parse_url(bad)
+    assert parse_broker_url("mqtt://127.0.0.1:1884") == ("127.0.0.1", 1884)
+    assert parse_broker_url("broker.local") == ("broker.local", 1883)
+    with pytest.raises(UserError):
+        parse_broker_url("http://x")
