@@ -8,7 +8,8 @@ Flying, everything keyed to the VEHICLE clock (LOCAL_POSITION_NED.time_boot_ms),
 `--speedup` run behaves like a real-time one. Mission second k = boot_s - t0:
 
 * at k (k % T_up == 0): publish the autopilot-reported state to tx/<id>;
-* at k + settle (updates of instant k have had time to arrive): close the signalling
+* at the first telemetry of second k (at a signalling instant: once the updates of
+  instant k have had time to arrive, see `_second_due`): close the signalling
   instant (misses, drops, failure state f), advance Algorithm 1's tracker one second
   (`predictor.pt`), and every tau seconds run `policy.pt` on
   (ego, beliefs, N_i mask, sensing features, f) -> acceleration, held until the next decision;
@@ -78,7 +79,8 @@ class AgentConfig:
     bus_mode: str = "sitl"  # sitl: the world relays tx -> rx/<id>; direct: subscribe tx/+
     takeoff: bool = True
     wait_start: bool = True  # wait for the world's start announcement (else start now)
-    settle_s: float = 0.2  # vehicle seconds after an instant before it is closed
+    settle_min_s: float = 0.1  # vehicle s: an instant is never closed earlier than this
+    settle_wall_s: float = 0.15  # wall s: ... and at most this late (x the observed speedup, >= 0.2 vehicle s)
     connect_timeout_s: float = 30.0
     takeoff_timeout_s: float = 120.0  # vehicle seconds
     trace_path: Path | None = None
@@ -178,6 +180,9 @@ class Agent:
         self.sensed: torch.Tensor | None = None  # (K, 2) users in R_s, latest sensing message
         self.sense_warned = False
         self.last_send_wall = 0.0
+        self.rate: float | None = None
+        self._rate_ref: tuple[float, float] | None = None
+        self.first_k = 0
         self._trace: IO[str] | None = None
 
     # ------------------------------------------------------------------ bus input
@@ -247,7 +252,7 @@ class Agent:
     def _set_t0(self, t0: float) -> None:
         self.t0 = t0
         k = max(0, math.ceil(self.boot_s - t0 - 1e-9))
-        self.next_k = k
+        self.next_k = self.first_k = k
         self.next_pub_k = -(-k // self.tup) * self.tup
         log.info("mission clock: t0 = boot %.3f s (first second %d)", t0, k)
 
@@ -255,6 +260,7 @@ class Agent:
         """One LOCAL_POSITION_NED: advance the mission clock, decide, send the setpoint."""
         t_in = time.perf_counter()
         self.boot_s = m.time_boot_ms / 1000.0  # type: ignore[attr-defined]
+        self._track_rate()
         local = torch.tensor([m.x, m.y, m.z, m.vx, m.vy, m.vz], dtype=torch.float32)  # type: ignore[attr-defined]
         self.ego = torch.cat([local[:3] + self.home, local[3:]])
         decided = False
@@ -265,7 +271,7 @@ class Agent:
                 self.next_pub_k += self.tup
             for k in range(self.next_k, math.floor(tm + 1e-9) + 1):
                 self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
-            while tm >= self.next_k + self.cfg.settle_s - 1e-9:
+            while self._second_due(self.next_k, tm):
                 decided |= self._second(self.next_k)
                 self.next_k += 1
         if self.flying:
@@ -274,6 +280,38 @@ class Agent:
         self.stats.all_ms.append(dt_ms)
         if decided:
             self.stats.decision_ms.append(dt_ms)
+
+    def _track_rate(self) -> None:
+        """Vehicle seconds per wall second (the SITL speedup; 1 on a real vehicle)."""
+        now = time.perf_counter()
+        if self._rate_ref is None:
+            self._rate_ref = (now, self.boot_s)
+            return
+        w0, b0 = self._rate_ref
+        if now - w0 >= 1.0:
+            r = (self.boot_s - b0) / (now - w0)
+            if r > 0:
+                self.rate = r if self.rate is None else 0.5 * self.rate + 0.5 * r
+            self._rate_ref = (now, self.boot_s)
+
+    def settle_max_s(self) -> float:
+        return max(0.2, self.cfg.settle_wall_s * (self.rate or 1.0))
+
+    def _second_due(self, k: int, tm: float) -> bool:
+        """Second k can be processed: at once, except at a signalling instant, which waits
+        until every neighbour expected to deliver has (those in N_i; at the first instant,
+        everyone), bounded by `settle_max_s` of vehicle time, so late updates still count."""
+        if tm < k - 1e-9:
+            return False
+        if k % self.tup != 0:
+            return True
+        if tm < k + self.cfg.settle_min_s:
+            return False
+        if tm >= k + self.settle_max_s():
+            return True
+        first = k == self.first_k
+        t_rx = self.table.t_rx
+        return all(float(t_rx[j]) == k for j in range(self.n) if j != self.me and (first or self.table.in_set(j)))
 
     def _publish_state(self, k: int) -> None:
         state = tuple(float(x) for x in self.ego.tolist())
@@ -313,7 +351,8 @@ class Agent:
                 "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
                 "fail": self.table.lost,
                 "ego": [round(x, 2) for x in ego.tolist()],
-                "accel": [round(x, 3) for x in self.accel],
+                "accel": [round(x, 3) for x in self.accel],  # the policy's command
+                "cmd": [round(x, 3) for x in self._command()],  # after the band guard
                 "decided": decided,
             }
             self._trace.write(json.dumps(rec) + "\n")

@@ -1,0 +1,123 @@
+"""Integration: the SITL world (in this process) + real brokers + agents as child processes."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+
+from plmarl_sitl.mission import Launch, Mission
+
+from .conftest import run_sitl
+
+pytestmark = pytest.mark.timeout(150)
+
+TUP = 5
+
+
+def _dist(a: list[float], b: list[float]) -> float:
+    return math.dist(a[:2] + [a[2]], b[:2] + [b[2]])
+
+
+def _check_flying(run, n: int, offboard_mode: str) -> None:  # noqa: ANN001
+    ms = [m for m in run.metrics if m["t"] is not None]
+    assert len(ms) >= 20, "the mission never started"
+    first, last = ms[0], ms[-1]
+    for i in range(n):
+        if not last["uav"][i]["alive"]:
+            continue
+        assert first["uav"][i]["alt"] >= 5.0 and first["uav"][i]["armed"]
+        assert first["uav"][i]["mode"] == offboard_mode
+        assert _dist(first["uav"][i]["pos"], last["uav"][i]["pos"]) > 20.0, f"UAV {i} did not move"
+        assert sum(r["decided"] for r in run.trace(i)) >= 5
+
+
+def _check_sawtooth(run, i: int, j: int, upto: int, r_comm: float = 350.0) -> None:  # noqa: ANN001
+    """P-AoI of neighbour j at receiver i: 1 at each instant k T_up, then 1, 2, 3, ...
+    (Eq. 1), over every T_up window whose instant found i and j well within range."""
+    by_t = {m["t"]: m for m in run.metrics if m["t"] is not None}
+    rows = {r["t"]: r for r in run.trace(i) if r["t"] <= upto}
+    windows = 0
+    for k in range(0, upto - TUP + 2, TUP):
+        u = by_t.get(k, {}).get("uav")
+        if u is None or _dist(u[i]["pos"], u[j]["pos"]) > r_comm - 60.0:
+            continue
+        windows += 1
+        for t in range(k, k + TUP):
+            assert rows[t]["aoi"][j] == max(1, t - k), (t, rows[t]["aoi"], rows[t]["t_rx"])
+    assert windows >= 2, "too few in-range windows to see the sawtooth"
+
+
+def test_swarm_amqtt_range_sawtooth_and_failure(tmp_path: Path, mission: Mission, policy_dir: Path) -> None:
+    """3 PX4 vehicles 200 m apart in a line (0 and 2 are 400 m > R_comm apart at launch);
+    agent 2 is SIGKILLed at t = 17: vehicle 2 holds (PX4 AUTO.LOITER) and agent 1 drops
+    it after k = 2 missed instants (t = 20 and 25 -> dropped at 25), raising f."""
+    n, kill_at = 3, 17
+    wm = dataclasses.replace(mission, n_uavs=n, launch=Launch(mission.launch.north_m, mission.launch.east_m, 200.0))
+
+    def on_second(world, fleet, m, run) -> None:  # noqa: ANN001
+        if m["t"] == kill_at and "kill" not in run.events:
+            fleet.kill(2)
+            run.events["kill"] = m["boot_s"]
+
+    run = run_sitl(tmp_path, policy_dir, n=n, tup_s=TUP, episode_s=32, world_mission=wm, on_second=on_second)
+    _check_flying(run, n, "OFFBOARD")
+    t0, t1 = run.trace(0), run.trace(1)
+    # Sawtooth: 0 hears 1 at every instant before anything fails.
+    _check_sawtooth(run, 0, 1, kill_at)
+    _check_sawtooth(run, 1, 0, kill_at)
+    # Beyond R_comm, nothing arrives: at every instant where 0 and 2 were out of range
+    # (with a margin for the motion during delivery), 0 holds nothing from that instant.
+    by_t = {m["t"]: m for m in run.metrics if m["t"] is not None}
+    checked = 0
+    for r in t0:
+        k = r["t"]
+        if k % TUP == 0 and k in by_t and k < kill_at:
+            u = by_t[k]["uav"]
+            if _dist(u[0]["pos"], u[2]["pos"]) > mission.radii.comm_m + 40.0:
+                assert r["t_rx"][2] != k
+                checked += 1
+    assert checked >= 1
+    assert r0_never_heard_2_at_start(t0)
+    # Failure: vehicle 2 falls back to its own hold; agent 1 drops 2 after 2 missed instants.
+    after = [m for m in run.metrics if m["t"] is not None and m["t"] >= kill_at + 3]
+    assert after and all(m["uav"][2]["mode"] == "AUTO.LOITER" and m["uav"][2]["alt"] > 5 for m in after)
+    s1 = run.stats(1)
+    assert s1 is not None and 2 in s1["dropped"] and s1["fail"], run.log(1)[-2000:]
+    drop_rows = [r for r in t1 if not r["mask"][2] and r["t"] > kill_at]
+    assert drop_rows and drop_rows[0]["t"] == 25 and drop_rows[0]["fail"]
+    assert all(r["mask"][2] for r in t1 if TUP <= r["t"] < 25)
+    assert "neighbour 2 dropped" in run.log(1)
+    # Counters: nothing malformed on a clean run.
+    assert s1["rx"]["malformed"] == 0 and s1["rx"]["accepted"] >= 4
+
+
+def r0_never_heard_2_at_start(trace: list[dict]) -> bool:
+    return all(r["t_rx"][2] is None for r in trace if r["t"] < TUP)
+
+
+@pytest.mark.parametrize("personality,mode", [("px4", "OFFBOARD"), ("ardupilot", "GUIDED")])
+def test_personalities_and_commanded_velocity(tmp_path: Path, policy_dir: Path, personality: str, mode: str) -> None:
+    """The same agent flies both personalities, over mosquitto for ArduPilot; the
+    vehicle's velocity follows the commanded accelerations."""
+    broker = "mosquitto" if personality == "ardupilot" else "amqtt"
+    run = run_sitl(tmp_path, policy_dir, n=2, broker=broker, personality=personality, tup_s=TUP, episode_s=24)
+    _check_flying(run, 2, mode)
+    assert f"{personality} personality" in run.log(0)
+    _check_sawtooth(run, 0, 1, 24)
+    for i in range(2):
+        rows = {r["t"]: r for r in run.trace(i)}
+        good = total = 0
+        for k, r in rows.items():
+            if not r["decided"] or k + 3 not in rows:
+                continue
+            a = r["cmd"][:2]
+            if math.hypot(*a) < 1.0 or math.hypot(*rows[k + 3]["ego"][3:5]) > 18.0:
+                continue  # tiny command or at the speed limit: nothing to compare
+            dv = [rows[k + 3]["ego"][3 + c] - r["ego"][3 + c] for c in range(2)]
+            total += 1
+            cos = (a[0] * dv[0] + a[1] * dv[1]) / (math.hypot(*a) * max(math.hypot(*dv), 1e-9))
+            good += cos > 0.9 and 0.5 < math.hypot(*dv) / (3 * math.hypot(*a)) < 1.5
+        assert total >= 2 and good >= 0.75 * total, (good, total)
