@@ -120,6 +120,52 @@ class Failure:
     uav: int = field(metadata={"min": 0})
 
 
+EventType = Literal["node_failure", "link_blackout", "broker_outage", "tup_change", "gnss_noise"]
+
+# Which optional fields each event type takes, and which it requires.
+_EVENT_FIELDS: dict[str, tuple[set[str], set[str]]] = {
+    "node_failure": ({"uav"}, {"uav"}),
+    "link_blackout": ({"duration_s", "uavs"}, {"duration_s"}),
+    "broker_outage": ({"duration_s"}, {"duration_s"}),
+    "tup_change": ({"tup_s"}, {"tup_s"}),
+    "gnss_noise": ({"std_m", "duration_s", "uavs"}, {"std_m"}),
+}
+
+
+@dataclass(frozen=True)
+class Event:
+    """A scripted mission event on the sim clock.
+
+    node_failure: vehicle `uav` stops and its agent is killed.
+    link_blackout: links touching `uavs` (all links when empty) are cut for `duration_s`.
+    broker_outage: the MQTT broker stops for `duration_s`, then restarts.
+    tup_change: the signalling interval becomes `tup_s`.
+    gnss_noise: position telemetry of `uavs` (all when empty) gets Gaussian noise of
+    `std_m` per axis, for `duration_s` (to the end when omitted).
+    """
+
+    type: EventType
+    at_s: float = field(metadata={"min": 0.0})
+    uav: int | None = field(default=None, metadata={"min": 0})
+    uavs: tuple[int, ...] = ()
+    duration_s: float | None = field(default=None, metadata={"min": 1e-9})
+    tup_s: int | None = field(default=None, metadata={"min": 1})
+    std_m: float | None = field(default=None, metadata={"min": 0.0})
+
+    def __post_init__(self) -> None:
+        allowed, required = _EVENT_FIELDS[self.type]
+        for name in ("uav", "uavs", "duration_s", "tup_s", "std_m"):
+            given = getattr(self, name) not in (None, ())
+            _require(not given or name in allowed, name, f"not used by a {self.type} event")
+            _require(given or name not in required, name, f"is required for a {self.type} event")
+
+    def end_s(self) -> float:
+        return self.at_s + self.duration_s if self.duration_s is not None else float("inf")
+
+    def active(self, t: float) -> bool:
+        return self.at_s <= t < self.end_s()
+
+
 @dataclass(frozen=True)
 class Launch:
     """Where the swarm starts: a line of UAVs at takeoff altitude around this point."""
@@ -153,9 +199,16 @@ class Mission:
     reward: Reward = Reward()
     launch: Launch = Launch()
     origin: Origin = Origin()
+    # Node failures, shorthand for node_failure events (the twin's and the trainer's form).
     failures: tuple[Failure, ...] = ()
+    events: tuple[Event, ...] = ()
 
     def __post_init__(self) -> None:
+        for i, ev in enumerate(self.events):
+            ids = ((ev.uav,) if ev.uav is not None else ()) + ev.uavs
+            for u in ids:
+                _require(u < self.n_uavs, f"events[{i}].{'uav' if ev.uav is not None else 'uavs'}", f"must be < n_uavs ({self.n_uavs})")
+            _require(ev.at_s <= self.timing.episode_s, f"events[{i}].at_s", f"must be <= timing.episode_s ({self.timing.episode_s})")
         for i, f in enumerate(self.failures):
             _require(f.uav < self.n_uavs, f"failures[{i}].uav", f"must be < n_uavs ({self.n_uavs})")
             _require(
@@ -167,6 +220,14 @@ class Mission:
         for i, (n, e) in enumerate(centres):
             ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m
             _require(ok, f"users.cluster_centers[{i}]", "must lie inside the area")
+
+    def node_failures(self) -> tuple[Failure, ...]:
+        """Every node failure: the `failures` list plus node_failure events."""
+        extra = tuple(Failure(at_s=e.at_s, uav=e.uav) for e in self.events if e.type == "node_failure" and e.uav is not None)
+        return self.failures + extra
+
+    def events_of(self, kind: str) -> tuple[Event, ...]:
+        return tuple(e for e in self.events if e.type == kind)
 
     def vehicle_model(self) -> VehicleModel:
         return load_vehicle(self.vehicle)

@@ -108,7 +108,7 @@ class CoverageEnv:
         self.alive = torch.ones(b, n, dtype=torch.bool, device=self.device)
         self.users: UserState = init_users(m, b, self.gen, self.dtype, self.device)
         fail_at = torch.full((b, n), float("inf"), dtype=torch.float64)
-        for f in m.failures:
+        for f in m.node_failures():
             fail_at[:, f.uav] = torch.minimum(fail_at[:, f.uav], torch.tensor(f.at_s, dtype=torch.float64))
         if self.failure_prob > 0:
             hit = torch.rand(b, generator=self.gen) < self.failure_prob
@@ -130,12 +130,43 @@ class CoverageEnv:
             self.alive = self.alive & ~dead
             self.vel = torch.where(self.alive.unsqueeze(-1), self.vel, torch.zeros_like(self.vel))
 
+    def tup_at(self, t: float) -> int:
+        """The signalling interval in force at t (the last tup_change event wins)."""
+        tup = self.mission.signalling.tup_s
+        for ev in self.mission.events_of("tup_change"):
+            if ev.at_s <= t and ev.tup_s is not None:
+                tup = ev.tup_s
+        return tup
+
     def _signal(self) -> None:
-        sig = self.mission.signalling
-        if not is_signalling_instant(self.t, sig.tup_s):
+        m = self.mission
+        if not is_signalling_instant(self.t, self.tup_at(self.t)):
             return
-        rx, _ = link_mask(self.pos, self.alive, self.mission.channel, self.mission.radii.comm_m)
-        self.holdings = signalling_update(self.holdings, float(self.t), rx, self.true_state(), sig.drop_after_missed)
+        rx, _ = link_mask(self.pos, self.alive, m.channel, m.radii.comm_m)
+        for ev in m.events:
+            if not ev.active(self.t):
+                continue
+            if ev.type == "broker_outage":
+                rx = torch.zeros_like(rx)
+            elif ev.type == "link_blackout":
+                cut = self._selected(ev.uavs)
+                rx = rx & ~(cut.unsqueeze(-1) | cut.unsqueeze(-2))
+        sent = torch.cat([self._gnss(self.pos), self.vel], -1)
+        self.holdings = signalling_update(self.holdings, float(self.t), rx, sent, m.signalling.drop_after_missed)
+
+    def _selected(self, uavs: tuple[int, ...]) -> torch.Tensor:
+        """(N,) bool mask of the listed UAVs; all of them when the list is empty."""
+        mask = torch.zeros(self.n, dtype=torch.bool, device=self.device)
+        mask[list(uavs) if uavs else slice(None)] = True
+        return mask
+
+    def _gnss(self, pos: torch.Tensor) -> torch.Tensor:
+        """Positions as the UAVs' own navigation reports them (gnss_noise events)."""
+        for ev in self.mission.events_of("gnss_noise"):
+            if ev.active(self.t) and ev.std_m:
+                noise = ev.std_m * torch.randn(pos.shape, generator=self.gen, dtype=pos.dtype).to(pos.device)
+                pos = pos + noise * self._selected(ev.uavs).view(1, -1, 1)
+        return pos
 
     def physics_step(self, accel: torch.Tensor) -> tuple[torch.Tensor, RewardTerms]:
         """One dt of everything; returns (reward (B,), its terms incl. coverage (B,))."""
@@ -199,7 +230,7 @@ class CoverageEnv:
         sense = torch.where(alive_rx, sense, torch.zeros_like(sense))
         return Observation(
             t=self.t,
-            ego=self.true_state(),
+            ego=torch.cat([self._gnss(self.pos), self.vel], -1),
             alive=self.alive,
             nbr_state=h.state,
             nbr_aoi=h.aoi(float(self.t)),

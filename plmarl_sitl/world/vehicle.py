@@ -59,8 +59,8 @@ def clip_norm(x: torch.Tensor, max_norm: float) -> torch.Tensor:
     return x * scale
 
 
-def _first_upcrossing(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """Smallest t > tol where f(t) = half_c t^2 + b t + d crosses zero *upward*, else +inf.
+def _first_upcrossing(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor, min_t: float = _TIME_TOL) -> torch.Tensor:
+    """Smallest t > min_t where f(t) = half_c t^2 + b t + d crosses zero *upward*, else +inf.
 
     Only up-crossings are limit events: a state that starts a hair outside a limit
     through float round-off and is moving back in must not "hit" it again (that would
@@ -70,15 +70,15 @@ def _first_upcrossing(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor) ->
     quad = half_c.abs() > 1e-12
     # Linear case: f' = b must be positive.
     safe_b = torch.where(b.abs() > 1e-12, b, torch.ones_like(b))
-    lin = torch.where((b > 1e-12) & (-d / safe_b > _TIME_TOL), -d / safe_b, inf)
+    lin = torch.where((b > 1e-12) & (-d / safe_b > min_t), -d / safe_b, inf)
     # Quadratic case: of the two roots, the up-crossing is where f' = 2 half_c t + b > 0.
     disc = b * b - 4.0 * half_c * d
     sq = torch.sqrt(torch.clamp(disc, min=0.0))
     safe_c = torch.where(quad, half_c, torch.ones_like(half_c))
     r1 = (-b - sq) / (2.0 * safe_c)
     r2 = (-b + sq) / (2.0 * safe_c)
-    r1 = torch.where((r1 > _TIME_TOL) & (2.0 * half_c * r1 + b > 0), r1, inf)
-    r2 = torch.where((r2 > _TIME_TOL) & (2.0 * half_c * r2 + b > 0), r2, inf)
+    r1 = torch.where((r1 > min_t) & (2.0 * half_c * r1 + b > 0), r1, inf)
+    r2 = torch.where((r2 > min_t) & (2.0 * half_c * r2 + b > 0), r2, inf)
     return torch.where(quad, torch.where(disc >= 0, torch.minimum(r1, r2), inf), lin)
 
 
@@ -131,11 +131,31 @@ def _snap_walls(pos: torch.Tensor, vel: torch.Tensor, lim: Limits) -> tuple[torc
     return pos, vel
 
 
-def _snap_speed(vel: torch.Tensor, lim: Limits) -> torch.Tensor:
-    """Put speeds within a few ulps of V_max exactly on it, so "at the limit" is exact."""
+def _snap_speed(vel: torch.Tensor, lim: Limits, force: torch.Tensor | None = None) -> torch.Tensor:
+    """Put speeds within a few ulps of V_max (or where `force`) exactly on it."""
     speed = torch.linalg.vector_norm(vel, dim=-1, keepdim=True)
     near = speed >= lim.max_speed * (1.0 - _speed_snap(vel))
+    if force is not None:
+        near = near | force.unsqueeze(-1)
     return torch.where(near, vel * (lim.max_speed / torch.clamp(speed, min=1e-12)), vel)
+
+
+def _event_times(
+    pos: torch.Tensor, vel: torch.Tensor, a: torch.Tensor, lim: Limits, min_t: float
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(t_speed, t_ceiling, t_floor): first up-crossing after min_t of each limit.
+
+    Three quadratics solved in one batched call (small-tensor ops cost per call):
+    speed:   |v + a t|^2 - V^2 = |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 rises through 0
+    ceiling: h + w t + c t^2 / 2 - alt_max rises through 0 (altitude positive up)
+    floor:   alt_min - (h + w t + c t^2 / 2) rises through 0
+    """
+    h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
+    half_c = torch.stack([(a * a).sum(-1), 0.5 * c, -0.5 * c])
+    lin = torch.stack([2.0 * (vel * a).sum(-1), w, -w])
+    const = torch.stack([(vel * vel).sum(-1) - lim.max_speed**2, h - lim.alt_max, lim.alt_min - h])
+    t_speed, t_ceil, t_floor = _first_upcrossing(half_c, lin, const, min_t)
+    return t_speed, t_ceil, t_floor
 
 
 def _advance(
@@ -145,15 +165,22 @@ def _advance(
     pos, vel = _snap_walls(pos, vel, lim)
     vel = _snap_speed(vel, lim)
     a = _effective_accel(pos, vel, acc, lim)
-    # Three up-crossings solved in one batched call (small-tensor ops cost per call):
-    # speed:   |v + a t|^2 - V^2 = |a|^2 t^2 + 2 (v.a) t + |v|^2 - V^2 rises through 0
-    # ceiling: h + w t + c t^2 / 2 - alt_max rises through 0 (altitude positive up)
-    # floor:   alt_min - (h + w t + c t^2 / 2) rises through 0
-    h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
-    half_c = torch.stack([(a * a).sum(-1), 0.5 * c, -0.5 * c])
-    lin = torch.stack([2.0 * (vel * a).sum(-1), w, -w])
-    const = torch.stack([(vel * vel).sum(-1) - lim.max_speed**2, h - lim.alt_max, lim.alt_min - h])
-    t_speed, t_ceil, t_floor = _first_upcrossing(half_c, lin, const)
+    # A limit reached within _TIME_TOL is reached now: too close to solve for as an
+    # event, so put the vehicle on it and let the constrained command take over.
+    # Crossings in (-tol, tol] are "now" (a hair in the past is round-off, not history).
+    t_speed, t_ceil, t_floor = _event_times(pos, vel, a, lim, -_TIME_TOL)
+    now_speed = t_speed <= _TIME_TOL
+    now_wall = torch.minimum(t_ceil, t_floor) <= _TIME_TOL
+    if bool(now_speed.any()) or bool(now_wall.any()):
+        if bool(now_wall.any()):
+            edge = torch.where(t_ceil <= t_floor, torch.full_like(t_ceil, -lim.alt_max), torch.full_like(t_ceil, -lim.alt_min))
+            pos = pos.clone()
+            vel = vel.clone()
+            pos[..., 2] = torch.where(now_wall, edge, pos[..., 2])
+            vel[..., 2] = torch.where(now_wall, torch.zeros_like(edge), vel[..., 2])
+        vel = _snap_speed(vel, lim, force=now_speed)
+        a = _effective_accel(pos, vel, acc, lim)
+        t_speed, t_ceil, t_floor = _event_times(pos, vel, a, lim, _TIME_TOL)
     t_wall = torch.minimum(t_ceil, t_floor)
     t = torch.minimum(t_left, torch.minimum(t_speed, t_wall))
     tt = t.unsqueeze(-1)
@@ -161,9 +188,9 @@ def _advance(
     vel = vel + a * tt
     hit_wall = (t_wall <= t) & torch.isfinite(t_wall)
     if bool(hit_wall.any()):
-        bound = torch.where(t_ceil <= t_floor, torch.full_like(h, lim.alt_max), torch.full_like(h, lim.alt_min))
+        bound = torch.where(t_ceil <= t_floor, torch.full_like(t, lim.alt_max), torch.full_like(t, lim.alt_min))
         pos[..., 2] = torch.where(hit_wall, -bound, pos[..., 2])
-        vel[..., 2] = torch.where(hit_wall, torch.zeros_like(h), vel[..., 2])
+        vel[..., 2] = torch.where(hit_wall, torch.zeros_like(t), vel[..., 2])
     hit_speed = (t_speed <= t) & torch.isfinite(t_speed)
     if bool(hit_speed.any()):
         vel = torch.where(hit_speed.unsqueeze(-1), clip_norm(vel, lim.max_speed), vel)

@@ -92,3 +92,40 @@ def test_oracle_is_high_and_heuristic_below_it():
     assert oracle.coverage.mean() >= 0.9
     assert heur.coverage.mean() < oracle.coverage.mean() - 0.1
     assert oracle.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
+
+
+def _events_mission(*events):
+    from plmarl_sitl.mission import Event
+
+    return dataclasses.replace(MISSION.with_tup(5), events=tuple(Event(**e) for e in events))
+
+
+def test_blackout_and_broker_outage_stop_deliveries_for_their_window():
+    for ev in ({"type": "link_blackout", "at_s": 10, "duration_s": 10, "uavs": (1,)}, {"type": "broker_outage", "at_s": 10, "duration_s": 10}):
+        env = CoverageEnv(_events_mission(ev), 1, seed=0)
+        env.reset()
+        t_rx = {}
+        while env.t < 30:
+            env.physics_step(torch.zeros(1, env.n, 3))
+            t_rx[env.t] = env.holdings.t_rx[0].clone()
+        assert float(t_rx[9][0, 1]) == 5.0 and float(t_rx[19][0, 1]) == 5.0 and float(t_rx[20][0, 1]) == 20.0
+        other = float(t_rx[19][0, 2])
+        assert other == (15.0 if ev["type"] == "link_blackout" else 5.0)
+
+
+def test_tup_change_moves_the_signalling_instants():
+    env = CoverageEnv(_events_mission({"type": "tup_change", "at_s": 12, "tup_s": 8}), 1, seed=0)
+    env.reset()
+    instants = set()
+    while env.t < 40:
+        env.physics_step(torch.zeros(1, env.n, 3))
+        if float(env.holdings.t_rx[0, 0, 1]) == env.t:
+            instants.add(env.t)
+    assert instants == {5, 10, 16, 24, 32, 40}
+
+
+def test_gnss_noise_perturbs_reported_positions_only():
+    env = CoverageEnv(_events_mission({"type": "gnss_noise", "at_s": 0, "std_m": 5.0, "uavs": (0,)}), 1, seed=0)
+    obs = env.reset()
+    err = (obs.ego[0, :, :3] - env.pos[0]).abs().sum(-1)
+    assert err[0] > 0 and torch.all(err[1:] == 0)

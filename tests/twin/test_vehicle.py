@@ -40,6 +40,8 @@ def test_limits_never_exceeded(alt, v, a, dt):
 @example(alt=40.0, v=(0.5, 0.0, 20.0), a=(1.0, 0.0, 19.0), dt=1.0, k=2)
 @example(alt=40.0, v=(0.0, 0.0, -3.8692477758379256e-280), a=(0.0, 0.0, 1.0), dt=1.0, k=2)
 @example(alt=40.0, v=(30.0, -30.0, -30.0), a=(-10.143614542508722, -30.0, 20.0), dt=0.1, k=6)
+@example(alt=40.0, v=(20.0, 0.0, 0.001953125), a=(1.0, 0.0, 0.0), dt=1.0, k=2)
+@example(alt=150.0, v=(2.4638862154841235, -13.368143574250201, 20.0), a=(20.48632938067732, -10.707911964319262, -9.744309589036298), dt=0.1, k=6)
 def test_substeps_equal_one_step(alt, v, a, dt, k):
     """Exact integration: k steps of dt/k land where one step of dt does, limits included."""
     pos, vel, acc = _state(alt, v, a)
