@@ -11,7 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from plmarl_sitl.config import ConfigError, VehicleModel, _require, load_vehicle, load_yaml
+import yaml
+
+from plmarl_sitl.config import ConfigError, VehicleModel, _require, from_dict, load_vehicle
 
 Mobility = Literal["gauss_markov", "random_waypoint", "rpgm", "mixed"]
 Layout = Literal["fixed", "lattice", "random"]
@@ -236,9 +238,47 @@ class Mission:
         return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))
 
 
+def _deep_merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def _read_mission_data(path: Path, seen: tuple[Path, ...] = ()) -> dict:
+    """The mission's plain data, with `extends: other.yaml` (relative to this file)
+    resolved: this file's keys override the other's, mappings merged key by key."""
+    if path.resolve() in seen:
+        raise ConfigError("extends", "missions extend each other in a cycle", str(path))
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError("", f"cannot read file: {exc.strerror}", str(path)) from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError("", f"not valid YAML: {exc}", str(path)) from exc
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError("", "expected a mapping at the top level", str(path))
+    base = data.pop("extends", None)
+    if base is None:
+        return data
+    if not isinstance(base, str):
+        raise ConfigError("extends", "expected a file name", str(path))
+    return _deep_merge(_read_mission_data(path.parent / base, (*seen, path.resolve())), data)
+
+
+def mission_from_dict(data: dict, source: str | None = None) -> Mission:
+    try:
+        return from_dict(Mission, data)
+    except ConfigError as exc:
+        raise ConfigError(exc.path, exc.reason, source) from None
+
+
 def load_mission(path: str | Path) -> Mission:
     """Load a mission YAML; errors are ConfigError naming the file and the key path."""
-    mission = load_yaml(Mission, path)
+    path = Path(path)
+    mission = mission_from_dict(_read_mission_data(path), str(path))
     try:
         mission.vehicle_model()
     except ConfigError as exc:

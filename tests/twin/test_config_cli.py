@@ -82,3 +82,46 @@ def test_cli_sim_json_is_one_object_and_deterministic():
     assert set(outs[0]) == {"coverage_mean", "coverage_ci95", "lambda2_mean", "min_separation_m", "episodes", "seed"}
     lo, hi = outs[0]["coverage_ci95"]
     assert lo <= outs[0]["coverage_mean"] <= hi and outs[0]["seed"] == 5 and outs[0]["episodes"] == 3
+
+
+def test_extends_merges_and_overrides(tmp_path):
+    base = _write(tmp_path, BASE)
+    child = tmp_path / "child.yaml"
+    child.write_text(f"extends: {base.name}\nname: child\nradii: {{comm_m: 300}}\nevents: [{{type: tup_change, at_s: 5, tup_s: 30}}]\n")
+    m = load_mission(child)
+    assert m.name == "child" and m.radii.comm_m == 300.0 and m.radii.sensing_m == 100.0
+    assert m.events[0].tup_s == 30 and m.users.count == 240
+
+
+def test_extends_cycle_and_errors_name_the_child(tmp_path):
+    a, b = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    a.write_text("extends: b.yaml\nname: a\n")
+    b.write_text("extends: a.yaml\nname: b\n")
+    with pytest.raises(ConfigError, match="cycle"):
+        load_mission(a)
+    c = tmp_path / "c.yaml"
+    c.write_text("extends: ../../no/such.yaml\nname: c\n")
+    with pytest.raises(ConfigError, match="cannot read file"):
+        load_mission(c)
+
+
+@pytest.mark.parametrize(
+    ("event", "message"),
+    [
+        ({"type": "link_blackout", "at_s": 5}, "events[0].duration_s: is required for a link_blackout event"),
+        ({"type": "tup_change", "at_s": 5, "tup_s": 10, "uav": 1}, "events[0].uav: not used by a tup_change event"),
+        ({"type": "node_failure", "at_s": 5, "uav": 7}, "events[0].uav: must be < n_uavs (4)"),
+        ({"type": "gnss_noise", "at_s": -2, "std_m": 1}, "events[0].at_s: must be >= 0"),
+        ({"type": "meteor", "at_s": 5}, "events[0].type: expected one of"),
+    ],
+)
+def test_event_errors_name_the_path(tmp_path, event, message):
+    with pytest.raises(ConfigError) as exc:
+        load_mission(_write(tmp_path, _with(["events"], [event])))
+    assert message in str(exc.value)
+
+
+@pytest.mark.parametrize("name", ["paper_urban", "node_failure", "blackout", "broker_outage", "scale_20"])
+def test_shipped_missions_load(name):
+    m = load_mission(f"missions/{name}.yaml")
+    assert m.name == name and m.users.count == 60 * m.n_uavs
