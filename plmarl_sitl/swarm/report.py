@@ -1,0 +1,100 @@
+"""`plmarl report DIR`: plots of a recorded run, and its summary.
+
+Reads metrics.jsonl, events.jsonl and summary.json from DIR (what `plmarl swarm up
+--out DIR` writes) and draws coverage over time with the events marked, the per-UAV
+maximum P-AoI over time, and the trajectories, as PNGs in DIR.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from plmarl_sitl.errors import UserError
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    """Rows of a JSONL file; a malformed line names the file and line number."""
+    rows = []
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read ({exc.strerror})") from exc
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError as exc:
+            raise UserError(f"{path}:{i}: not valid JSON ({exc.msg})") from exc
+    return rows
+
+
+def load_run(run_dir: Path) -> tuple[list[dict], list[dict], dict | None]:
+    if not run_dir.is_dir():
+        raise UserError(f"{run_dir}: no such run directory")
+    metrics = read_jsonl(run_dir / "metrics.jsonl")
+    if not metrics:
+        raise UserError(f"{run_dir / 'metrics.jsonl'}: no metrics recorded")
+    for i, row in enumerate(metrics, 1):
+        missing = {"t", "coverage", "uavs"} - set(row)
+        if missing:
+            raise UserError(f"{run_dir / 'metrics.jsonl'}:{i}: missing keys {sorted(missing)}")
+    events_path = run_dir / "events.jsonl"
+    events = read_jsonl(events_path) if events_path.exists() else []
+    summary_path = run_dir / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
+    return metrics, events, summary
+
+
+def draw(run_dir: Path, metrics: list[dict], events: list[dict]) -> list[Path]:
+    """Write coverage.png, aoi.png and trajectories.png into run_dir; return their paths."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = [r["t"] for r in metrics]
+    out = []
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    ax.plot(t, [r["coverage"] for r in metrics], lw=1.5, label="coverage C(t)")
+    for ev in events:
+        ax.axvline(ev["t"], color="tab:red", ls="--", lw=1)
+        ax.annotate(ev.get("type", "event"), (ev["t"], 0.02), rotation=90, fontsize=8, color="tab:red", va="bottom", ha="right")
+    ax.set(xlabel="sim time [s]", ylabel="coverage", ylim=(0, 1.02), title="Coverage over time")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out.append(run_dir / "coverage.png")
+    fig.savefig(out[-1], dpi=120)
+    plt.close(fig)
+
+    ids = sorted({u["id"] for r in metrics for u in r["uavs"]})
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    for uid in ids:
+        pts = [(r["t"], u.get("aoi_max")) for r in metrics for u in r["uavs"] if u["id"] == uid and u.get("aoi_max") is not None]
+        if pts:
+            ax.plot(*zip(*pts, strict=True), lw=1, label=f"UAV {uid}")
+    ax.set(xlabel="sim time [s]", ylabel="max P-AoI [s]", title="Perception age of information")
+    ax.grid(alpha=0.3)
+    if ids:
+        ax.legend(fontsize=7, ncol=min(len(ids), 5))
+    fig.tight_layout()
+    out.append(run_dir / "aoi.png")
+    fig.savefig(out[-1], dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    for uid in ids:
+        pts = [u["pos_ned"] for r in metrics for u in r["uavs"] if u["id"] == uid]
+        if pts:
+            ax.plot([p[1] for p in pts], [p[0] for p in pts], lw=1, label=f"UAV {uid}")
+            ax.plot(pts[-1][1], pts[-1][0], "o", ms=4)
+    ax.set(xlabel="east [m]", ylabel="north [m]", title="Trajectories (mission frame)")
+    ax.set_aspect("equal")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    out.append(run_dir / "trajectories.png")
+    fig.savefig(out[-1], dpi=120)
+    plt.close(fig)
+    return out

@@ -1,0 +1,106 @@
+"""The swarm's live status view: `render(view) -> renderable`, pure.
+
+The launcher (and `plmarl swarm status`) fills a `SwarmView` from the world's metrics
+and the agents' status messages and hands it to `render`; rich.live.Live redraws it.
+Nothing here reads a clock, a socket or a keyboard, so it is tested on a capture console
+and works over SSH (no key input is needed).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from rich.console import Group
+from rich.table import Table
+from rich.text import Text
+
+SPARK = "▁▂▃▄▅▆▇█"
+
+
+@dataclass(frozen=True)
+class UavView:
+    id: int
+    alive: bool = True
+    mode: str = "?"
+    armed: bool = False
+    pos_ned: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    speed: float = math.nan
+    neighbours: int = 0
+    aoi_max: float | None = None
+    last_action: tuple[float, float, float] | None = None
+    link: str = "?"  # "ok", "stale", "lost" (agent status), or "dead"
+
+
+@dataclass(frozen=True)
+class SwarmView:
+    swarm: str
+    t: float
+    coverage: float
+    coverage_history: tuple[float, ...] = ()
+    lambda2: float = math.nan
+    messages_per_min: float = 0.0
+    events_fired: tuple[str, ...] = ()
+    speedup: float = 1.0
+    uavs: tuple[UavView, ...] = field(default_factory=tuple)
+
+
+def sparkline(values: tuple[float, ...] | list[float], width: int = 40, lo: float = 0.0, hi: float = 1.0) -> str:
+    """The last `width` values as block characters scaled to [lo, hi]."""
+    vals = list(values)[-width:]
+    out = []
+    for v in vals:
+        if v is None or math.isnan(v):
+            out.append(" ")
+            continue
+        x = (min(max(v, lo), hi) - lo) / (hi - lo) if hi > lo else 0.0
+        out.append(SPARK[min(len(SPARK) - 1, int(x * (len(SPARK) - 1) + 0.5))])
+    return "".join(out)
+
+
+def _fmt(x: float | None, spec: str) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+
+
+def _link_style(link: str) -> str:
+    return {"ok": "green", "stale": "yellow", "lost": "red", "dead": "bold red"}.get(link, "dim")
+
+
+def render(view: SwarmView) -> Group:
+    """The whole view: a swarm header and one row per UAV."""
+    head = Table.grid(padding=(0, 2))
+    head.add_column(justify="right", style="bold")
+    head.add_column()
+    head.add_row("swarm", f"{view.swarm}   t = {view.t:6.1f} s   speedup {view.speedup:g}x")
+    head.add_row("coverage", Text.assemble((f"{view.coverage:5.3f} ", "bold"), (sparkline(view.coverage_history), "cyan")))
+    head.add_row("lambda_2", _fmt(view.lambda2, ".2f"))
+    head.add_row("signalling", f"{view.messages_per_min:.0f} msg/min")
+    head.add_row("events", ", ".join(view.events_fired[-4:]) if view.events_fired else "none yet")
+
+    table = Table(expand=False, header_style="bold")
+    for col, justify in [("UAV", "right"), ("mode", "left"), ("armed", "center"), ("north", "right"), ("east", "right"),
+                         ("alt", "right"), ("speed", "right"), ("nbrs", "right"), ("max P-AoI", "right"),
+                         ("last action (m/s^2)", "left"), ("link", "left")]:
+        table.add_column(col, justify=justify)
+    for u in view.uavs:
+        n, e, d = u.pos_ned
+        action = "-" if u.last_action is None else " ".join(f"{a:+.1f}" for a in u.last_action)
+        link = "dead" if not u.alive else u.link
+        table.add_row(
+            str(u.id), u.mode if u.alive else "-", "yes" if u.armed else "no",
+            _fmt(n, ".0f"), _fmt(e, ".0f"), _fmt(-d, ".0f"), _fmt(u.speed, ".1f"), str(u.neighbours),
+            _fmt(u.aoi_max, ".0f"), action, Text(link, style=_link_style(link)),
+            style=None if u.alive else "dim",
+        )
+    return Group(head, table)
+
+
+def headless_line(view: SwarmView) -> str:
+    """The one line `--headless` prints every 10 s of sim time."""
+    alive = sum(u.alive for u in view.uavs)
+    aoi = max((u.aoi_max for u in view.uavs if u.aoi_max is not None), default=None)
+    return (
+        f"t={view.t:6.1f}s coverage={view.coverage:.3f} lambda2={_fmt(view.lambda2, '.2f')} "
+        f"alive={alive}/{len(view.uavs)} max_aoi={_fmt(aoi, '.0f')}s msgs/min={view.messages_per_min:.0f}"
+        + (f" events={','.join(view.events_fired)}" if view.events_fired else "")
+    )
