@@ -309,9 +309,20 @@ class Agent:
             return False
         if tm >= k + self.settle_max_s():
             return True
-        first = k == self.first_k
         t_rx = self.table.t_rx
-        return all(float(t_rx[j]) == k for j in range(self.n) if j != self.me and (first or self.table.in_set(j)))
+        return all(float(t_rx[j]) == k for j in self._expected(k))
+
+    def _expected(self, k: int) -> list[int]:
+        """Neighbours whose update for instant k we wait for: at the first instant everyone;
+        later those in N_i that the tracker believes within R_comm (one that has flown out
+        of range will not deliver, and waiting for it would only delay the decision)."""
+        others = [j for j in range(self.n) if j != self.me]
+        if k == self.first_k:
+            return others
+        r2 = self.mission.radii.comm_m ** 2
+        d = self.belief[:, :3] - self.ego[:3]
+        near = (d * d).sum(-1) <= r2
+        return [j for j in others if self.table.in_set(j) and bool(near[j])]
 
     def _publish_state(self, k: int) -> None:
         state = tuple(float(x) for x in self.ego.tolist())
@@ -543,6 +554,7 @@ class Agent:
         out = {
             **self.stats.summary(),
             "rss_mb": rss_mb(),
+            "decision_ms_samples": [round(x, 4) for x in list(self.stats.decision_ms)[-5000:]],
             "rx": self.rx.as_dict(),
             "bus": self.bus.stats.as_dict(),
             "dropped": self.table.dropped,

@@ -13,6 +13,7 @@ import json
 TARGETS = {
     "autopilot": "vehicles one autopilot-emulator process sustains at 1x, and the speedup 20 vehicles sustain",
     "dt": "speed of the vectorised digital twin (agent-steps/s) and of one Oracle episode",
+    "agent": "deployed agent in SITL: decision-loop latency, RSS and start-up at N = 20, speedup 10",
     "infer": "per-agent decision latency of the exported policies (PL-MARL vs GRU), N = 4..20",
 }
 

@@ -69,6 +69,7 @@ class WorldConfig:
     start_timeout_s: float = 300.0  # sim s: start anyway with whoever is ready
     episode_s: int | None = None  # stop after this many mission seconds (None: run until stopped)
     n_uavs: int | None = None  # override mission.n_uavs (tests)
+    publish_sense: bool = True  # False: no sensing publisher (a vehicle without the sensor)
 
 
 @dataclass
@@ -219,7 +220,7 @@ class SitlWorld:
         if k is not None and k >= 1:
             self.summary.coverage.append(cov)
             self.summary.lambda2.append(lam2)
-        if k is not None:
+        if k is not None and self.cfg.publish_sense:
             t_ms = k * 1000
             r2 = m.radii.sensing_m**2
             for i in range(self.n):

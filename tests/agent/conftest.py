@@ -84,6 +84,7 @@ def run_sitl(
     world_mission: Mission | None = None,
     on_second: Callable[[SitlWorld, AgentFleet, dict, SitlRun], None] | None = None,
     wall_timeout_s: float = 90.0,
+    publish_sense: bool = True,
 ) -> SitlRun:
     """World in this process (its own event loop), broker amqtt (in-process) or mosquitto
     (child), n agents as child processes; everything is stopped whatever happens."""
@@ -103,6 +104,7 @@ def run_sitl(
         base_port = free_udp_ports(n)
         fleet = AgentFleet(tmp)
         run = SitlRun(WorldSummary(), fleet)
+        run.broker = mosq or emb  # type: ignore[attr-defined]
 
         def hook(m: dict) -> None:
             run.metrics.append(m)
@@ -110,7 +112,8 @@ def run_sitl(
                 on_second(world, fleet, m, run)
 
         world = SitlWorld(
-            WorldConfig(mission=wm, broker_url=url, personality=personality, speedup=speedup, base_port=base_port, episode_s=episode_s),
+            WorldConfig(mission=wm, broker_url=url, personality=personality, speedup=speedup, base_port=base_port, episode_s=episode_s,
+                        publish_sense=publish_sense),
             on_metrics=hook,
         )
         try:

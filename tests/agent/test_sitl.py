@@ -121,3 +121,44 @@ def test_personalities_and_commanded_velocity(tmp_path: Path, policy_dir: Path, 
             cos = (a[0] * dv[0] + a[1] * dv[1]) / (math.hypot(*a) * max(math.hypot(*dv), 1e-9))
             good += cos > 0.9 and 0.5 < math.hypot(*dv) / (3 * math.hypot(*a)) < 1.5
         assert total >= 2 and good >= 0.75 * total, (good, total)
+
+
+def test_broker_loss_and_no_sensing(tmp_path: Path, policy_dir: Path) -> None:
+    """mosquitto dies for ~1 s wall (10 s of vehicle time) mid-mission: the agents keep streaming setpoints
+    (vehicles stay in OFFBOARD), keep deciding on predictions, reconnect with backoff.
+    Nobody publishes sensing: each agent says so once and flies anyway."""
+    import asyncio
+
+    def on_second(world, fleet, m, run) -> None:  # noqa: ANN001
+        if m["t"] == 8 and "outage" not in run.events:
+            run.events["outage"] = m["boot_s"]
+            loop = asyncio.get_running_loop()
+
+            async def outage() -> None:
+                await loop.run_in_executor(None, run.broker.stop)
+                await asyncio.sleep(1.0)
+                await loop.run_in_executor(None, run.broker.start)
+                run.events["back"] = world.host.now
+
+            run.outage_task = asyncio.ensure_future(outage())  # keep a reference
+
+    run = run_sitl(tmp_path, policy_dir, n=2, broker="mosquitto", tup_s=TUP, episode_s=70, on_second=on_second,
+                   publish_sense=False)
+    assert "back" in run.events, "the broker never came back"
+    _check_flying(run, 2, "OFFBOARD")
+    for i in range(2):
+        s = run.stats(i)
+        assert s is not None
+        assert s["bus"]["connects"] >= 2 and s["bus"]["disconnects"] >= 1, s["bus"]
+        log = run.log(i)
+        assert log.count("no sensing publisher on plmarl/sitl/sense/") == 1
+        assert "lost broker" in log
+        rows = run.trace(i)
+        # Decisions never stopped: one every tau = 3 s from start to end.
+        ks = [r["t"] for r in rows if r["decided"]]
+        assert ks == list(range(0, ks[-1] + 1, 3)) and ks[-1] >= 45
+    # After the outage the signalling resumed: 0 hears 1 again at late instants in range.
+    by_t = {m["t"]: m for m in run.metrics if m["t"] is not None}
+    late = [r for r in run.trace(0) if r["t"] >= 45 and r["t"] % TUP == 0 and r["t"] in by_t
+            and _dist(by_t[r["t"]]["uav"][0]["pos"], by_t[r["t"]]["uav"][1]["pos"]) < 290.0]
+    assert late and any(r["t_rx"][1] == r["t"] for r in late)

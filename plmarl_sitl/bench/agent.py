@@ -1,0 +1,131 @@
+"""`plmarl bench agent`: the deployed agent's decision loop, memory and start-up, in SITL.
+
+A SITL world with N vehicles (default 20) at --speedup (default 10) runs in this process
+over a mosquitto broker (amqtt if mosquitto is missing); one `plmarl agent` child per
+vehicle flies the policy. Agents are started one after the other (each once the previous
+one reports ready), so start-up is measured per process, not N processes fighting for the
+cores at once; the fleet then flies --mission-s mission seconds together.
+
+* loop_p50_ms / loop_p99_ms: decision ticks, telemetry message handled -> setpoint sent
+  (closing the instant, Algorithm 1's tracker step, sensing features, policy.pt, the band
+  guard, the SET_POSITION_TARGET_LOCAL_NED send), pooled over all agents;
+* rss_mb: the largest agent resident set size at exit;
+* startup_s: process start (interpreter and imports included) -> autopilot found,
+  policy loaded, telemetry and home valid; median over agents (max also reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import shutil
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from plmarl_sitl.bench.machine import machine_info
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--n", type=int, default=20, help="vehicles and agents (default 20)")
+    p.add_argument("--speedup", type=float, default=10.0, help="sim seconds per wall second (default 10)")
+    p.add_argument("--mission", default="missions/paper_urban.yaml")
+    p.add_argument("--policy", default="policies/pl-marl")
+    p.add_argument("--mission-s", type=int, default=120, help="mission seconds flown together (default 120)")
+    p.add_argument("--workdir", default=None, help="keep agent logs/traces here (default: a temp dir)")
+
+
+def _pct(xs: list[float], q: float) -> float | None:
+    if not xs:
+        return None
+    s = sorted(xs)
+    return s[min(len(s) - 1, int(q * len(s)))]
+
+
+async def _run(args: argparse.Namespace) -> dict:
+    import dataclasses
+
+    from plmarl_sitl.bus.broker import EmbeddedBroker, MosquittoBroker, free_udp_ports
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.swarm.agents import AgentFleet
+    from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
+
+    mission = dataclasses.replace(load_mission(args.mission), n_uavs=args.n)
+    n = args.n
+    mosq = MosquittoBroker() if shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists() else None
+    emb = None if mosq else EmbeddedBroker()
+    if mosq is not None:
+        mosq.start()
+    else:
+        await emb.start()  # type: ignore[union-attr]
+    url = (mosq or emb).url  # type: ignore[union-attr]
+    base = free_udp_ports(n)
+    workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="plmarl-bench-agent-"))
+    fleet = AgentFleet(workdir)
+    world = SitlWorld(WorldConfig(mission=mission, broker_url=url, speedup=args.speedup, base_port=base,
+                                  episode_s=args.mission_s, start_timeout_s=1e9))
+    t_start = time.perf_counter()
+    try:
+        await world.start()
+        run = asyncio.create_task(world.run(), name="world")
+        for i in range(n):
+            ap = await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=args.mission, policy=args.policy,
+                                   n_uavs=n, trace=False)
+            async with asyncio.timeout(60):
+                while "ready after" not in ap.log():
+                    if ap.proc.returncode is not None:
+                        raise RuntimeError(f"agent {i} exited: {ap.log()[-500:]}")
+                    await asyncio.sleep(0.05)
+        async with asyncio.timeout(120 + 3 * args.mission_s / args.speedup):
+            summary = await run
+    finally:
+        world.stop()
+        world.host.close()
+        await fleet.stop()
+        if emb is not None:
+            await emb.stop()
+        if mosq is not None:
+            mosq.stop()
+    stats = [ap.stats() for ap in fleet.procs.values()]
+    missing = [i for i, s in enumerate(stats) if s is None]
+    if missing:
+        raise RuntimeError(f"agents {missing} wrote no stats (see {workdir})")
+    loop = [x for s in stats for x in s.get("decision_ms_samples", [])]
+    starts = [s["startup_s"] for s in stats if s["startup_s"] is not None]
+    return {
+        "loop_p50_ms": _pct(loop, 0.5),
+        "loop_p99_ms": _pct(loop, 0.99),
+        "loop_samples": len(loop),
+        "rss_mb": max(s["rss_mb"] for s in stats),
+        "startup_s": statistics.median(starts) if starts else None,
+        "startup_max_s": max(starts) if starts else None,
+        "decisions_per_agent": statistics.median(s["decisions"] for s in stats),
+        "n": n,
+        "speedup": args.speedup,
+        "mission_s": len(summary.coverage),
+        "mean_coverage": summary.mean_coverage,
+        "wall_s": time.perf_counter() - t_start,
+        "machine": machine_info(),
+    }
+
+
+def run(args: argparse.Namespace) -> dict:
+    return asyncio.run(_run(args))
+
+
+def print_table(r: dict) -> None:
+    from rich.console import Console
+    from rich.table import Table
+
+    t = Table(title=f"deployed agent, N = {r['n']}, speedup {r['speedup']:g} ({r['mission_s']} mission s)")
+    t.add_column("metric")
+    t.add_column("value", justify="right")
+    t.add_column("target", justify="right")
+    t.add_row("decision loop p50", f"{r['loop_p50_ms']:.3f} ms", "")
+    t.add_row("decision loop p99", f"{r['loop_p99_ms']:.3f} ms", "<= 2 ms")
+    t.add_row("RSS (largest agent)", f"{r['rss_mb']:.0f} MB", "<= 300 MB")
+    t.add_row("start-up (median / max)", f"{r['startup_s']:.2f} / {r['startup_max_s']:.2f} s", "<= 2 s")
+    t.add_row("decisions per agent", f"{r['decisions_per_agent']:.0f}", "")
+    Console().print(t)
+    print(f"machine: {r['machine']}")
