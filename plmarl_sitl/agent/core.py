@@ -24,6 +24,7 @@ backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -65,6 +66,8 @@ log = logging.getLogger("plmarl.agent")
 TELEMETRY_HZ = 20.0  # LOCAL_POSITION_NED rate we ask for (vehicle time); also the setpoint rate
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
+UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
+REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
 
 
 @dataclass(frozen=True)
@@ -183,6 +186,9 @@ class Agent:
         self.rate: float | None = None
         self._rate_ref: tuple[float, float] | None = None
         self.first_k = 0
+        self._last_reengage = 0.0
+        self._reengage_task: asyncio.Task | None = None
+        self.reengaged = 0
         self._trace: IO[str] | None = None
 
     # ------------------------------------------------------------------ bus input
@@ -453,6 +459,11 @@ class Agent:
         p = link.personality
         log.info("vehicle sysid %d on %s: %s personality", link.sysid, cfg.connect_url, p.name)
         await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
+        # Streams the agent does not use cost the autopilot link (and, in SITL, the
+        # world's CPU) for nothing; our MAVLink instance is ours alone, a GCS has its own.
+        for name, hz in UNUSED_STREAMS.items():
+            with contextlib.suppress(CommandRejected, VehicleTimeout):
+                await link.set_message_interval(name, hz)
         home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
         self.home = torch.tensor(home_offset_ned(self.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
                                  dtype=torch.float32)
@@ -493,6 +504,36 @@ class Agent:
         while not self.stop_event.is_set():
             m = await self.link.recv("LOCAL_POSITION_NED", 5.0)
             self._on_telemetry(m)
+            self._check_mode()
+
+    def _check_mode(self) -> None:
+        """If the autopilot left the offboard mode on its own (a setpoint-loss failsafe
+        after a stall of this process), ask for it back once the stream is flowing again,
+        at most every REENGAGE_EVERY_S. A mode a pilot chose is left alone: only the
+        personality's failsafe hold mode triggers this."""
+        link = self.link
+        assert link is not None and link.personality is not None
+        hb = link.latest.get("HEARTBEAT")
+        if hb is None or hb.get_srcComponent() != 1:
+            return
+        p = link.personality
+        mode = p.mode_by_custom(hb.custom_mode)
+        if mode is None or mode.name != p.hold_mode or not hb.base_mode & 128:
+            return
+        now = time.perf_counter()
+        if now - self._last_reengage < REENGAGE_EVERY_S or self._reengage_task is not None and not self._reengage_task.done():
+            return
+        self._last_reengage = now
+        self.reengaged += 1
+        log.warning("vehicle fell back to %s (setpoint-loss failsafe); re-engaging %s", mode.name, p.offboard_mode)
+        self._reengage_task = asyncio.ensure_future(self._reengage(p.offboard_mode))
+
+    async def _reengage(self, mode: str) -> None:
+        try:
+            async with asyncio.timeout(3.0):
+                await self._set_mode(mode)
+        except (TimeoutError, VehicleTimeout, CommandRejected) as exc:
+            log.error("could not re-engage %s: %s", mode, exc)
 
     async def _hold(self) -> None:
         """Ctrl-C: hand the vehicle to its own hold (PX4 AUTO.LOITER) or brake (ArduPilot)."""
@@ -558,6 +599,7 @@ class Agent:
             "rx": self.rx.as_dict(),
             "bus": self.bus.stats.as_dict(),
             "dropped": self.table.dropped,
+            "reengaged": self.reengaged,
             "fail": self.table.lost,
             "pid": os.getpid(),
         }
