@@ -88,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
             mission, loaded, args.methods, args.tup, args.episodes, args.seed,
             from_s=args.from_s, failure_prob=args.failure_prob, on_decision=lambda b: bar.advance(task, b),
         )
+    import shlex
+    import sys
+
+    res["extra"]["command"] = "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     if args.out or args.results_md:
         write_outputs(res, mission, loaded, Path(args.out or "runs/eval"), args.results_md, args)
     if args.json:

@@ -187,7 +187,7 @@ def write_outputs(res: dict, mission, loaded: dict, out: Path, results_md: str |
     if curves:
         plot_training_curves(curves, float(np.mean(oracle)) if oracle else None, out / "training_curves.png")
         figs["Training curves"] = "training_curves.png"
-    command = "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[0].endswith("plmarl") else " ".join(shlex.quote(a) for a in sys.argv)
+    command = res["extra"].get("command") or "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     (out / "results.md").write_text(results_markdown(res, figs, command))
     if results_md:
         md = Path(results_md)
