@@ -181,18 +181,25 @@ class SitlWorld:
             self.bus.publish(topic, payload)
 
     # ------------------------------------------------------------------ per-second work
-    def _ready(self) -> bool:
+    def not_ready(self) -> list[str]:
+        """Why the mission cannot start yet: one entry per vehicle not flying under its agent."""
+        out = []
         for v in self.host.vehicles:
             if v.killed:
                 continue
             ok = v.armed and v.behaviour == Behaviour.OFFBOARD and not getattr(v, "taking_off", False)
             if not ok or v.altitude() < self.takeoff_alt - 1.0:
-                return False
-        return True
+                out.append(f"{v.index} ({v.mode}, {'armed' if v.armed else 'disarmed'}, {v.altitude():.1f} m)")
+        return out
+
+    def _ready(self) -> bool:
+        return not self.not_ready()
 
     def _maybe_start(self) -> None:
         if self.t0 is not None:
             return
+        if int(self.host.now) % 30 == 0:
+            log.info("waiting for vehicles: %s", ", ".join(self.not_ready()) or "none")
         if self._ready() or self.host.now >= self.cfg.start_timeout_s:
             if not self._ready():
                 log.warning("start timeout: starting the mission with the vehicles that are ready")
