@@ -87,8 +87,7 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     rows = []
     for m in mods:
         a = np.asarray(times[m]) / 1e3
-        rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
-                     "weights": mods[m][2]})
+        rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99))})
     return rows
 
 
@@ -102,7 +101,8 @@ def run(args: argparse.Namespace) -> dict:
     rows = []
     for n in (int(x) for x in args.n.split(",")):
         rows += _time_n(mods, n, args.calls, gen)
-    return {"rows": rows, "machine": machine_info(), "torch_threads": 1, "calls": args.calls}
+    return {"rows": rows, "weights": {m: mods[m][2] for m in methods}, "machine": machine_info(), "torch_threads": 1,
+            "calls": args.calls}
 
 
 def print_table(res: dict) -> None:
@@ -113,7 +113,7 @@ def print_table(res: dict) -> None:
     for c in ("method", "N", "median (us)", "p99 (us)", "weights"):
         t.add_column(c, justify="right" if c != "method" else "left")
     for r in res["rows"]:
-        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", f"{r['p99_us']:.1f}", r["weights"])
+        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", f"{r['p99_us']:.1f}", res["weights"][r["method"]])
     Console().print(t)
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})

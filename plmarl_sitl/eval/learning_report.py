@@ -33,7 +33,7 @@ def training_table(policies: Path) -> str:
         c = yaml.safe_load(f.read_text())
         t = c["training"]
         lines.append(f"| {m} | {t['episodes']} | {t.get('predictor_wall_s', 0):.0f} | {t.get('imitation_wall_s', 0):.0f} | "
-                     f"{t['mappo_wall_s']:.0f} | {t['total_wall_s']:.0f} | `{c['git_commit'][:12]}` | {t['machine']} |")
+                     f"{t['mappo_wall_s']:.0f} | {t['total_wall_s']:.0f} | `{c['git_commit'][:12]}{'+dirty' if c['git_commit'].endswith('+dirty') else ''}` | {t['machine']} |")
     return "\n".join(lines)
 
 
@@ -86,9 +86,17 @@ def build(d: Path, policies: Path, narrative: str) -> str:
             "![coverage vs T_up](results/learning/coverage_vs_tup.png)", "",
             "![training curves](results/learning/training_curves.png)", "",
         ]
-    for name, title in (("failure.json", "### One node fails at t = 100 s (every episode)"),
-                        ("seeds.json", "### Training-seed spread (seeds 2 and 3, same pipeline)"),
-                        ("scratch.json", "### Ablation: MAPPO from scratch (no Oracle-imitation warm start)")):
+    seeds = _load(d / "seeds.json")
+    if seeds:
+        parts += ["### Training-seed spread (same pipeline, seeds 1-3, same evaluation episodes)", "",
+                  "Seeds 2 and 3 reuse seed 1's fitted engines (`--predictor`); evaluated with "
+                  + ", ".join(f"`{c}`" for c in seeds["commands"] if c) + ". Steady-state coverage:", "",
+                  "| method | T_up (s) | seed 1 (shipped) | seed 2 | seed 3 | mean |", "|---|---|---|---|---|---|"]
+        parts += [f"| {r['method']} | {r['tup']} | {r['seed1']:.3f} | {r['seed2']:.3f} | {r['seed3']:.3f} | {r['mean']:.3f} |"
+                  for r in seeds["rows"]]
+        parts.append("")
+    for name, title in (("failure.json", "### One node fails at t = 100 s (every episode), coverage for t > 100 s"),
+                        ("scratch.json", "### Ablation: MAPPO from scratch (no Oracle-imitation warm start), PL-MARL seed 1")):
         r = _load(d / name)
         if r:
             parts += [title, "", f"`{r['extra'].get('command', '')}`", "", coverage_table_md(r), ""]

@@ -66,6 +66,10 @@ def pvalue_table_md(res: dict) -> str:
     return "\n".join(lines)
 
 
+COLOURS = {"pl-marl": "tab:blue", "gru": "tab:orange", "tag-mappo": "tab:green", "dead-reckoning": "tab:red",
+           "oracle": "black", "heuristic": "tab:gray"}
+
+
 def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     import matplotlib
 
@@ -80,11 +84,13 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
         y = np.array([rows[(m, t)]["coverage_mean"] for t in tups])
         lo = np.array([rows[(m, t)]["coverage_ci95"][0] for t in tups])
         hi = np.array([rows[(m, t)]["coverage_ci95"][1] for t in tups])
-        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m == "oracle" else "-")
-        ax.fill_between(tups, lo, hi, alpha=0.2)
+        c = COLOURS.get(m)
+        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m == "oracle" else "-", color=c)
+        ax.fill_between(tups, lo, hi, alpha=0.2, color=c)
     ax.set_xlabel("signalling interval T_up (s)")
     ax.set_ylabel(f"steady-state coverage (t > {res['extra']['from_s']} s)")
-    ax.set_ylim(0, 1)
+    low = min(r["coverage_ci95"][0] for r in res["results"])
+    ax.set_ylim(max(0.0, round(low - 0.05, 1)), 1.0)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(f"Coverage vs T_up, deterministic, {res['extra']['episodes']} episodes")
@@ -105,7 +111,7 @@ def plot_training_curves(curves: dict[str, list[dict]], oracle: float | None, pa
         y = np.array([r["charts/coverage"] for r in rows])
         k = 5
         ys = np.convolve(y, np.ones(k) / k, mode="valid") if len(y) >= k else y
-        ax.plot(x[len(x) - len(ys):], ys, label=m)
+        ax.plot(x[len(x) - len(ys):], ys, label=m, color=COLOURS.get(m))
         ax.plot(x, y, alpha=0.2, color=ax.lines[-1].get_color())
     if oracle is not None:
         ax.axhline(oracle, ls="--", color="k", label="Oracle bound")

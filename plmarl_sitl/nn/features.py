@@ -81,7 +81,7 @@ def build_policy_input(
     FINITE values (a failed neighbour's stale state, zeros for a never-heard slot).
     """
     scale, offset = norm[0], norm[1]
-    ego_x = torch.cat([ego * scale + offset, sense, fail_flag.unsqueeze(-1).to(ego.dtype)], -1)
-    nbr_x = beliefs * scale + offset
+    ego_x = torch.cat([torch.addcmul(offset, ego, scale), sense, fail_flag.unsqueeze(-1).to(ego.dtype)], -1)
+    nbr_x = torch.addcmul(offset, beliefs, scale)
     rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) * inv_r_comm
     return ego_x, nbr_x, rel_x, mask

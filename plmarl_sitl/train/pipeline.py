@@ -83,7 +83,8 @@ def run_training(
 ) -> dict:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
-    work = Path("runs") / f"train-{method}-seed{seed}"  # intermediate files; `out` gets only what ships
+    # Intermediate files (engine state, MAPPO checkpoint); `out` gets only what ships.
+    work = Path("runs") / "work" / (out.resolve().as_posix().strip("/").replace("/", "_") + f"-seed{seed}")
     work.mkdir(parents=True, exist_ok=True)
     mission = load_mission(mission_path)
     card: dict = {"method": method, "mission": mission.name, "seed": seed, "git_commit": git_commit(), "training": {}}

@@ -18,6 +18,7 @@ def test_mappo_smoke(tmp_path: Path) -> None:
     args = Args(
         method="tag-mappo", mission=str(ROOT / "missions" / "paper_urban.yaml"), episodes=4, num_envs=2,
         failure_start_episode=2, failure_prob=1.0, out=str(tmp_path), seed=3,
+        imitation_rounds=1, imitation_episodes_per_round=2, critic_warmup_iters=1,
     )
     torch.manual_seed(0)
     res = train(args)
@@ -30,6 +31,7 @@ def test_mappo_smoke(tmp_path: Path) -> None:
     fresh = res["actor"].__class__()
     moved = any(not torch.equal(ck["actor"][k], v) for k, v in fresh.state_dict().items() if k in ck["actor"])
     assert moved and ck["episodes"] == 4
+    assert res["imitation"]["episodes"] == 2 and res["imitation"]["final_mse"] == res["imitation"]["final_mse"]
 
 
 def test_predictor_fit_beats_dead_reckoning_on_braking_targets() -> None:
