@@ -6,6 +6,11 @@ twin's: a state received for instant t replaces the held one (t_rx = t); at ever
 signalling instant each neighbour either delivered (missed = 0) or missed one more;
 j is in N_i while fewer than `drop_after_missed` instants in a row were missed; the
 failure state f becomes true (and stays) once a neighbour that was in N_i is dropped.
+
+Over a real network an update can arrive after its instant. Delivery counts when it
+arrives (`on_state` resets the miss count at once, as the twin does at the instant), and
+a miss is only booked when the agent closes the instant (`close_instant`), which it does
+a grace period after the instant, so a late update is not a miss.
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ class NeighbourTable:
         self.state[j] = torch.tensor(state, dtype=torch.float32)
         self.t_rx[j] = t_s
         self.ever[j] = True
+        self.missed[j] = 0  # delivered for instant t_s
         return True
 
     def in_set(self, j: int) -> bool:
@@ -46,8 +52,10 @@ class NeighbourTable:
         for j in range(self.n):
             if j == self.me:
                 continue
+            if float(self.t_rx[j]) >= t_s:
+                continue  # delivered (on_state already reset the count)
             was = self.in_set(j)
-            self.missed[j] = 0 if float(self.t_rx[j]) == t_s else self.missed[j] + 1
+            self.missed[j] += 1
             if was and not self.in_set(j):
                 newly.append(j)
         if newly:

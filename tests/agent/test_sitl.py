@@ -53,7 +53,8 @@ def _check_sawtooth(run, i: int, j: int, upto: int, r_comm: float = 350.0) -> No
 def test_swarm_amqtt_range_sawtooth_and_failure(tmp_path: Path, mission: Mission, policy_dir: Path) -> None:
     """3 PX4 vehicles 200 m apart in a line (0 and 2 are 400 m > R_comm apart at launch);
     agent 2 is SIGKILLed at t = 17: vehicle 2 holds (PX4 AUTO.LOITER) and agent 1 drops
-    it after k = 2 missed instants (t = 20 and 25 -> dropped at 25), raising f."""
+    it after k = 2 missed instants (t = 20 and 25), raising f. Misses are booked after a
+    grace period (late updates are not misses): at most T_up / 2 after the instant."""
     n, kill_at = 3, 17
     wm = dataclasses.replace(mission, n_uavs=n, launch=Launch(mission.launch.north_m, mission.launch.east_m, 200.0))
 
@@ -87,8 +88,9 @@ def test_swarm_amqtt_range_sawtooth_and_failure(tmp_path: Path, mission: Mission
     s1 = run.stats(1)
     assert s1 is not None and 2 in s1["dropped"] and s1["fail"], run.log(1)[-2000:]
     drop_rows = [r for r in t1 if not r["mask"][2] and r["t"] > kill_at]
-    assert drop_rows and drop_rows[0]["t"] == 25 and drop_rows[0]["fail"]
+    assert drop_rows and 25 <= drop_rows[0]["t"] <= 25 + TUP // 2 + 1 and drop_rows[0]["fail"]
     assert all(r["mask"][2] for r in t1 if TUP <= r["t"] < 25)
+    assert not any(r["fail"] for r in t0 + t1 if r["t"] < 25)  # no spurious drop before
     assert "neighbour 2 dropped" in run.log(1)
     # Counters: nothing malformed on a clean run.
     assert s1["rx"]["malformed"] == 0 and s1["rx"]["accepted"] >= 4
@@ -157,8 +159,9 @@ def test_broker_loss_and_no_sensing(tmp_path: Path, policy_dir: Path) -> None:
         # Decisions never stopped: one every tau = 3 s from start to end.
         ks = [r["t"] for r in rows if r["decided"]]
         assert ks == list(range(0, ks[-1] + 1, 3)) and ks[-1] >= 45
-    # After the outage the signalling resumed: 0 hears 1 again at late instants in range.
+    # After the outage the signalling resumed: 0 hears 1 again (if they stayed in range).
     by_t = {m["t"]: m for m in run.metrics if m["t"] is not None}
-    late = [r for r in run.trace(0) if r["t"] >= 45 and r["t"] % TUP == 0 and r["t"] in by_t
-            and _dist(by_t[r["t"]]["uav"][0]["pos"], by_t[r["t"]]["uav"][1]["pos"]) < 290.0]
-    assert late and any(r["t_rx"][1] == r["t"] for r in late)
+    in_range = [k for k in range(30, 70, TUP) if k in by_t
+                and _dist(by_t[k]["uav"][0]["pos"], by_t[k]["uav"][1]["pos"]) < 290.0]
+    heard = {r["t_rx"][1] for r in run.trace(0) if r["t_rx"][1] is not None}
+    assert not in_range or any(k in heard for k in in_range), (in_range, sorted(heard))

@@ -1,0 +1,34 @@
+"""CLI: user errors are one line and exit code 2; the subcommands are registered."""
+
+from __future__ import annotations
+
+import pytest
+
+from plmarl_sitl.cli import SUBCOMMANDS, main
+
+
+def test_registered() -> None:
+    assert "agent" in SUBCOMMANDS and "world" in SUBCOMMANDS
+    from plmarl_sitl.cli.bench import TARGETS
+
+    assert "agent" in TARGETS
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["agent", "--id", "0", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1", "--policy", "/nope"],
+         "missing policy directory"),
+        (["agent", "--id", "0", "--connect", "http://x", "--broker", "mqtt://127.0.0.1:1"], "scheme must be udpout"),
+        (["agent", "--id", "9", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1"], "--id 9"),
+        (["world", "missions/paper_urban.yaml", "--broker", "ftp://x"], "scheme must be mqtt"),
+        (["world", "missions/paper_urban.yaml", "--broker", "mqtt://127.0.0.1:1", "--loss", "2"], "--loss"),
+    ],
+)
+def test_user_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    from pathlib import Path
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[2])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
