@@ -63,6 +63,7 @@ class _VehicleProtocol(asyncio.DatagramProtocol):
         self.vehicle.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.vehicle.record(data)
         handlers.on_datagram(self.vehicle, data, addr)
 
     def error_received(self, exc: Exception) -> None:
@@ -153,12 +154,24 @@ class AutopilotHost:
             self.close()
             raise
 
+    def record_tlogs(self, directory: str | Path) -> list[Path]:
+        """Record each vehicle's MAVLink traffic (both ways) to DIR/vehicle<i>.tlog."""
+        paths = []
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        for i, v in enumerate(self.vehicles):
+            paths.append(Path(directory) / f"vehicle{i}.tlog")
+            v.tlog = open(paths[-1], "wb")  # noqa: SIM115 - closed in close()
+        return paths
+
     def close(self) -> None:
         for t in self._transports:
             t.close()
         self._transports.clear()
         for v in self.vehicles:
             v.transport = None
+            if v.tlog is not None:
+                v.tlog.close()
+                v.tlog = None
 
     async def __aenter__(self) -> AutopilotHost:
         await self.start()

@@ -117,14 +117,14 @@ def attitude(v: Vehicle) -> Message:
 
 
 def local_position_ned(v: Vehicle) -> Message:
-    x, y, z = v.position()
+    x, y, z = v.nav_position()
     vx, vy, vz = v.velocity()
     return v.codec.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
 
 
 def global_position_int(v: Vehicle) -> Message:
     lat, lon, alt = v.geodetic()
-    _, _, z = v.position()
+    _, _, z = v.nav_position()
     vx, vy, vz = v.velocity()
     hdg = int(math.degrees(v.yaw) % 360 * 100)
     return v.codec.mav.global_position_int_encode(

@@ -10,8 +10,11 @@ from __future__ import annotations
 
 import logging
 import math
+import random
+import struct
+import time
 from collections import OrderedDict
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 from plmarl_sitl.autopilot.counters import InputCounters
 from plmarl_sitl.autopilot.guidance import Kind
@@ -73,6 +76,9 @@ class Vehicle:
         self.transport: asyncio.DatagramTransport | None = None
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.killed = False
+        self.gnss_noise_std_m = 0.0
+        self._noise_rng = random.Random(sysid)
+        self.tlog: BinaryIO | None = None  # every message sent and received, as a .tlog
         self._armed = False
         self._mode_spec: ModeSpec = personality.mode(personality.boot_mode)
         self._yaw = 0.0
@@ -165,8 +171,17 @@ class Vehicle:
     def altitude(self) -> float:
         return -float(self.host.pos_np[self.index, 2])
 
-    def geodetic(self) -> tuple[float, float, float]:
+    def nav_position(self) -> tuple[float, float, float]:
+        """The position the navigation filter reports: truth plus GNSS noise (if set by a
+        gnss_noise mission event), redrawn per message like a real receiver's jitter."""
         x, y, z = self.position()
+        std = self.gnss_noise_std_m
+        if std > 0:
+            x, y, z = (c + self._noise_rng.gauss(0.0, std) for c in (x, y, z))
+        return x, y, z
+
+    def geodetic(self) -> tuple[float, float, float]:
+        x, y, z = self.nav_position()
         lat, lon, alt = self.home_geodetic
         return geodetic(lat, lon, alt, x, y, -z)
 
@@ -197,6 +212,7 @@ class Vehicle:
         if msg is None or t is None or self.killed or t.is_closing():
             return
         buf = self.codec.encode(msg)
+        self.record(buf)
         if addr is not None:
             t.sendto(buf, addr)
             return
@@ -205,6 +221,12 @@ class Vehicle:
         gcs = self.host.gcs
         if gcs is not None and gcs not in self.peers:
             t.sendto(buf, gcs)
+
+    def record(self, raw: bytes) -> None:
+        """Append one MAVLink frame to the .tlog: 8-byte big-endian unix time in us, then
+        the frame (the format pymavlink and MAVExplorer read)."""
+        if self.tlog is not None and raw[:1] in (b"\xfd", b"\xfe"):
+            self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + raw)
 
     def statustext(self, text: str, severity: int = d.MAV_SEVERITY_INFO) -> None:
         self.send(self.codec.mav.statustext_encode(severity, text[:50].encode()))

@@ -34,21 +34,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
         return 0
     from rich.console import Console
-    from rich.table import Table
+
+    from plmarl_sitl.swarm.report import print_summary
 
     console = Console()
-    t = Table(title=f"run {args.run_dir}")
-    t.add_column("metric")
-    t.add_column("value", justify="right")
-    t.add_row("coverage mean", f"{summary['coverage_mean']:.3f}")
-    t.add_row("coverage min", f"{summary['coverage_min']:.3f}")
-    t.add_row("duration", f"{summary['duration_s']:.0f} s (speedup {summary['speedup']})")
-    t.add_row("events", str(len(summary["events"])))
-    for f in summary.get("node_failures", []):
-        settle = "never" if f["restabilize_s"] is None else f"{f['restabilize_s']:.0f} s"
-        trough = "-" if f["trough"] is None else f"{f['trough']:.3f}"
-        t.add_row(f"failure at {f['at_s']:.0f} s", f"trough {trough}, re-stabilised after {settle}")
-    console.print(t)
+    print_summary(summary, console, title=f"run {args.run_dir}")
     for p in pngs:
         console.print(f"wrote {p}")
     return 0

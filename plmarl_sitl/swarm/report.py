@@ -98,3 +98,20 @@ def draw(run_dir: Path, metrics: list[dict], events: list[dict]) -> list[Path]:
     fig.savefig(out[-1], dpi=120)
     plt.close(fig)
     return out
+
+
+def print_summary(summary: dict, console, title: str) -> None:  # noqa: ANN001 - rich Console
+    from rich.table import Table
+
+    t = Table(title=title)
+    t.add_column("metric")
+    t.add_column("value", justify="right")
+    t.add_row("coverage mean", f"{summary['coverage_mean']:.3f}")
+    t.add_row("coverage min", f"{summary['coverage_min']:.3f}")
+    t.add_row("duration", f"{summary['duration_s']:.0f} s (speedup {summary['speedup']})")
+    t.add_row("events", str(len(summary["events"])))
+    for f in summary.get("node_failures", []):
+        settle = "never" if f["restabilize_s"] is None else f"{f['restabilize_s']:.0f} s"
+        trough = "-" if f["trough"] is None else f"{f['trough']:.3f}"
+        t.add_row(f"failure at {f['at_s']:.0f} s", f"trough {trough}, re-stabilised after {settle}")
+    console.print(t)

@@ -1,0 +1,98 @@
+"""`plmarl swarm up|status`: launch a SITL swarm mission, or watch a running one."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from plmarl_sitl.cli.common import add_seed
+
+UP_EPILOG = """\
+examples:
+  plmarl swarm up missions/paper_urban.yaml --speedup 10
+  plmarl swarm up missions/node_failure.yaml --speedup 10 --headless --out runs/failure
+  plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
+
+The mission clock starts once every vehicle is airborne under its agent. Ctrl-C stops
+everything cleanly. Afterwards: plmarl report RUN_DIR draws the plots."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("swarm", help="launch a SITL swarm mission, or watch a running one",
+                       description="Launch a whole software-in-the-loop swarm, or attach to one.")
+    ssub = p.add_subparsers(dest="swarm_command", metavar="SUBCOMMAND", required=True)
+
+    up = ssub.add_parser(
+        "up",
+        help="broker + SITL world + one agent per UAV, run the mission, record it",
+        description="Start the MQTT broker (embedded amqtt, or an external one), the SITL world "
+        "(emulated PX4/ArduPilot autopilots, ground users, link emulator) and one `plmarl agent` "
+        "per UAV; wait until every vehicle is airborne; run the mission with its scripted events "
+        "(node_failure, link_blackout, broker_outage, tup_change, gnss_noise); show the live view; "
+        "record .tlogs, metrics.jsonl, events.jsonl, mission.yaml and summary.json; shut down.",
+        epilog=UP_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
+    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time)")
+    up.add_argument("--duration", type=int, default=None, metavar="S", help="mission seconds to fly (default: the mission's episode length)")
+    up.add_argument("--broker", default="embedded", metavar="embedded|mqtt://HOST:PORT", help="MQTT broker (default: embedded amqtt)")
+    up.add_argument("--headless", action="store_true", help="no live view: one status line every 10 s of sim time")
+    up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
+    add_seed(up, default=None)
+    up.add_argument("--policy", type=Path, default=None, metavar="DIR", help="policy directory (default policies/pl-marl)")
+    up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4", help="autopilot personality (default px4)")
+    up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
+    up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
+    up.set_defaults(func=run_up)
+
+    st = ssub.add_parser(
+        "status",
+        help="attach the live view to a running swarm",
+        description="Subscribe to a running swarm's metrics and signalling topics and show the live "
+        "status view (refreshed 4 times a second; Ctrl-C to leave).",
+        epilog="example:\n  plmarl swarm status --broker mqtt://127.0.0.1:1883 --swarm sitl",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    st.add_argument("--broker", required=True, metavar="mqtt://HOST:PORT", help="the swarm's broker")
+    st.add_argument("--swarm", default="sitl", help="swarm name (default sitl)")
+    st.set_defaults(func=run_status)
+
+
+def run_up(args: argparse.Namespace) -> int:
+    from plmarl_sitl.errors import UserError
+    from plmarl_sitl.swarm.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
+    from plmarl_sitl.swarm.launcher import run_up as launch
+
+    if args.speedup <= 0:
+        raise UserError("--speedup must be > 0")
+    if args.duration is not None and args.duration < 1:
+        raise UserError("--duration must be >= 1 s")
+    opts = UpOptions(
+        mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
+        headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
+        personality=args.personality, swarm=args.swarm_name,
+    )
+    try:
+        summary = launch(opts)
+    except ComponentFailed as exc:
+        print(f"plmarl swarm up: failed: {exc.reason}", file=sys.stderr)
+        return 1
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    from rich.console import Console
+
+    from plmarl_sitl.swarm.report import print_summary
+
+    print_summary(summary, Console(), title=f"run {summary['run_dir']}")
+    return 0
+
+
+def run_status(args: argparse.Namespace) -> int:
+    from plmarl_sitl.swarm.launcher import status
+
+    status(args.broker, args.swarm)
+    return 0
