@@ -247,6 +247,7 @@ class SitlWorld:
                     "pos": [round(x, 2) for x in p],
                     "vel": [round(x, 3) for x in states[i, 3:].tolist()],
                     "alt": round(-p[2], 2),
+                    "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
                     "mode": v.mode,
                     "armed": v.armed,
                     "alive": not v.killed,

@@ -59,7 +59,10 @@ def sparkline(values: tuple[float, ...] | list[float], width: int = 40, lo: floa
 
 
 def _fmt(x: float | None, spec: str) -> str:
-    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else format(x, spec)
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "-"
+    text = format(x, spec)
+    return text[1:] if text.startswith("-") and float(text) == 0 else text  # no "-0"
 
 
 def _link_style(link: str) -> str:
