@@ -15,6 +15,7 @@ TARGETS = {
     "dt": "speed of the vectorised digital twin (agent-steps/s) and of one Oracle episode",
     "agent": "deployed agent in SITL: decision-loop latency, RSS and start-up at N = 20, speedup 10",
     "infer": "per-agent decision latency of the exported policies (PL-MARL vs GRU), N = 4..20",
+    "swarm": "wall time of the 200 s mission as a SITL swarm (N = 4, 20) at the fastest speedup with coverage gap <= 0.03",
 }
 
 
