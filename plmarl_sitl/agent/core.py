@@ -517,6 +517,11 @@ class Agent:
         self.home = torch.tensor(home_offset_ned(self.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
                                  dtype=torch.float32)
         self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
+        # Everything alive now (torch, the policy, the loop) lives for the whole flight:
+        # freezing it keeps full GC passes from walking ~10^5 objects mid-decision. Done
+        # here, on the ground, because the collection itself takes a while.
+        gc.collect()
+        gc.freeze()
         # Start-up ends here: policy loaded, autopilot found, position and home valid.
         # What follows (arming, climbing) is the vehicle's time, not the agent's.
         self.stats.startup_s = time.time() - self.t_proc0
@@ -543,10 +548,6 @@ class Agent:
         for _ in range(5):
             self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
         await self._set_mode(p.offboard_mode)
-        # Everything alive now (torch, the policy, the loop) lives for the whole flight:
-        # freezing it keeps full GC passes from walking ~10^5 objects mid-decision.
-        gc.collect()
-        gc.freeze()
         log.info("in %s at %.1f m, %.2f s after process start", p.offboard_mode, self._alt(), time.time() - self.t_proc0)
 
     # ------------------------------------------------------------------ main

@@ -65,7 +65,8 @@ class WorldConfig:
     loss: float = 0.0  # per-delivery loss probability
     latency_s: float = 0.0  # sim seconds between a tx and its deliveries
     tick_hz: float = 50.0
-    start_margin_s: float = 2.0  # t0 is at least this far ahead of the announcement
+    start_margin_s: float = 2.0  # t0 is at least this far ahead of the announcement (sim s) ...
+    start_margin_wall_s: float = 0.5  # ... and at least this much wall time (x speedup) ahead
     start_timeout_s: float = 300.0  # sim s: start anyway with whoever is ready
     episode_s: int | None = None  # stop after this many mission seconds (None: run until stopped)
     n_uavs: int | None = None  # override mission.n_uavs (tests)
@@ -203,7 +204,8 @@ class SitlWorld:
         if self._ready() or self.host.now >= self.cfg.start_timeout_s:
             if not self._ready():
                 log.warning("start timeout: starting the mission with the vehicles that are ready")
-            self.t0 = float(math.ceil(self.host.now + self.cfg.start_margin_s))
+            margin = max(self.cfg.start_margin_s, self.cfg.start_margin_wall_s * self.cfg.speedup)
+            self.t0 = float(math.ceil(self.host.now + margin))
             self.summary.t0_boot_s = self.t0
             self._next_second = self.t0
             self.bus.publish(self.topics.start, encode_json({"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}), sticky=True)
