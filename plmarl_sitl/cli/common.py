@@ -9,8 +9,9 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 
-def add_seed(p: argparse.ArgumentParser, default: int = 0) -> None:
-    p.add_argument("--seed", type=int, default=default, help=f"random seed; same seed, same numbers (default: {default})")
+def add_seed(p: argparse.ArgumentParser, default: int | None = 0) -> None:
+    said = "the mission's seed" if default is None else default
+    p.add_argument("--seed", type=int, default=default, help=f"random seed; same seed, same numbers (default: {said})")
 
 
 def tup_arg(text: str) -> int:
