@@ -131,3 +131,55 @@ def test_udpin_link_learns_the_vehicle() -> None:
             host.close()
 
     asyncio.run(main())
+
+
+def test_tcpout_link_through_a_stream_bridge() -> None:
+    """tcpout://: frames arrive glued and split across TCP reads; the stream parser copes.
+    A small bridge relays TCP <-> the emulator's UDP port (as a telemetry radio would)."""
+
+    async def main() -> None:
+        base = free_udp_ports(1)
+        host = AutopilotHost(1, base_port=base)
+        await host.start()
+        loop = asyncio.get_running_loop()
+
+        class Up(asyncio.DatagramProtocol):
+            def __init__(self, writer: asyncio.StreamWriter) -> None:
+                self.writer = writer
+
+            def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+                # Split every datagram in two writes: frames must survive arbitrary chunking.
+                self.writer.write(data[:7])
+                self.writer.write(data[7:])
+
+        async def bridge(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            udp, _ = await loop.create_datagram_endpoint(lambda: Up(writer), remote_addr=("127.0.0.1", base))
+            try:
+                while data := await reader.read(4096):
+                    udp.sendto(data)  # our client writes whole frames per send
+            finally:
+                udp.close()
+
+        server = await asyncio.start_server(bridge, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+
+        async def clock() -> None:
+            while True:
+                host.advance(0.02)
+                await asyncio.sleep(0.01)
+
+        task = asyncio.create_task(clock(), name="clock")
+        link = connect(f"tcpout://127.0.0.1:{port}")
+        try:
+            await link.open(timeout=5)
+            assert link.personality is not None and link.personality.name == "px4"
+            await link.set_message_interval("LOCAL_POSITION_NED", 20)
+            m = await link.recv("LOCAL_POSITION_NED", 3.0)
+            assert m.time_boot_ms > 0
+        finally:
+            link.close()
+            task.cancel()
+            server.close()
+            host.close()
+
+    asyncio.run(main())

@@ -105,10 +105,23 @@ def test_personalities_and_commanded_velocity(tmp_path: Path, policy_dir: Path, 
     """The same agent flies both personalities, over mosquitto for ArduPilot; the
     vehicle's velocity follows the commanded accelerations."""
     broker = "mosquitto" if personality == "ardupilot" else "amqtt"
-    run = run_sitl(tmp_path, policy_dir, n=2, broker=broker, personality=personality, tup_s=TUP, episode_s=24)
+    stop_at = 18
+
+    def on_second(world, fleet, m, run) -> None:  # noqa: ANN001
+        if m["t"] == stop_at and "sigterm" not in run.events:
+            run.events["sigterm"] = m["boot_s"]
+            fleet.procs[1].proc.terminate()  # Ctrl-C / SIGTERM: hold or brake, then exit
+
+    run = run_sitl(tmp_path, policy_dir, n=2, broker=broker, personality=personality, tup_s=TUP, episode_s=24,
+                   on_second=on_second)
     _check_flying(run, 2, mode)
+    hold = "AUTO.LOITER" if personality == "px4" else "BRAKE"
+    after = [m for m in run.metrics if m["t"] is not None and m["t"] >= stop_at + 2]
+    assert after and all(m["uav"][1]["mode"] == hold and m["uav"][1]["armed"] for m in after), after[-1]["uav"][1]
+    assert f"stopped: vehicle in {hold}" in run.log(1)
+    assert run.fleet.procs[1].proc.returncode == 0
     assert f"{personality} personality" in run.log(0)
-    _check_sawtooth(run, 0, 1, 24)
+    _check_sawtooth(run, 0, 1, stop_at - 1)
     for i in range(2):
         rows = {r["t"]: r for r in run.trace(i)}
         good = total = 0
