@@ -34,6 +34,11 @@ def run_episodes(
     Batch k uses seed `seed + k`, so results depend only on (seed, episodes, batch).
     `on_decision(n_envs)` is called after every decision (for progress bars).
     """
+    with torch.inference_mode():  # no gradients flow through an evaluation rollout
+        return _run(mission, make_controller, episodes, seed, batch, on_decision)
+
+
+def _run(mission, make_controller, episodes, seed, batch, on_decision) -> EpisodeMetrics:  # noqa: ANN001
     cov, lam, sep, traces = [], [], [], []
     for k, lo in enumerate(range(0, episodes, batch)):
         b = min(batch, episodes - lo)
