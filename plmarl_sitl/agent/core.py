@@ -506,26 +506,27 @@ class Agent:
                 raise UserError(f"--autopilot {cfg.autopilot}, but the vehicle's heartbeat says {seen}")
             link.personality = personality(cfg.autopilot)
         p = link.personality
-        log.info("vehicle sysid %d on %s: %s personality", link.sysid, cfg.connect_url, p.name)
+        log.info("vehicle sysid %d on %s: %s personality (heartbeat at %.2f s)", link.sysid, cfg.connect_url, p.name,
+                 time.time() - self.t_proc0)
         await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
+        home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
+        self.home = torch.tensor(home_offset_ned(self.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
+                                 dtype=torch.float32)
+        self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
+        # Start-up ends here: policy loaded, autopilot found, position and home valid.
+        # What follows (arming, climbing) is the vehicle's time, not the agent's.
+        self.stats.startup_s = time.time() - self.t_proc0
+        log.info("ready after %.2f s (process start -> telemetry and home valid), RSS %.0f MB", self.stats.startup_s, rss_mb())
         # Streams the agent does not use cost the autopilot link (and, in SITL, the
         # world's CPU) for nothing; our MAVLink instance is ours alone, a GCS has its own.
         for name, hz in UNUSED_STREAMS.items():
             with contextlib.suppress(CommandRejected, VehicleTimeout):
                 await link.set_message_interval(name, hz)
-        home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
-        self.home = torch.tensor(home_offset_ned(self.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
-                                 dtype=torch.float32)
-        self._on_telemetry(await link.recv("LOCAL_POSITION_NED", 5.0))
         # Everything alive now (torch, the policy, the loop) lives for the whole flight:
         # freezing it keeps full GC passes from walking ~10^5 objects mid-decision. Done
         # here, on the ground, because the collection itself takes a while.
         gc.collect()
         gc.freeze()
-        # Start-up ends here: policy loaded, autopilot found, position and home valid.
-        # What follows (arming, climbing) is the vehicle's time, not the agent's.
-        self.stats.startup_s = time.time() - self.t_proc0
-        log.info("ready after %.2f s (process start -> telemetry and home valid), RSS %.0f MB", self.stats.startup_s, rss_mb())
         hb = link.latest.get("HEARTBEAT")
         armed = bool(hb and hb.base_mode & 128)
         alt_tgt = min(max(self.vm.takeoff_alt_m, self.vm.min_alt_m), self.vm.max_alt_m)

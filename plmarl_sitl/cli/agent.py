@@ -19,6 +19,7 @@ import asyncio  # noqa: E402
 import logging  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from plmarl_sitl.cli.common import tup_arg  # noqa: E402
@@ -85,7 +86,13 @@ def run(args: argparse.Namespace) -> int:
         mission = dataclasses.replace(mission, n_uavs=args.n_uavs)
     if not Path(args.policy).is_dir():
         raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
+    from plmarl_sitl.agent.core import process_start_time
+
+    t_imports = time.time() - process_start_time()
     lp = load_policy(args.policy, mission)
+    logging.getLogger("plmarl.agent").info(
+        "start-up: interpreter + imports %.2f s, policy loaded at %.2f s", t_imports, time.time() - process_start_time()
+    )
     start = args.start or ("wait" if args.bus == "sitl" else "now")
     cfg = AgentConfig(
         uav_id=args.id,
