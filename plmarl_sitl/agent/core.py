@@ -555,11 +555,29 @@ class Agent:
     async def _fly(self) -> None:
         assert self.link is not None
         if not self.cfg.wait_start and self.t0 is None:
-            self._set_t0(float(math.ceil(self.boot_s + 1.0)))
+            self._set_t0(await self._common_epoch())
         while not self.stop_event.is_set():
             m = await self.link.recv("LOCAL_POSITION_NED", 5.0)
             self._on_telemetry(m)
             self._check_mode()
+
+    async def _common_epoch(self) -> float:
+        """t0 on this vehicle's boot clock that every agent of the swarm agrees on, with no
+        world to announce it: the last UTC midnight of the autopilot's (GPS-disciplined)
+        SYSTEM_TIME. Signalling instants are then multiples of T_up since midnight on every
+        vehicle. Without a unix time (no GPS yet) fall back to boot time 0, which agrees
+        only between vehicles that booted together (one SITL host)."""
+        assert self.link is not None
+        try:
+            st = await self.link.recv("SYSTEM_TIME", 5.0)
+        except VehicleTimeout:
+            st = None
+        if st is None or st.time_unix_usec == 0:
+            log.warning("no SYSTEM_TIME unix time from the autopilot: signalling instants follow its boot clock")
+            return 0.0
+        unix_s = st.time_unix_usec / 1e6
+        offset = unix_s - st.time_boot_ms / 1e3  # unix time at boot
+        return math.floor(unix_s / 86400.0) * 86400.0 - offset
 
     def _check_mode(self) -> None:
         """If the autopilot left the offboard mode on its own (a setpoint-loss failsafe

@@ -178,3 +178,88 @@ def test_broker_loss_and_no_sensing(tmp_path: Path, policy_dir: Path) -> None:
                 and _dist(by_t[k]["uav"][0]["pos"], by_t[k]["uav"][1]["pos"]) < 290.0]
     heard = {r["t_rx"][1] for r in run.trace(0) if r["t_rx"][1] is not None}
     assert not in_range or any(k in heard for k in in_range), (in_range, sorted(heard))
+
+
+def test_direct_bus_without_world(tmp_path: Path, policy_dir: Path) -> None:
+    """`--bus direct`: no world, no link emulator; `plmarl autopilot` provides the vehicles,
+    agents subscribe to tx/+ and agree on signalling instants through the autopilots'
+    SYSTEM_TIME (multiples of T_up since UTC midnight), and fly without sensing."""
+    import asyncio
+    import subprocess
+    import sys
+
+    from plmarl_sitl.bus.broker import MosquittoBroker, free_udp_ports
+    from plmarl_sitl.swarm.agents import AgentFleet
+
+    from .conftest import MISSION
+
+    async def main() -> AgentFleet:
+        base = free_udp_ports(2)
+        ap = subprocess.Popen([sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--count", "2", "--base-port", str(base),
+                               "--speedup", "5", "--spacing", "40"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        fleet = AgentFleet(tmp_path)
+        try:
+            with MosquittoBroker() as b:
+                for i in range(2):
+                    await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", b.url, mission=MISSION, policy=policy_dir, n_uavs=2,
+                                      tup_s=TUP, extra=["--bus", "direct"])
+                async with asyncio.timeout(60):
+                    while min(len(ap_.trace()) for ap_ in fleet.procs.values()) < 25:
+                        await asyncio.sleep(0.2)
+                await fleet.stop()
+        finally:
+            await fleet.stop()
+            ap.terminate()
+            ap.wait(10)
+        return fleet
+
+    fleet = asyncio.run(main())
+    for i, j in ((0, 1), (1, 0)):
+        rows = fleet.procs[i].trace()
+        heard = [r for r in rows if r["t_rx"][j] is not None]
+        assert heard, fleet.procs[i].log()[-1500:]
+        assert all(r["t_rx"][j] % TUP == 0 for r in heard)  # the sender's instants, on a shared clock
+        instants = [r for r in rows if r["t"] % TUP == 0 and r["t"] > rows[0]["t"]]
+        assert instants and all(r["aoi"][j] == 1 for r in instants)
+        assert "no sensing publisher" in fleet.procs[i].log()
+
+
+def test_world_cli_with_embedded_amqtt(tmp_path: Path, policy_dir: Path) -> None:
+    """`plmarl world --embedded-broker`: the amqtt broker inside the world process, two
+    agents as children; the world prints the mission's mean coverage and writes a summary."""
+    import asyncio
+    import json
+    import sys
+
+    from plmarl_sitl.bus.broker import free_port, free_udp_ports
+    from plmarl_sitl.swarm.agents import AgentFleet
+
+    from .conftest import MISSION
+
+    async def main() -> tuple[int, str, dict]:
+        base, port = free_udp_ports(2), free_port()
+        url = f"mqtt://127.0.0.1:{port}"
+        summary = tmp_path / "summary.json"
+        world = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "plmarl_sitl.cli", "world", str(MISSION), "--broker", url, "--embedded-broker",
+            "--n-uavs", "2", "--speedup", "10", "--base-port", str(base), "--episode", "15", "--seed", "3",
+            "--summary-json", str(summary), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+        fleet = AgentFleet(tmp_path)
+        try:
+            await asyncio.sleep(1.0)  # let the world bind its ports and start the broker
+            for i in range(2):
+                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=MISSION, policy=policy_dir, n_uavs=2)
+            async with asyncio.timeout(60):
+                out, _ = await world.communicate()
+        finally:
+            if world.returncode is None:
+                world.kill()
+                await world.wait()
+            await fleet.stop()
+        return world.returncode or 0, out.decode(), json.loads(summary.read_text())
+
+    code, out, summary = asyncio.run(main())
+    assert code == 0, out
+    assert "(embedded)" in out and "15 mission seconds, mean coverage" in out
+    assert summary["mission_seconds"] == 15 and 0.0 <= summary["mean_coverage"] <= 1.0
+    assert summary["links"]["delivered"] >= 2
