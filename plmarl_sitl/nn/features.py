@@ -10,7 +10,7 @@ y east, z down; m/s), see docs/POLICY_IO.md:
 * ego (..., 6): own true [p_n, p_e, p_d, v_n, v_e, v_d]
 * beliefs (..., M, 6): the belief tracker's reconstructed neighbour states, same frame
 * mask (..., M) bool: neighbour j is in N_i (heard recently enough and alive)
-* sense (..., 11): `plmarl_sitl.world.coverage.sensing_features` of the agent
+* sense (..., SENSING_FEATURES = 4): `plmarl_sitl.world.coverage.sensing_features` of the agent
 * fail_flag (...) bool: the agent's local failure state f
 
 Normalisation (constants in `FeatureScales`, stored in the exported policy):
