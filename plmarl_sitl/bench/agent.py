@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import shutil
 import statistics
 import tempfile
 import time
@@ -48,47 +47,36 @@ def _pct(xs: list[float], q: float) -> float | None:
 async def _run(args: argparse.Namespace) -> dict:
     import dataclasses
 
-    from plmarl_sitl.bus.broker import EmbeddedBroker, MosquittoBroker, free_udp_ports
+    from plmarl_sitl.bus.broker import free_udp_ports, local_broker
     from plmarl_sitl.mission import load_mission
     from plmarl_sitl.swarm.agents import AgentFleet
     from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
 
     mission = dataclasses.replace(load_mission(args.mission), n_uavs=args.n)
     n = args.n
-    mosq = MosquittoBroker() if shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists() else None
-    emb = None if mosq else EmbeddedBroker()
-    if mosq is not None:
-        mosq.start()
-    else:
-        await emb.start()  # type: ignore[union-attr]
-    url = (mosq or emb).url  # type: ignore[union-attr]
     base = free_udp_ports(n)
     workdir = Path(args.workdir) if args.workdir else Path(tempfile.mkdtemp(prefix="plmarl-bench-agent-"))
     fleet = AgentFleet(workdir)
-    world = SitlWorld(WorldConfig(mission=mission, broker_url=url, speedup=args.speedup, base_port=base,
-                                  episode_s=args.mission_s, start_timeout_s=1e9))
-    t_start = time.perf_counter()
-    try:
-        await world.start()
-        run = asyncio.create_task(world.run(), name="world")
-        for i in range(n):
-            ap = await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=args.mission, policy=args.policy,
-                                   n_uavs=n, trace=False)
-            async with asyncio.timeout(60):
-                while "ready after" not in ap.log():
-                    if ap.proc.returncode is not None:
-                        raise RuntimeError(f"agent {i} exited: {ap.log()[-500:]}")
-                    await asyncio.sleep(0.05)
-        async with asyncio.timeout(120 + 3 * args.mission_s / args.speedup):
-            summary = await run
-    finally:
-        world.stop()
-        world.host.close()
-        await fleet.stop()
-        if emb is not None:
-            await emb.stop()
-        if mosq is not None:
-            mosq.stop()
+    async with local_broker() as broker:
+        url = broker.url
+        world = SitlWorld(WorldConfig(mission=mission, broker_url=url, speedup=args.speedup, base_port=base,
+                                      episode_s=args.mission_s, start_timeout_s=1e9))
+        t_start = time.perf_counter()
+        try:
+            await world.start()
+            run = asyncio.create_task(world.run(), name="world")
+            for i in range(n):
+                ap = await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=args.mission, policy=args.policy,
+                                       n_uavs=n, trace=False)
+                async with asyncio.timeout(60):
+                    while "ready after" not in ap.log():
+                        if ap.proc.returncode is not None:
+                            raise RuntimeError(f"agent {i} exited: {ap.log()[-500:]}")
+                        await asyncio.sleep(0.05)
+            async with asyncio.timeout(120 + 3 * args.mission_s / args.speedup):
+                summary = await run
+        finally:
+            await world.shutdown(fleet)
     stats = [ap.stats() for ap in fleet.procs.values()]
     missing = [i for i, s in enumerate(stats) if s is None]
     if missing:

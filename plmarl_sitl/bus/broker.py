@@ -15,6 +15,7 @@ import socket
 import subprocess
 import tempfile
 import time
+from collections.abc import AsyncIterator
 from pathlib import Path
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
@@ -138,3 +139,23 @@ class MosquittoBroker:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+@contextlib.asynccontextmanager
+async def local_broker(kind: str = "auto") -> AsyncIterator[EmbeddedBroker | MosquittoBroker]:
+    """A broker on a free loopback port for the block: "mosquitto", "amqtt" (in-process),
+    or "auto" (mosquitto when installed, the closer match to a deployment; else amqtt)."""
+    if kind == "auto":
+        kind = "mosquitto" if Path(MOSQUITTO).exists() else "amqtt"
+    if kind == "mosquitto":
+        mosq = MosquittoBroker()
+        mosq.start()
+        try:
+            yield mosq
+        finally:
+            mosq.stop()
+    elif kind == "amqtt":
+        async with EmbeddedBroker() as emb:
+            yield emb
+    else:
+        raise ValueError(f"unknown broker kind {kind!r}")

@@ -13,7 +13,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import shutil
 import sys
 import tempfile
 import time
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from plmarl_sitl.bus.broker import EmbeddedBroker, MosquittoBroker, free_udp_ports
+from plmarl_sitl.bus.broker import free_udp_ports, local_broker
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.swarm.agents import AgentFleet
 from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
@@ -49,32 +48,20 @@ async def sitl_coverage(
 ) -> tuple[list[float], dict]:
     mission = load_mission(mission_path)
     n = mission.n_uavs
-    mosq = MosquittoBroker() if shutil.which("mosquitto") or Path("/usr/sbin/mosquitto").exists() else None
-    emb = None if mosq else EmbeddedBroker()
-    if mosq is not None:
-        mosq.start()
-    else:
-        await emb.start()  # type: ignore[union-attr]
-    url = (mosq or emb).url  # type: ignore[union-attr]
     base = free_udp_ports(n)
     tmp = workdir or Path(tempfile.mkdtemp(prefix="plmarl-gap-"))
     fleet = AgentFleet(tmp)
-    world = SitlWorld(WorldConfig(mission=mission, broker_url=url, speedup=speedup, base_port=base, seed=seed,
-                                  episode_s=mission.timing.episode_s))
-    try:
-        await world.start()
-        for i in range(n):
-            await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=mission_path, policy=policy_dir)
-        async with asyncio.timeout(60 + 3 * mission.timing.episode_s / speedup + 60):
-            summary = await world.run()
-    finally:
-        world.stop()
-        world.host.close()
-        await fleet.stop()
-        if emb is not None:
-            await emb.stop()
-        if mosq is not None:
-            mosq.stop()
+    async with local_broker() as broker:
+        world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
+                                      episode_s=mission.timing.episode_s))
+        try:
+            await world.start()
+            for i in range(n):
+                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir)
+            async with asyncio.timeout(60 + 3 * mission.timing.episode_s / speedup + 60):
+                summary = await world.run()
+        finally:
+            await world.shutdown(fleet)
     stats = {i: ap.stats() for i, ap in fleet.procs.items()}
     return summary.coverage, {"wall_s": summary.wall_s, "links": summary.links, "agents": stats}
 

@@ -33,6 +33,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import torch
 
@@ -47,6 +48,9 @@ from plmarl_sitl.world.channel import CoverageRadius
 from plmarl_sitl.world.coverage import covered_users
 from plmarl_sitl.world.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.world.users import UserState, init_users, step_users
+
+if TYPE_CHECKING:
+    from plmarl_sitl.swarm.agents import AgentFleet
 
 log = logging.getLogger("plmarl.world")
 
@@ -149,6 +153,14 @@ class SitlWorld:
 
     def stop(self) -> None:
         self._stop.set()
+
+    async def shutdown(self, fleet: AgentFleet | None = None) -> None:
+        """Stop the clock, close the vehicles' sockets and stop `fleet`'s agents (whatever
+        state the run is in; safe to call twice)."""
+        self.stop()
+        self.host.close()
+        if fleet is not None:
+            await fleet.stop()
 
     # ------------------------------------------------------------------ state
     def alive(self) -> torch.Tensor:

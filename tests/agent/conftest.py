@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from plmarl_sitl.bus.broker import EmbeddedBroker, MosquittoBroker, free_udp_ports
+from plmarl_sitl.bus.broker import free_udp_ports, local_broker
 from plmarl_sitl.errors import PolicyFileError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.swarm.agents import AgentFleet
@@ -94,42 +94,31 @@ def run_sitl(
         wm = wm.with_tup(tup_s)
 
     async def main() -> SitlRun:
-        mosq = MosquittoBroker() if broker == "mosquitto" else None
-        emb = EmbeddedBroker() if broker == "amqtt" else None
-        if mosq is not None:
-            mosq.start()
-        if emb is not None:
-            await emb.start()
-        url = (mosq or emb).url  # type: ignore[union-attr]
-        base_port = free_udp_ports(n)
-        fleet = AgentFleet(tmp)
-        run = SitlRun(WorldSummary(), fleet)
-        run.broker = mosq or emb  # type: ignore[attr-defined]
+        async with local_broker(broker) as b:
+            url = b.url
+            base_port = free_udp_ports(n)
+            fleet = AgentFleet(tmp)
+            run = SitlRun(WorldSummary(), fleet)
+            run.broker = b  # type: ignore[attr-defined]
 
-        def hook(m: dict) -> None:
-            run.metrics.append(m)
-            if on_second is not None:
-                on_second(world, fleet, m, run)
+            def hook(m: dict) -> None:
+                run.metrics.append(m)
+                if on_second is not None:
+                    on_second(world, fleet, m, run)
 
-        world = SitlWorld(
-            WorldConfig(mission=wm, broker_url=url, personality=personality, speedup=speedup, base_port=base_port, episode_s=episode_s,
-                        publish_sense=publish_sense),
-            on_metrics=hook,
-        )
-        try:
-            await world.start()
-            for i in range(n):
-                await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", url, mission=MISSION, policy=policy, n_uavs=n, tup_s=tup_s)
-            async with asyncio.timeout(wall_timeout_s):
-                run.summary = await world.run()
-        finally:
-            world.stop()
-            world.host.close()
-            await fleet.stop()
-            if emb is not None:
-                await emb.stop()
-            if mosq is not None:
-                mosq.stop()
+            world = SitlWorld(
+                WorldConfig(mission=wm, broker_url=url, personality=personality, speedup=speedup, base_port=base_port, episode_s=episode_s,
+                            publish_sense=publish_sense),
+                on_metrics=hook,
+            )
+            try:
+                await world.start()
+                for i in range(n):
+                    await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", url, mission=MISSION, policy=policy, n_uavs=n, tup_s=tup_s)
+                async with asyncio.timeout(wall_timeout_s):
+                    run.summary = await world.run()
+            finally:
+                await world.shutdown(fleet)
         return run
 
     return asyncio.run(main())
