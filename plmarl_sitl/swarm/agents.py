@@ -16,6 +16,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
+def _die_with_parent() -> None:
+    """In the child, before exec: ask Linux to SIGTERM us when the launcher dies, even by
+    SIGKILL, so an agent can never outlive it (no-op where prctl is unavailable)."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 @dataclass
 class AgentProc:
     uav_id: int
@@ -77,7 +89,9 @@ class AgentFleet:
         cmd += extra or []
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
         with open(log_path, "wb") as log:
-            proc = await asyncio.create_subprocess_exec(*cmd, stdout=log, stderr=asyncio.subprocess.STDOUT, env=env)
+            proc = await asyncio.create_subprocess_exec(
+                *cmd, stdout=log, stderr=asyncio.subprocess.STDOUT, env=env, preexec_fn=_die_with_parent
+            )
         ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
         self.procs[uav_id] = ap
         return ap

@@ -135,3 +135,25 @@ def test_ctrl_c_leaves_no_process_behind(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_agents_die_with_a_killed_launcher(tmp_path):
+    """Even SIGKILL of the launcher (no cleanup code runs) leaves no agent behind."""
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "plmarl_sitl.cli", "swarm", "up", str(ROOT / "missions" / "paper_urban.yaml"),
+                             "--speedup", "5", "--headless", "--out", str(out)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        agents = []
+        while time.time() < deadline and len(agents) < 4:
+            agents = [c for c in psutil.Process(proc.pid).children(recursive=True) if "agent" in " ".join(c.cmdline())]
+            time.sleep(0.5)
+        assert len(agents) == 4
+        proc.kill()
+        proc.wait(timeout=10)
+        gone, alive = psutil.wait_procs(agents, timeout=15)
+        assert not alive, [c.cmdline() for c in alive]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
