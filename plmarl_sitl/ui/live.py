@@ -80,14 +80,16 @@ def render(view: SwarmView) -> Group:
     head.add_row("signalling", f"{view.messages_per_min:.0f} msg/min")
     head.add_row("events", ", ".join(view.events_fired[-4:]) if view.events_fired else "none yet")
 
-    table = Table(expand=False, header_style="bold")
-    for col, justify in [("UAV", "right"), ("mode", "left"), ("armed", "center"), ("north", "right"), ("east", "right"),
-                         ("alt", "right"), ("speed", "right"), ("nbrs", "right"), ("max P-AoI", "right"),
-                         ("last action (m/s^2)", "left"), ("link", "left")]:
-        table.add_column(col, justify=justify)
+    # Fits an 80-column SSH terminal: short headers, no outer box, positions in metres,
+    # speed in m/s, P-AoI in s, action = the last commanded acceleration (m/s^2, NED).
+    table = Table(expand=False, header_style="bold underline", box=None, pad_edge=False, padding=(0, 1))
+    for col, justify in [("UAV", "right"), ("mode", "left"), ("arm", "center"), ("N m", "right"), ("E m", "right"),
+                         ("alt", "right"), ("m/s", "right"), ("nbr", "right"), ("AoI s", "right"),
+                         ("action m/s2", "left"), ("link", "left")]:
+        table.add_column(col, justify=justify, no_wrap=True)
     for u in view.uavs:
         n, e, d = u.pos_ned
-        action = "-" if u.last_action is None else " ".join(f"{a:+.1f}" for a in u.last_action)
+        action = "-" if u.last_action is None else " ".join(f"{a:+.1f}" for a in u.last_action).replace("-0.0", "+0.0")
         link = "dead" if not u.alive else u.link
         table.add_row(
             str(u.id), u.mode if u.alive else "-", "yes" if u.armed else "no",

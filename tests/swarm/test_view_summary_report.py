@@ -33,6 +33,15 @@ def test_render_shows_every_field():
     assert sparkline((0.1, 0.5, 0.8, 0.9, 0.81)) in text
 
 
+def test_render_fits_an_80_column_terminal():
+    console = Console(record=True, width=80)
+    console.print(render(_view()))
+    lines = console.export_text().splitlines()
+    assert max(len(x) for x in lines) <= 80
+    assert not any("…" in x for x in lines), "\n".join(lines)  # nothing truncated
+    assert any("OFFBOARD" in x and "+0.5 -1.0 +0.0" in x for x in lines)  # no truncation, no wrapping
+
+
 def test_render_copes_with_unknowns():
     console = Console(record=True, width=140)
     console.print(render(_view(lambda2=math.nan, uavs=(UavView(id=3),), events_fired=())))
