@@ -36,24 +36,23 @@ def coverage_table_md(res: dict) -> str:
     return "\n".join(lines)
 
 
-def lambda_table_md(res: dict) -> str:
+def _per_tup_table(res: dict, key: str, fmt: str) -> str:
+    """A T_up x method markdown table of one per-run field."""
     rows = _rows_by(res)
     methods = list(dict.fromkeys(r["method"] for r in res["results"]))
     tups = sorted({r["tup"] for r in res["results"]})
     lines = ["| T_up (s) | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 1)]
     for t in tups:
-        lines.append(f"| {t} | " + " | ".join(f"{rows[(m, t)]['lambda2_mean']:.2f}" for m in methods) + " |")
+        lines.append(f"| {t} | " + " | ".join(format(rows[(m, t)][key], fmt) for m in methods) + " |")
     return "\n".join(lines)
+
+
+def lambda_table_md(res: dict) -> str:
+    return _per_tup_table(res, "lambda2_mean", ".2f")
 
 
 def full_table_md(res: dict) -> str:
-    rows = _rows_by(res)
-    methods = list(dict.fromkeys(r["method"] for r in res["results"]))
-    tups = sorted({r["tup"] for r in res["results"]})
-    lines = ["| T_up (s) | " + " | ".join(methods) + " |", "|" + "---|" * (len(methods) + 1)]
-    for t in tups:
-        lines.append(f"| {t} | " + " | ".join(f"{rows[(m, t)]['coverage_full_mean']:.3f}" for m in methods) + " |")
-    return "\n".join(lines)
+    return _per_tup_table(res, "coverage_full_mean", ".3f")
 
 
 def pvalue_table_md(res: dict) -> str:
