@@ -30,8 +30,8 @@ class ConfigError(ValueError):
         self.path = path
         self.reason = reason
         self.source = source
-        where = f"{source}: " if source else ""
-        super().__init__(f"{where}{path or '<root>'}: {reason}")
+        prefix = ": ".join(x for x in (source, path) if x)
+        super().__init__(f"{prefix}: {reason}" if prefix else reason)
 
 
 def _join(path: str, key: str | int) -> str:

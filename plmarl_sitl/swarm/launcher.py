@@ -179,6 +179,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
     console = console or Console()
     mission = resolve_mission(opts)
+    if opts.broker != "embedded":
+        parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
