@@ -167,11 +167,6 @@ def load_yaml(cls: type[T], path: str | Path) -> T:
         raise ConfigError(exc.path, exc.reason, str(path)) from None
 
 
-def positive(**extra: Any) -> Any:
-    """Field metadata for a strictly positive number."""
-    return field(metadata={"min": 1e-12, **extra})
-
-
 def _require(cond: bool, path: str, reason: str) -> None:
     if not cond:
         raise ConfigError(path, reason)

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from plmarl_sitl.mission import Mission, Users
+from plmarl_sitl.world.vehicle import clip_norm
 
 MOBILITY_KINDS = ("gauss_markov", "random_waypoint", "rpgm")
 _RWP_PAUSE_MAX_S = 10.0
@@ -114,7 +115,8 @@ def init_users(
     centres = cluster_centres(mission, batch, gen)  # (B, C, 2) float64
     home = centres.repeat_interleave(u.cluster_size, dim=1)  # (B, U, 2)
     pos = home + u.cluster_std_m * torch.randn(home.shape, generator=gen, dtype=home.dtype)
-    pos = _reflect_pos(pos, mission)
+    for k, size in enumerate((mission.area.north_m, mission.area.east_m)):
+        pos[..., k] = _fold(pos[..., k], size)[0]
     if u.mobility == "mixed":
         kind = torch.randint(0, len(MOBILITY_KINDS), (batch,), generator=gen)
     else:
@@ -127,7 +129,7 @@ def init_users(
     group_wp = _in_disk(gen, centres, _GROUP_RADIUS_STD * u.cluster_std_m).repeat_interleave(u.cluster_size, dim=1)
     offset = pos - group_ref
     sigma_v = 0.5 * u.max_speed_mps
-    vel = _clip(sigma_v * torch.randn(home.shape, generator=gen, dtype=home.dtype), u.max_speed_mps)
+    vel = clip_norm(sigma_v * torch.randn(home.shape, generator=gen, dtype=home.dtype), u.max_speed_mps)
 
     def cast(x: torch.Tensor) -> torch.Tensor:
         if x.is_floating_point() and x.dim() == 3:  # (B, U, 2) -> planar (B, 2, U)
@@ -135,12 +137,6 @@ def init_users(
         return x.to(device=device, dtype=dtype if x.is_floating_point() else x.dtype)
 
     return UserState(*(cast(x) for x in (pos, vel, home, kind, waypoint, pause, speed, group_ref, group_wp, offset)))
-
-
-def _clip(v: torch.Tensor, vmax: float) -> torch.Tensor:
-    """Clip interleaved (..., 2) vectors to norm <= vmax (used at initialisation)."""
-    n2 = (v * v).sum(-1, keepdim=True)
-    return v * torch.clamp(vmax * torch.rsqrt(torch.clamp(n2, min=1e-24)), max=1.0)
 
 
 def _clip_planar(v: torch.Tensor, vmax: float) -> torch.Tensor:
@@ -153,27 +149,26 @@ def _norm_planar(v: torch.Tensor) -> torch.Tensor:
     return torch.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1])
 
 
-def _reflect_pos(pos: torch.Tensor, mission: Mission) -> torch.Tensor:
-    size = torch.tensor([mission.area.north_m, mission.area.east_m], dtype=pos.dtype, device=pos.device)
-    # Fold into [0, 2L) then mirror: a reflection, also for steps larger than the area.
-    folded = torch.remainder(pos, 2 * size)
-    return torch.where(folded > size, 2 * size - folded, folded)
+def _fold(p: torch.Tensor, size: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Reflect coordinates into [0, size] off both walls, for any excursion: fold into
+    [0, 2 size) and mirror the upper half. Also returns where the number of mirrors is
+    odd, i.e. where the velocity along this axis flips."""
+    folded = torch.remainder(p, 2.0 * size)
+    flipped = folded > size
+    return torch.where(flipped, 2.0 * size - folded, folded), flipped
 
 
 def _reflect(pos: torch.Tensor, vel: torch.Tensor, mission: Mission) -> tuple[torch.Tensor, torch.Tensor]:
-    """Mirror planar positions that left [0, L] back inside and flip that velocity
-    component: min(|p|, 2L - |p|). A user step (<= 0.5 m) is far smaller than the area,
-    so one mirror per edge suffices."""
+    """Reflect planar positions that left the area back inside and flip that velocity
+    component."""
     sizes = (mission.area.north_m, mission.area.east_m)
-    # Fast path: users seldom touch the edge; two reductions are cheaper than mirroring.
+    # Fast path: users seldom touch the edge; two reductions are cheaper than folding.
     if all(float(pos[:, k].min()) >= 0.0 and float(pos[:, k].max()) <= size for k, size in enumerate(sizes)):
         return pos, vel
     out_p, out_v = torch.empty_like(pos), torch.empty_like(vel)
     for k, size in enumerate(sizes):
-        p = pos[:, k]
-        a = p.abs()
-        torch.minimum(a, 2.0 * size - a, out=out_p[:, k])
-        torch.where(out_p[:, k] != p, -vel[:, k], vel[:, k], out=out_v[:, k])
+        out_p[:, k], flipped = _fold(pos[:, k], size)
+        out_v[:, k] = torch.where(flipped, -vel[:, k], vel[:, k])
     return out_p, out_v
 
 
