@@ -43,7 +43,12 @@ def load_run(run_dir: Path) -> tuple[list[dict], list[dict], dict | None]:
     events_path = run_dir / "events.jsonl"
     events = read_jsonl(events_path) if events_path.exists() else []
     summary_path = run_dir / "summary.json"
-    summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
+    summary = None
+    if summary_path.exists():
+        try:
+            summary = json.loads(summary_path.read_text())
+        except json.JSONDecodeError as exc:
+            raise UserError(f"{summary_path}: not valid JSON ({exc.msg}); delete it to recompute it from metrics.jsonl") from exc
     return metrics, events, summary
 
 

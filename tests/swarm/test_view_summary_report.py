@@ -104,3 +104,7 @@ def test_report_bad_input_is_one_line(tmp_path):
     assert r.returncode == 2 and "metrics.jsonl:2: not valid JSON" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path / "nope")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "no such run directory" in r.stderr
+    (tmp_path / "metrics.jsonl").write_text('{"t": 0, "coverage": 0.5, "uavs": []}\n')
+    (tmp_path / "summary.json").write_text("{oops")
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "summary.json: not valid JSON" in r.stderr and "Traceback" not in r.stderr
