@@ -30,6 +30,10 @@ from plmarl_sitl.config import VehicleModel
 _TIME_TOL = 1e-7  # s: roots closer to "now" than this are the event we are sitting on
 _COAST_TOL = 1e-6  # s: at V_max, a dip below the limit shorter than this counts as pushing
 _MAX_EVENTS = 5  # speed, wall, speed again after the wall, plus numerical slack
+# Up to this many vehicles per call, per-op overhead dominates and a step where nobody can
+# meet a limit takes a ballistic shortcut (the autopilot host's 20 vehicles at 50 Hz). Big
+# twin batches rarely qualify as a whole, so they skip the check.
+_FREE_FLIGHT_MAX_BATCH = 256
 
 
 @dataclass(frozen=True)
@@ -197,6 +201,28 @@ def _advance(
     return pos, vel, t_left - t
 
 
+def _free_flight(
+    pos: torch.Tensor, vel: torch.Tensor, acc: torch.Tensor, dt: float, lim: Limits
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """(inside, resting), (M,) bool each. inside: the vehicle meets no limit during [0, dt]
+    and is not sitting on one, with a margin far above the snapping tolerances. resting: it
+    stands still on the floor and is pushed into it or not at all, so it stays put.
+
+    Speed: |v + a t| <= |v| + |a| t, so |v| + |a| dt below V_max means no speed event.
+    Altitude: h + w t + c t^2 / 2 stays within h -/+ (|w| dt + |c| dt^2 / 2).
+    """
+    margin = 1e3 * _wall_tol(pos, lim)
+    speed = torch.linalg.vector_norm(vel, dim=-1)
+    reach_v = speed + torch.linalg.vector_norm(acc, dim=-1) * dt
+    alt = -pos[..., 2]
+    reach_h = vel[..., 2].abs() * dt + 0.5 * acc[..., 2].abs() * dt * dt
+    inside = (reach_v < lim.max_speed * (1.0 - 1e3 * _speed_snap(vel))) & (alt - reach_h > lim.alt_min + margin) & (
+        alt + reach_h < lim.alt_max - margin
+    )
+    resting = (speed == 0) & (acc[..., 0] == 0) & (acc[..., 1] == 0) & (acc[..., 2] >= 0) & (alt <= lim.alt_min)
+    return inside, resting
+
+
 def step_point_mass(
     pos: torch.Tensor,
     vel: torch.Tensor,
@@ -216,6 +242,17 @@ def step_point_mass(
     p[:, 2] = -torch.clamp(-p[:, 2], lim.alt_min, lim.alt_max)
     v = clip_norm(vel.reshape(-1, 3), lim.max_speed)
     t_left = torch.full(p.shape[:1], float(dt), dtype=p.dtype, device=p.device)
+    if p.shape[0] <= _FREE_FLIGHT_MAX_BATCH:
+        inside, resting = _free_flight(p, v, acc, float(dt), lim)
+        if bool((inside | resting).all()):
+            # No vehicle can reach a limit within this step: the event solver would find
+            # no event and return exactly this ballistic update (same ops, same order;
+            # a resting vehicle's command is what the floor removes).
+            a = acc * inside.unsqueeze(-1).to(acc.dtype)
+            tt = t_left.unsqueeze(-1)
+            p = p + v * tt + 0.5 * a * tt * tt
+            v = v + a * tt
+            return p.reshape(shape), v.reshape(shape)
     p, v, t_left = _advance(p, v, acc, t_left, lim)
     # Only vehicles that met an event this step have time left: iterate on that subset.
     idx = torch.nonzero(t_left > _TIME_TOL).flatten()

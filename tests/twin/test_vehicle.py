@@ -107,3 +107,29 @@ def test_goto_reaches_target_and_stops():
         pos, vel = step_point_mass(pos, vel, goto_accel(pos, vel, target, 20.0, 5.0), 0.5, LIM)
     assert float(torch.linalg.vector_norm(pos - target)) < 1.0
     assert float(torch.linalg.vector_norm(vel)) < 0.5
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    alt=st.one_of(st.just(40.0), st.floats(40.0, 150.0)),
+    v=st.one_of(st.just((0.0, 0.0, 0.0)), vec),
+    a=vec,
+    dt=st.sampled_from([0.02, 0.1, 1.0, 3.0]),
+    dtype=st.sampled_from([torch.float32, f64]),
+)
+def test_free_flight_shortcut_is_bit_identical_to_the_event_solver(alt, v, a, dt, dtype):
+    """Small batches take a ballistic shortcut when no vehicle can meet a limit; it must
+    give exactly what the event solver gives (three vehicles: mixed and all-free cases)."""
+    import plmarl_sitl.world.vehicle as vehicle
+
+    pos = torch.tensor([[0.0, 0.0, -alt], [5.0, 1.0, -90.0], [0.0, 0.0, -40.0]], dtype=dtype)
+    vel = torch.tensor([v, [1.0, 2.0, 0.5], [0.0, 0.0, 0.0]], dtype=dtype)
+    acc = torch.tensor([a, [0.5, -0.5, 0.1], [0.0, 0.0, 0.0]], dtype=dtype)
+    shortcut = step_point_mass(pos, vel, acc, dt, LIM)
+    saved = vehicle._FREE_FLIGHT_MAX_BATCH
+    vehicle._FREE_FLIGHT_MAX_BATCH = 0
+    try:
+        solver = step_point_mass(pos, vel, acc, dt, LIM)
+    finally:
+        vehicle._FREE_FLIGHT_MAX_BATCH = saved
+    assert torch.equal(shortcut[0], solver[0]) and torch.equal(shortcut[1], solver[1])
