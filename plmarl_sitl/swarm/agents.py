@@ -2,6 +2,9 @@
 
 Used by the integration tests, `plmarl bench agent` and the sim-to-SITL gap run; the
 launcher builds on it. Every child gets OPENBLAS/OMP threads = 1 and its own log file.
+A fleet either execs each agent (`python -m plmarl_sitl.cli agent ...`, exactly what a
+user runs) or, with `forked=True`, forks it from a forkserver that has imported torch
+once (`swarm.forked`), which is how a launcher starts 20 agents on 2 cores quickly.
 """
 
 from __future__ import annotations
@@ -15,23 +18,13 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-
-def _die_with_parent() -> None:
-    """In the child, before exec: ask Linux to SIGTERM us when the launcher dies, even by
-    SIGKILL, so an agent can never outlive it (no-op where prctl is unavailable)."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL("libc.so.6", use_errno=True)
-        libc.prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
+from plmarl_sitl.swarm.forked import ForkedProcess, die_with_parent, fork_agent, warm_up
 
 
 @dataclass
 class AgentProc:
     uav_id: int
-    proc: asyncio.subprocess.Process
+    proc: asyncio.subprocess.Process | ForkedProcess
     log_path: Path
     trace_path: Path | None
     stats_path: Path | None
@@ -55,7 +48,13 @@ class AgentFleet:
     """Children started by `spawn`; `stop()` (SIGTERM, then SIGKILL) in any case."""
 
     workdir: Path
+    forked: bool = False
     procs: dict[int, AgentProc] = field(default_factory=dict)
+
+    def warm_up(self) -> None:
+        """Forked fleets: get the forkserver importing before the first `spawn`."""
+        if self.forked:
+            warm_up()
 
     async def spawn(
         self,
@@ -76,7 +75,7 @@ class AgentFleet:
         trace_path = self.workdir / f"agent{uav_id}.trace.jsonl" if trace else None
         stats_path = self.workdir / f"agent{uav_id}.stats.json" if stats else None
         log_path = self.workdir / f"agent{uav_id}.log"
-        cmd = [sys.executable, "-m", "plmarl_sitl.cli", "agent", "--id", str(uav_id), "--connect", connect_url,
+        cmd = ["--id", str(uav_id), "--connect", connect_url,
                "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm, "-v"]
         if n_uavs is not None:
             cmd += ["--n-uavs", str(n_uavs)]
@@ -87,11 +86,16 @@ class AgentFleet:
         if stats_path is not None:
             cmd += ["--stats-json", str(stats_path)]
         cmd += extra or []
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-        with open(log_path, "wb") as log:
-            proc = await asyncio.create_subprocess_exec(
-                *cmd, stdout=log, stderr=asyncio.subprocess.STDOUT, env=env, preexec_fn=_die_with_parent
-            )
+        threads = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+        proc: asyncio.subprocess.Process | ForkedProcess
+        if self.forked:
+            proc = await fork_agent(cmd, str(log_path), threads, name=f"plmarl-agent{uav_id}")
+        else:
+            with open(log_path, "wb") as log:
+                proc = await asyncio.create_subprocess_exec(
+                    sys.executable, "-m", "plmarl_sitl.cli", "agent", *cmd, stdout=log, stderr=asyncio.subprocess.STDOUT,
+                    env=dict(os.environ, **threads), preexec_fn=die_with_parent,
+                )
         ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
         self.procs[uav_id] = ap
         return ap

@@ -204,9 +204,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs, {duration} s at {opts.speedup:g}x, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+    fleet = AgentFleet(out / "agents", forked=True)
+    fleet.warm_up()  # the agents' imports load on the other core meanwhile
     broker, up_host, up_port = await _start_broker(opts.broker)
     gate = BrokerGate(up_host, up_port)
-    fleet = AgentFleet(out / "agents")
     world: SitlWorld | None = None
     script: MissionScript | None = None
     last_headless = [-10.0]
@@ -243,7 +244,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", gate.url, mission=mission_file,
                               policy=opts.policy, swarm=opts.swarm, extra=["--autopilot", opts.personality])
         async with asyncio.TaskGroup() as tg:
-            world_task = tg.create_task(world.run(), name="world")
+            world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
             watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout_s), name="watchdog")
             view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
@@ -254,10 +255,11 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     except* ComponentFailed as group:
         raise group.exceptions[0] from None
     finally:
+        # Agents first, while the vehicles still answer: each commands hold and exits.
+        await fleet.stop()
         if world is not None:
             world.stop()
             world.host.close()
-        await fleet.stop()
         await gate.close()
         if broker is not None:
             await broker.stop()

@@ -327,8 +327,10 @@ class SitlWorld:
         """Bind the vehicles' UDP ports (agents may connect from now on)."""
         await self.host.start()
 
-    async def run(self) -> WorldSummary:
-        """Run until `stop()`, the episode ends, or cancellation; closes the vehicles' sockets."""
+    async def run(self, keep_sockets: bool = False) -> WorldSummary:
+        """Run until `stop()`, the episode ends, or cancellation; then close the vehicles'
+        sockets, unless `keep_sockets`: a launcher that still has agents to stop keeps the
+        autopilots answering so each agent can command its hold mode (`host.close()` later)."""
         if not self.host._transports:
             await self.start()
         t_wall = time.perf_counter()
@@ -341,7 +343,8 @@ class SitlWorld:
                 await self._flush(1.0)
                 bus.cancel()
         finally:
-            self.host.close()
+            if not keep_sockets:
+                self.host.close()
             self.summary.wall_s = time.perf_counter() - t_wall
             self.summary.sim_s = self.host.now - sim0
             self.summary.links = self.links.counters.as_dict()
