@@ -2,7 +2,8 @@
 
 One decision of one deployed agent with M = N - 1 neighbours: one belief-tracker step
 (predictor.pt over the M neighbours, Algorithm 1) followed by one policy.pt call
-(policy input, attention fusion, actor), both TorchScript, torch on ONE thread, no
+(policy input, attention fusion, actor), both TorchScript (the fused deployment form of
+plmarl_sitl/nn/deploy.py, as exported), torch on ONE thread, no
 autograd (inference_mode). Methods are timed interleaved, call by call, in the same run,
 so machine load hits them equally; report the median and the 99th percentile.
 
@@ -31,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _modules(method: str, policies: Path):
+    from plmarl_sitl.nn.deploy import fuse_policy, fuse_tracker
     from plmarl_sitl.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.train.mappo import METHOD_PREDICTOR
 
@@ -45,7 +47,7 @@ def _modules(method: str, policies: Path):
     torch.manual_seed(0)
     tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR[method]), 10, 1.0)
     policy = DeployedPolicy(Actor(), 1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
-    return freeze(tracker, TRACKER_ATTRS), freeze(policy, POLICY_ATTRS), "untrained"
+    return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(fuse_policy(policy), POLICY_ATTRS), "untrained"
 
 
 def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001

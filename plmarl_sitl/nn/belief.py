@@ -29,6 +29,17 @@ NEVER = -1.0e9  # t_rx of a neighbour never heard (same sentinel as plmarl_sitl.
 MAX_AOI = 1000.0  # s: P-AoI fed to the predictor is capped (never-heard slots are masked anyway)
 
 
+def backfill(new_buf: torch.Tensor, held_state: torch.Tensor, fresh: torch.Tensor, unseen: torch.Tensor, dt: float) -> torch.Tensor:
+    """Back-fill the buffer of a neighbour heard for the first time (fresh and never taken
+    before) with the constant-velocity past of its received state: (p - k v dt, v)."""
+    first = fresh & unseen
+    buffer_len = new_buf.size(-2)
+    k = torch.arange(buffer_len - 1, -1, -1, dtype=new_buf.dtype, device=new_buf.device) * dt
+    past_p = held_state[..., None, 0:3] - held_state[..., None, 3:6] * k.unsqueeze(-1)
+    past = torch.cat([past_p, held_state[..., None, 3:6].expand(past_p.shape)], -1)
+    return torch.where(first[..., None, None], past, new_buf)
+
+
 class BeliefTracker(nn.Module):
     def __init__(self, predictor: nn.Module, buffer_len: int = 10, dt: float = 1.0) -> None:
         super().__init__()
@@ -64,12 +75,7 @@ class BeliefTracker(nn.Module):
         # Back-fill only matters while some slot has never been taken: one cheap check first.
         unseen = seen_t_rx <= self.never * 0.5
         if bool(unseen.any()):
-            first = fresh & unseen
-            # Back-fill a first-heard neighbour with its constant-velocity past.
-            k = torch.arange(self.buffer_len - 1, -1, -1, dtype=buf.dtype, device=buf.device) * self.dt
-            past_p = held_state[..., None, 0:3] - held_state[..., None, 3:6] * k.unsqueeze(-1)
-            past = torch.cat([past_p, held_state[..., None, 3:6].expand(past_p.shape)], -1)
-            new_buf = torch.where(first[..., None, None], past, new_buf)
+            new_buf = backfill(new_buf, held_state, fresh, unseen, self.dt)
         seen = torch.where(fresh, held_t_rx, seen_t_rx)
         return belief, aoi, new_buf, seen
 

@@ -57,6 +57,7 @@ POLICY_ATTRS = ["area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm"]
 def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
     """Script and freeze (weights and attributes become constants: fewer interpreter ops
     per call, which is most of the cost at these sizes), keeping the public API `keep`."""
+    keep = keep + [a for a in ("deploy_form",) if hasattr(module, a)]
     with quiet_torchscript():
         return torch.jit.freeze(torch.jit.script(module.eval()), preserved_attrs=keep)
 
@@ -69,6 +70,9 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    from plmarl_sitl.nn.deploy import fuse_policy, fuse_tracker
+
+    tracker, policy = fuse_tracker(tracker), fuse_policy(policy)  # unchanged if not fusable (GRU, hold, scripted)
     with quiet_torchscript():
         torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
         torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))

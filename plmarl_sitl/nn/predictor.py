@@ -104,9 +104,16 @@ class KinematicPredictor(nn.Module):
 
     def forward(self, buf: torch.Tensor, aoi: torch.Tensor) -> torch.Tensor:
         x = torch.cat([buf.flatten(-2), aoi.unsqueeze(-1)], -1)
-        # l1 applied to (x @ T): folded into one weight, a constant once the file is frozen.
-        h = torch.tanh(F.linear(x, self.l1.weight @ self.T.t(), self.l1.bias))
-        u = torch.tanh(self.l3(torch.tanh(self.l2(h))))
+        # The MLP is tanh(l3(tanh(l2(tanh(l1(x @ T)))))), evaluated in its sigmoid form:
+        # tanh(a) = 2 sigmoid(2a) - 1, with the factors folded into the weights,
+        #   s1 = sigmoid(2 a1),  a2 = l2(2 s1 - 1) = (2 W2) s1 + (b2 - W2 1),
+        #   s2 = sigmoid(2 a2),  a3 = (2 W3) s2 + (b3 - W3 1),  u = tanh(a3).
+        # Same function and parameters; ATen's float tanh is scalar code (~10x slower than
+        # sigmoid), and the weight expressions are constants once the file is frozen.
+        w2, w3 = self.l2.weight, self.l3.weight
+        s1 = torch.sigmoid(F.linear(x, (self.l1.weight @ self.T.t()) * 2.0, self.l1.bias * 2.0))
+        s2 = torch.sigmoid(F.linear(s1, w2 * 4.0, (self.l2.bias - w2.sum(1)) * 2.0))
+        u = torch.tanh(F.linear(s2, w3 * 2.0, self.l3.bias - w3.sum(1)))
         return torch.cat([buf.select(-2, -1), u], -1) @ self.KG
 
 
