@@ -63,6 +63,19 @@ def latency_table(bench: dict) -> str:
         extra = f"\n\nPL-MARL N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:
             extra += f"; GRU / PL-MARL at N={ns[-1]}: {by[('gru', ns[-1])] / by[('pl-marl', ns[-1])]:.2f}x"
+    runs = bench.get("runs") or []
+    if len(runs) > 1:
+        extra += f"\n\nAll {len(runs)} runs (the table above is run 1), median us per N:\n\n"
+        extra += "| run | load avg (1 min) | " + " | ".join(f"pl-marl N={n}" for n in ns) + f" | gru N={ns[-1]} | N={ns[-1]} / N={ns[0]} | GRU / PL-MARL |\n"
+        extra += "|---" * (len(ns) + 5) + "|\n"
+        for i, run in enumerate(runs, 1):
+            b = {(r["method"], r["n"]): r["median_us"] for r in run["rows"]}
+            extra += (f"| {i} | {run.get('load_average_1min', '')} | " + " | ".join(f"{b[('pl-marl', n)]:.1f}" for n in ns)
+                      + f" | {b[('gru', ns[-1])]:.1f} | {b[('pl-marl', ns[-1])] / b[('pl-marl', ns[0])]:.2f}"
+                      + f" | {b[('gru', ns[-1])] / b[('pl-marl', ns[-1])]:.2f}x |\n")
+        extra = extra.rstrip("\n")
+    if bench.get("note"):
+        extra += f"\n\n{bench['note']}."
     return "\n".join(lines) + extra + f"\n\nMachine: {bench['machine']}, {bench['calls']} timed decisions per cell."
 
 
