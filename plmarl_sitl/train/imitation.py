@@ -42,6 +42,10 @@ class ImitationArgs:
     failure_prob: float = 0.2
     tup_choices: tuple[int, ...] = (5, 10, 15, 20, 25, 30, 35, 40, 45, 50)
     seed: int = 0
+    # 1: one T_up per round, drawn at random (4 rounds may miss whole T_up ranges). k > 1:
+    # each round's episodes are split into k batches whose T_up walk through a shuffled
+    # cycle of tup_choices, so every T_up is imitated equally often.
+    tup_chunks: int = 1
 
 
 def imitate_oracle(
@@ -56,31 +60,40 @@ def imitate_oracle(
     t0 = time.time()
     mse = float("nan")
     episodes = 0
+    cycle = [int(x) for x in rng.permutation(args.tup_choices)] if args.tup_chunks > 1 else []
+    tups: list[int] = []
     for rnd in range(args.rounds):
         beta = 1.0 if rnd == 0 else 0.5 ** rnd
-        tup = int(rng.choice(args.tup_choices))
-        m = dataclasses.replace(mission, signalling=dataclasses.replace(mission.signalling, tup_s=tup))
-        env = CoverageEnv(m, args.episodes_per_round, args.seed + 7 * rnd + 1, failure_prob=args.failure_prob)
-        teacher = OracleController(env)
-        beliefs = Beliefs(tracker)
-        obs = env.reset()
-        teacher.reset()
-        use_teacher = torch.from_numpy(rng.random(args.episodes_per_round) < beta).view(-1, 1, 1)
-        with torch.no_grad():
-            while not env.done:
-                belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm)
-                a_teacher = teacher.act(obs)
-                u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
-                live = obs.alive
-                data["ego"].append(ego_x[live])
-                data["nbr"].append(nbr_x[live])
-                data["rel"].append(rel_x[live])
-                data["mask"].append(mask[live])
-                data["u"].append(u[live])
-                a_student = actor(ego_x, nbr_x, rel_x, mask) * scales.a_max
-                obs, _, _ = env.step(torch.where(use_teacher, a_teacher, a_student))
-        episodes += args.episodes_per_round
+        if args.tup_chunks <= 1:
+            batches = [(int(rng.choice(args.tup_choices)), args.episodes_per_round, args.seed + 7 * rnd + 1)]
+        else:
+            per = max(1, args.episodes_per_round // args.tup_chunks)
+            batches = [(cycle[(rnd * args.tup_chunks + c) % len(cycle)], per, args.seed + 7 * rnd + 1 + 1000 * c)
+                       for c in range(args.tup_chunks)]
+        for tup, n_eps, env_seed in batches:
+            tups.append(tup)
+            m = dataclasses.replace(mission, signalling=dataclasses.replace(mission.signalling, tup_s=tup))
+            env = CoverageEnv(m, n_eps, env_seed, failure_prob=args.failure_prob)
+            teacher = OracleController(env)
+            beliefs = Beliefs(tracker)
+            obs = env.reset()
+            teacher.reset()
+            use_teacher = torch.from_numpy(rng.random(n_eps) < beta).view(-1, 1, 1)
+            with torch.no_grad():
+                while not env.done:
+                    belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+                    ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm)
+                    a_teacher = teacher.act(obs)
+                    u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
+                    live = obs.alive
+                    data["ego"].append(ego_x[live])
+                    data["nbr"].append(nbr_x[live])
+                    data["rel"].append(rel_x[live])
+                    data["mask"].append(mask[live])
+                    data["u"].append(u[live])
+                    a_student = actor(ego_x, nbr_x, rel_x, mask) * scales.a_max
+                    obs, _, _ = env.step(torch.where(use_teacher, a_teacher, a_student))
+            episodes += n_eps
         ds = {k: torch.cat(v) for k, v in data.items()}
         n = ds["u"].shape[0]
         for _ in range(args.epochs):
@@ -93,6 +106,6 @@ def imitate_oracle(
                 loss.backward()
                 opt.step()
                 mse = float(loss.detach())
-        log(f"imitation round {rnd}: beta {beta:.2f}, T_up {tup}, {n} samples, mse {mse:.4f} ({time.time() - t0:.0f} s)")
-    return {"episodes": episodes, "samples": int(ds["u"].shape[0]), "wall_s": time.time() - t0, "final_mse": mse,
+        log(f"imitation round {rnd}: beta {beta:.2f}, T_up {[b[0] for b in batches]}, {n} samples, mse {mse:.4f} ({time.time() - t0:.0f} s)")
+    return {"episodes": episodes, "samples": int(ds["u"].shape[0]), "wall_s": time.time() - t0, "final_mse": mse, "tups": tups,
             "args": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}}

@@ -76,6 +76,7 @@ class Args:
     # Oracle-imitation warm start (plmarl_sitl.train.imitation), 0 rounds = MAPPO from scratch.
     imitation_rounds: int = 4
     imitation_episodes_per_round: int = 32
+    imitation_tup_chunks: int = 1  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start
@@ -181,7 +182,8 @@ def train(args: Args, progress=None) -> dict:
 
         warm = imitate_oracle(
             actor, tracker, mission,
-            ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed),
+            ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
+                          tup_chunks=args.imitation_tup_chunks),
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
     opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)

@@ -53,3 +53,18 @@ def test_predictor_fit_beats_dead_reckoning_on_braking_targets() -> None:
     learnt = position_errors(tr, traj, ages=(10,), tup=30)[10]
     cv = position_errors(dead_reckoning_tracker(), traj, ages=(10,), tup=30)[10]
     assert learnt < 0.5 * cv, (learnt, cv)
+
+
+def test_imitation_tup_chunks_cover_the_choices() -> None:
+    """tup_chunks > 1: each round is split into batches whose T_up walk through a shuffled
+    cycle of the choices, so no T_up range is left out of the warm start."""
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.nn import Actor
+    from plmarl_sitl.train.imitation import ImitationArgs, imitate_oracle
+
+    mission = load_mission(ROOT / "missions" / "paper_urban.yaml")
+    torch.manual_seed(0)
+    tracker = BeliefTracker(make_predictor("hold"), 10, 1.0)
+    args = ImitationArgs(rounds=2, episodes_per_round=3, epochs=1, tup_choices=(5, 10, 50), tup_chunks=3, seed=1)
+    res = imitate_oracle(Actor(), tracker, mission, args, log=lambda s: None)
+    assert res["episodes"] == 6 and sorted(res["tups"][:3]) == [5, 10, 50] and sorted(res["tups"][3:]) == [5, 10, 50]
