@@ -13,6 +13,7 @@ import logging
 import shutil
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import AsyncIterator
@@ -90,13 +91,14 @@ class EmbeddedBroker:
         await self.stop()
 
 
-class MosquittoBroker:
-    """A mosquitto child process on a free port (anonymous, localhost only)."""
+class _BrokerChild:
+    """A broker in a child process on a free loopback port; subclasses say which command."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, binary: str = MOSQUITTO) -> None:
+    what = "broker"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
         self.host = host
         self.port = port or free_port(host)
-        self.binary = binary
         self.proc: subprocess.Popen[bytes] | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
@@ -104,21 +106,21 @@ class MosquittoBroker:
     def url(self) -> str:
         return f"mqtt://{self.host}:{self.port}"
 
+    def command(self) -> list[str]:
+        raise NotImplementedError
+
     def start(self, timeout_s: float = 5.0) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="plmarl-mosq-")
-        conf = Path(self._dir.name) / "mosquitto.conf"
-        conf.write_text(f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\nlog_dest stderr\nlog_type error\n")
-        self.proc = subprocess.Popen([self.binary, "-c", str(conf)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        self.proc = subprocess.Popen(self.command(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 err = self.proc.stderr.read().decode(errors="replace") if self.proc.stderr else ""
-                raise RuntimeError(f"mosquitto exited with {self.proc.returncode}: {err.strip()}")
+                raise RuntimeError(f"{self.what} exited with {self.proc.returncode}: {err.strip()[-500:]}")
             with contextlib.suppress(OSError), socket.create_connection((self.host, self.port), timeout=0.2):
                 return
             time.sleep(0.05)
         self.stop()
-        raise TimeoutError(f"mosquitto did not listen on {self.port} within {timeout_s} s")
+        raise TimeoutError(f"{self.what} did not listen on {self.port} within {timeout_s} s")
 
     def stop(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -133,12 +135,38 @@ class MosquittoBroker:
             self._dir.cleanup()
             self._dir = None
 
-    def __enter__(self) -> MosquittoBroker:
+    def __enter__(self) -> _BrokerChild:
         self.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+class MosquittoBroker(_BrokerChild):
+    """A mosquitto child process on a free port (anonymous, localhost only)."""
+
+    what = "mosquitto"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, binary: str = MOSQUITTO) -> None:
+        super().__init__(host, port)
+        self.binary = binary
+
+    def command(self) -> list[str]:
+        self._dir = tempfile.TemporaryDirectory(prefix="plmarl-mosq-")
+        conf = Path(self._dir.name) / "mosquitto.conf"
+        conf.write_text(f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\nlog_dest stderr\nlog_type error\n")
+        return [self.binary, "-c", str(conf)]
+
+
+class AmqttProcess(_BrokerChild):
+    """The embedded amqtt broker in a child process (`bus.amqtt_main`): a swarm launcher's
+    default, so that the broker does not compete with the SITL world for one event loop."""
+
+    what = "amqtt"
+
+    def command(self) -> list[str]:
+        return [sys.executable, "-m", "plmarl_sitl.bus.amqtt_main", "--host", self.host, "--port", str(self.port)]
 
 
 @contextlib.asynccontextmanager

@@ -24,8 +24,12 @@ import aiomqtt
 from plmarl_sitl.bus.url import parse_broker_url
 
 log = logging.getLogger("plmarl.bus")
+# aiomqtt's logger warns once more than 10 publishes are pending; `_sender` hands it whole
+# batches on purpose, and a lost connection is reported by our own logger.
+logging.getLogger("mqtt").setLevel(logging.ERROR)
 
 OnMessage = Callable[[str, bytes], None]
+SEND_BATCH = 256  # most messages handed to the client per write round trip
 
 
 @dataclass
@@ -151,10 +155,16 @@ class MqttBus:
                 pass  # the connection is already gone; nothing left to close cleanly
 
     async def _sender(self, client: aiomqtt.Client) -> None:
+        # Publish whatever is queued as one batch: each aiomqtt publish waits for its
+        # socket write, an event-loop round trip, and a busy process (the SITL world
+        # stepping 20 vehicles) grants few round trips. One at a time, the queue then
+        # grows without bound; in a batch, one write callback sends them all.
         while True:
-            topic, payload, retain = await self._queue.get()
-            await client.publish(topic, payload, qos=0, retain=retain)
-            self.stats.published += 1
+            batch = [await self._queue.get()]
+            while len(batch) < SEND_BATCH and not self._queue.empty():
+                batch.append(self._queue.get_nowait())
+            await asyncio.gather(*(client.publish(t, p, qos=0, retain=r) for t, p, r in batch))
+            self.stats.published += len(batch)
 
     async def _receiver(self, client: aiomqtt.Client) -> None:
         async for msg in client.messages:

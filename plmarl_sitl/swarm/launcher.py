@@ -1,8 +1,9 @@
 """`plmarl swarm up`: a whole SITL swarm from one command.
 
-This process hosts the broker (amqtt, unless an external one is given) behind a
-`BrokerGate`, the SITL world (`SitlWorld`: autopilots, users, link emulator) and the
-mission script; it starts one `plmarl agent` child per UAV and watches them. The world
+This process starts the broker (amqtt in a child process, unless an external one is
+given) and hosts, behind a `BrokerGate` to it, the SITL world (`SitlWorld`: autopilots,
+users, link emulator) and the mission script; it forks one `plmarl agent` per UAV
+(`swarm.forked`) and watches them. The world
 starts mission time once every vehicle flies under its agent; events fire on that clock.
 Everything is recorded in the run directory:
 
@@ -33,7 +34,7 @@ from pathlib import Path
 
 import yaml
 
-from plmarl_sitl.bus.broker import EmbeddedBroker, free_udp_ports
+from plmarl_sitl.bus.broker import AmqttProcess, free_udp_ports
 from plmarl_sitl.bus.gate import BrokerGate
 from plmarl_sitl.bus.transport import MqttBus
 from plmarl_sitl.bus.url import parse_broker_url
@@ -146,10 +147,13 @@ class MissionScript:
         self.record({"t": t, "type": f"{ev.type}_end"})
 
 
-async def _start_broker(spec: str) -> tuple[EmbeddedBroker | None, str, int]:
+async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
     if spec == "embedded":
-        broker = EmbeddedBroker()
-        await broker.start()
+        broker = AmqttProcess()
+        try:
+            await asyncio.to_thread(broker.start)
+        except (RuntimeError, TimeoutError) as exc:
+            raise ComponentFailed(f"the embedded amqtt broker did not start: {exc}") from exc
         return broker, broker.host, broker.port
     host, port = parse_broker_url(spec)  # UserError on a malformed URL
     try:
@@ -262,7 +266,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             world.host.close()
         await gate.close()
         if broker is not None:
-            await broker.stop()
+            await asyncio.to_thread(broker.stop)
         metrics_f.close()
         events_f.close()
         logging.getLogger().removeHandler(handler)
