@@ -24,6 +24,7 @@ backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import gc
 import json
@@ -197,6 +198,11 @@ class Agent:
         self.belief = torch.zeros(self.n, 6)
         self.aoi = torch.ones(self.n)
         self.sensed: torch.Tensor | None = None  # (K, 2) users in R_s, latest sensing message
+        self.sensed_t = -math.inf  # the mission second that message describes
+        # The last few sensing messages by mission second: a decision at k uses second k's
+        # users even when k+1's have already arrived (this agent ran late).
+        self.sense_history: collections.deque[tuple[float, torch.Tensor]] = collections.deque(maxlen=8)
+        self.used_sense_t: float | None = None
         self.sense_warned = False
         self.last_send_wall = 0.0
         self.rate: float | None = None
@@ -238,6 +244,8 @@ class Agent:
                 self.rx.bad(f"sense_{exc.reason}")
                 return
             self.sensed = torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)
+            self.sensed_t = msg.t_ms / 1000.0
+            self.sense_history.append((self.sensed_t, self.sensed))
         elif topic == t.start:
             if not payload:
                 return  # the world clears a previous run's retained start with an empty payload
@@ -346,16 +354,26 @@ class Agent:
         return max(0.2, self.cfg.settle_wall_s * (self.rate or 1.0))
 
     def _second_due(self, k: int, tm: float) -> bool:
-        """Second k can be processed: at once, except at a signalling instant, which waits
-        until every neighbour expected to deliver has (those in N_i; at the first instant,
-        everyone), bounded by `settle_max_s` of vehicle time, so late updates still count."""
+        """Second k can be processed: at once, except
+        - at a signalling instant, which waits until every neighbour expected to deliver has
+          (those in N_i; at the first instant, everyone), and
+        - at a decision, which waits for the sensing of second k (the twin decides on the
+          users of that second; sensing is published at the whole second, so it is always
+          a moment behind the telemetry), unless no sensing publisher has been seen,
+        both bounded by `settle_max_s` of vehicle time, so late messages still count."""
         if tm < k - 1e-9:
             return False
-        if k % self.tup != 0:
+        instant = k % self.tup == 0
+        sensing = k % self.tau == 0 and (self.sensed is not None or not self.sense_warned)
+        if not instant and not sensing:
             return True
-        if tm < k + self.cfg.settle_min_s:
+        if instant and tm < k + self.cfg.settle_min_s:
             return False
         if tm >= k + self.settle_max_s():
+            return True
+        if sensing and self.sensed_t < k:
+            return False
+        if not instant:
             return True
         t_rx = self.table.t_rx
         return all(float(t_rx[j]) == k for j in self._expected(k))
@@ -408,7 +426,7 @@ class Agent:
             del self.ego_at[old]
         mask = self.table.mask()
         if decided:
-            sense = self._sense(ego)
+            sense = self._sense(ego, k)
             fail = torch.tensor(self.table.lost)
             a = self.policy(ego, self.belief, mask, sense, fail)
             self.accel = (float(a[0]), float(a[1]), float(a[2]))
@@ -425,18 +443,22 @@ class Agent:
                 "accel": [round(x, 3) for x in self.accel],  # the policy's command
                 "cmd": [round(x, 3) for x in self._command()],  # after the band guard
                 "decided": decided,
+                "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
             }
             self._trace.write(json.dumps(rec) + "\n")
         return decided
 
-    def _sense(self, ego: torch.Tensor) -> torch.Tensor:
+    def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
+        """Sensing features of the newest users' message not after second k."""
         m = self.mission
-        if self.sensed is None:
+        if not self.sense_history:
             if not self.sense_warned:
                 self.sense_warned = True
                 log.warning("no sensing publisher on %s: flying as if no users are sensed", self.topics.sense(self.me))
             return torch.zeros(SENSING_FEATURES)
-        return sensing_features(ego[:3].unsqueeze(0), self.sensed, m.radii.sensing_m, m.users.cluster_size)[0]
+        t, users = next(((t, u) for t, u in reversed(self.sense_history) if t <= k + 1e-6), self.sense_history[0])
+        self.used_sense_t = t
+        return sensing_features(ego[:3].unsqueeze(0), users, m.radii.sensing_m, m.users.cluster_size)[0]
 
     # ------------------------------------------------------------------ setpoints
     def _command(self) -> tuple[float, float, float]:
