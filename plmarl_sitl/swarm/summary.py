@@ -59,3 +59,13 @@ def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> d
         "events": list(events),
         "node_failures": recoveries,
     }
+
+
+def sensing_lag(traces: Sequence[Sequence[dict]]) -> dict:
+    """How stale the users were that the agents decided on: for each decision at second t
+    that saw sensing (agent traces, `sense_t`), t - sense_t. A SITL run that cannot keep
+    up with its speedup shows it here first (the bus backs up), long before coverage."""
+    lags = [r["t"] - r["sense_t"] for rows in traces for r in rows if r.get("decided") and r.get("sense_t") is not None]
+    if not lags:
+        return {"decisions": 0, "mean_s": None, "max_s": None}
+    return {"decisions": len(lags), "mean_s": round(float(np.mean(lags)), 3), "max_s": float(max(lags))}

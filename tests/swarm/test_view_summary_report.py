@@ -8,7 +8,7 @@ import sys
 import numpy as np
 from rich.console import Console
 
-from plmarl_sitl.swarm.summary import failure_recovery, summarize
+from plmarl_sitl.swarm.summary import failure_recovery, sensing_lag, summarize
 from plmarl_sitl.ui.live import SwarmView, UavView, headless_line, render, sparkline
 
 
@@ -108,3 +108,12 @@ def test_report_bad_input_is_one_line(tmp_path):
     (tmp_path / "summary.json").write_text("{oops")
     r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "summary.json: not valid JSON" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_sensing_lag_counts_decisions_only():
+    traces = [
+        [{"t": 0, "decided": True, "sense_t": None}, {"t": 1, "decided": False, "sense_t": 0.0}, {"t": 3, "decided": True, "sense_t": 3.0}],
+        [{"t": 3, "decided": True, "sense_t": 1.0}, {"t": 6, "decided": True, "sense_t": 6.0}],
+    ]
+    assert sensing_lag(traces) == {"decisions": 3, "mean_s": round(2 / 3, 3), "max_s": 2.0}
+    assert sensing_lag([[{"t": 0, "decided": True, "sense_t": None}]]) == {"decisions": 0, "mean_s": None, "max_s": None}
