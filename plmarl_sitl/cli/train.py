@@ -35,8 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--predictor-iters", type=int, default=None, help="engine fit iterations (default: 800 mlp / 300 gru)")
     p.add_argument("--eval-episodes", type=int, default=100, help="deterministic evaluation episodes for the card (0: skip)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1; measured fastest here)")
-    p.add_argument("--imitation-rounds", type=int, default=4,
-                   help="Oracle-imitation (DAgger) warm-start rounds before MAPPO; 0 = MAPPO from scratch (default: 4)")
+    p.add_argument("--imitation-rounds", type=int, default=6,
+                   help="Oracle-imitation (DAgger) warm-start rounds before MAPPO; 0 = MAPPO from scratch (default: 6)")
+    p.add_argument("--imitation-episodes", type=int, default=40, help="imitation episodes per round (default: 40)")
+    p.add_argument("--imitation-tup-chunks", type=int, default=5,
+                   help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
+                   "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
     p.set_defaults(func=run)
 
 
@@ -72,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
             threads=args.threads,
             on_iter=on_iter,
             log=bar.console.print,
-            args_overrides={"imitation_rounds": args.imitation_rounds}
+            args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
+                            "imitation_tup_chunks": args.imitation_tup_chunks}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

@@ -74,9 +74,9 @@ class Args:
     # of the launch line (the twin has no start-position argument yet; see scatter_start).
     random_start_frac: float = 0.0
     # Oracle-imitation warm start (plmarl_sitl.train.imitation), 0 rounds = MAPPO from scratch.
-    imitation_rounds: int = 4
-    imitation_episodes_per_round: int = 32
-    imitation_tup_chunks: int = 1  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
+    imitation_rounds: int = 6
+    imitation_episodes_per_round: int = 40
+    imitation_tup_chunks: int = 5  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start

@@ -18,7 +18,7 @@ def test_mappo_smoke(tmp_path: Path) -> None:
     args = Args(
         method="tag-mappo", mission=str(ROOT / "missions" / "paper_urban.yaml"), episodes=4, num_envs=2,
         failure_start_episode=2, failure_prob=1.0, out=str(tmp_path), seed=3,
-        imitation_rounds=1, imitation_episodes_per_round=2, critic_warmup_iters=1,
+        imitation_rounds=1, imitation_episodes_per_round=2, imitation_tup_chunks=1, critic_warmup_iters=1,
     )
     torch.manual_seed(0)
     res = train(args)
