@@ -174,7 +174,7 @@ class Agent:
         self.session = random.getrandbits(16)
         self.seq = 0
         subs = [self.topics.sense(self.me), self.topics.start, self.topics.ctl]
-        subs.append(self.topics.tx("+") if cfg.bus_mode == "direct" else self.topics.rx(self.me))
+        subs += [self.topics.tx("+")] if cfg.bus_mode == "direct" else [self.topics.rx(self.me), self.topics.closed]
         self.bus = MqttBus(cfg.broker_url, f"plmarl-{cfg.swarm}-agent-{self.me}-{self.session:04x}", subs, self._on_message,
                            name=f"agent{self.me}-bus")
         self.link: VehicleLink | None = None
@@ -199,6 +199,7 @@ class Agent:
         self.aoi = torch.ones(self.n)
         self.sensed: torch.Tensor | None = None  # (K, 2) users in R_s, latest sensing message
         self.sensed_t = -math.inf  # the mission second that message describes
+        self.closed_t = -math.inf  # last signalling instant the SITL link emulator closed
         # The last few sensing messages by mission second: a decision at k uses second k's
         # users even when k+1's have already arrived (this agent ran late).
         self.sense_history: collections.deque[tuple[float, torch.Tensor]] = collections.deque(maxlen=8)
@@ -260,6 +261,11 @@ class Agent:
                 log.error("the world has %s UAVs, this agent was started for %d (--n-uavs)", n, self.n)
             if self.t0 is None and self.cfg.wait_start:
                 self._set_t0(t0)
+        elif topic == t.closed:
+            try:
+                self.closed_t = max(self.closed_t, float(decode_json(payload)["t_s"]))
+            except (Malformed, KeyError, TypeError, ValueError):
+                self.rx.bad("closed")
         elif topic == t.ctl:
             if not payload:
                 return
@@ -356,24 +362,25 @@ class Agent:
     def _second_due(self, k: int, tm: float) -> bool:
         """Second k can be processed: at once, except
         - at a signalling instant, which waits until every neighbour expected to deliver has
-          (those in N_i; at the first instant, everyone), and
-        - at a decision, which waits for the sensing of second k (the twin decides on the
-          users of that second; sensing is published at the whole second, so it is always
-          a moment behind the telemetry), unless no sensing publisher has been seen,
+          (those in N_i; at the first instant, everyone) or the SITL link emulator says the
+          instant is closed, and
+        - at the first decision, which waits for a first sensing message (is there a
+          sensing publisher at all?); later decisions take the newest sensing there is,
+          as a wait for second k's would delay every action by the bus's round trip,
         both bounded by `settle_max_s` of vehicle time, so late messages still count."""
         if tm < k - 1e-9:
             return False
         instant = k % self.tup == 0
-        sensing = k % self.tau == 0 and (self.sensed is not None or not self.sense_warned)
-        if not instant and not sensing:
+        first_sensing = k % self.tau == 0 and self.sensed is None and not self.sense_warned
+        if not instant and not first_sensing:
             return True
         if instant and tm < k + self.cfg.settle_min_s:
             return False
         if tm >= k + self.settle_max_s():
             return True
-        if sensing and self.sensed_t < k:
+        if first_sensing:
             return False
-        if not instant:
+        if self.closed_t >= k:
             return True
         t_rx = self.table.t_rx
         return all(float(t_rx[j]) == k for j in self._expected(k))
@@ -449,7 +456,8 @@ class Agent:
         return decided
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
-        """Sensing features of the newest users' message not after second k."""
+        """Sensing features of the newest users' message not after second k (usually
+        second k - 1: the world publishes second k's a moment after its telemetry)."""
         m = self.mission
         if not self.sense_history:
             if not self.sense_warned:

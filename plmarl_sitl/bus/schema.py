@@ -154,6 +154,11 @@ class Topics:
     def ctl(self) -> str:
         return f"{self.root}/ctl"
 
+    @property
+    def closed(self) -> str:
+        """SITL only: the link emulator has delivered everything of a signalling instant."""
+        return f"{self.root}/closed"
+
     def id_of(self, topic: str) -> int | None:
         """The trailing integer id of a per-vehicle topic (None if not one)."""
         tail = topic.rsplit("/", 1)[-1]

@@ -131,6 +131,7 @@ class SitlWorld:
         self.tup_s = m.signalling.tup_s
         self._pending: list[tuple[float, int, str, bytes]] = []  # (due sim s, tiebreak, topic, payload)
         self._tiebreak = itertools.count()
+        self._instants: dict[float, set[int]] = {}  # open signalling instants: who has signalled
         self._stop = asyncio.Event()
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
@@ -182,11 +183,26 @@ class SitlWorld:
             self.links.counters.malformed += 1
             return
         pos = self.host.mission_positions()
-        for i in self.links.receivers(sender, pos, self.alive(), self.host.now):
-            if self.cfg.latency_s > 0:
-                heapq.heappush(self._pending, (self.host.now + self.cfg.latency_s, next(self._tiebreak), self.topics.rx(i), payload))
-            else:
-                self.bus.publish(self.topics.rx(i), payload)
+        alive = self.alive()
+        for i in self.links.receivers(sender, pos, alive, self.host.now):
+            self._send_after_latency(self.topics.rx(i), payload)
+        heard = self._instants.setdefault(msg.t_s, set())
+        heard.add(sender)
+        if heard >= {i for i in range(self.n) if bool(alive[i])}:
+            self._close_instant(msg.t_s)
+
+    def _send_after_latency(self, topic: str, payload: bytes) -> None:
+        if self.cfg.latency_s > 0:
+            heapq.heappush(self._pending, (self.host.now + self.cfg.latency_s, next(self._tiebreak), topic, payload))
+        else:
+            self.bus.publish(topic, payload)
+
+    def _close_instant(self, t_s: float) -> None:
+        """Tell the agents that instant t_s has delivered all it will (after its deliveries,
+        through the same latency queue), so none waits out its timeout for a neighbour
+        that is out of range. Without this marker (real radios) agents wait the timeout."""
+        self._instants.pop(t_s, None)
+        self._send_after_latency(self.topics.closed, encode_json({"t_s": t_s}))
 
     def _deliver_due(self) -> None:
         while self._pending and self._pending[0][0] <= self.host.now:
@@ -232,6 +248,8 @@ class SitlWorld:
             if k >= 1:
                 self.users = step_users(self.users, m, m.timing.dt_s, self.gen)
             self.mission_t = k
+            for t_s in [t for t in self._instants if t <= k - 1]:
+                self._close_instant(t_s)  # someone did not signal (a dead agent process)
         pos = self.positions()
         alive = self.alive()
         users = self.users.xy[0]  # (U, 2)

@@ -165,3 +165,53 @@ def test_urls() -> None:
     assert parse_broker_url("broker.local") == ("broker.local", 1883)
     with pytest.raises(UserError):
         parse_broker_url("http://x")
+
+
+def test_world_closes_an_instant_once_every_live_vehicle_has_signalled():
+    """The SITL link emulator publishes `closed` after the deliveries of an instant, when
+    every live vehicle has signalled, so agents stop waiting for out-of-range neighbours."""
+    import asyncio
+    import dataclasses
+
+    from plmarl_sitl.bus.broker import EmbeddedBroker
+    from plmarl_sitl.bus.schema import StateMsg, Topics, decode_json, encode_state
+    from plmarl_sitl.bus.transport import MqttBus
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
+
+    from .conftest import MISSION
+
+    topics = Topics("sitl")
+    seen: list[tuple[str, bytes]] = []
+
+    def tx(sender: int) -> tuple[str, bytes]:
+        return topics.tx(sender), encode_state(StateMsg(sender, 7, 1, 15_000, (100.0 * sender, 0.0, -60.0, 0.0, 0.0, 0.0)))
+
+    async def main() -> None:
+        async with EmbeddedBroker() as broker:
+            mission = dataclasses.replace(load_mission(MISSION), n_uavs=3)
+            world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, base_port=40000))
+            listener = MqttBus(broker.url, "listener", [topics.rx("+"), topics.closed], lambda t, p: seen.append((t, p)))
+            tasks = [asyncio.create_task(world.bus.run()), asyncio.create_task(listener.run())]
+            try:
+                async with asyncio.timeout(10):
+                    await world.bus.connected.wait()
+                    await listener.connected.wait()
+                    world._on_message(*tx(0))
+                    world._on_message(*tx(1))
+                    while len(seen) < 2:  # the two deliveries, but no closing yet
+                        await asyncio.sleep(0.02)
+                    await asyncio.sleep(0.2)
+                    assert all(t != topics.closed for t, _ in seen)
+                    world._on_message(*tx(2))  # the last live vehicle signals
+                    while not any(t == topics.closed for t, _ in seen):
+                        await asyncio.sleep(0.02)
+            finally:
+                for t in tasks:
+                    t.cancel()
+                await asyncio.gather(*tasks, return_exceptions=True)
+
+    asyncio.run(main())
+    closed = [i for i, (t, _) in enumerate(seen) if t == topics.closed]
+    assert len(closed) == 1 and decode_json(seen[closed[0]][1])["t_s"] == 15.0
+    assert closed[0] == len(seen) - 1  # after every delivery of the instant
