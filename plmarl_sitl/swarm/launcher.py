@@ -43,7 +43,7 @@ from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Event, Mission, load_mission
 from plmarl_sitl.swarm.agents import AgentFleet
 from plmarl_sitl.swarm.monitor import SwarmMonitor
-from plmarl_sitl.swarm.summary import sensing_lag, summarize
+from plmarl_sitl.swarm.summary import summarize, timeliness
 from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
 from plmarl_sitl.ui.live import headless_line, render
 
@@ -274,7 +274,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     if not rows:
         raise ComponentFailed(f"the mission never started (see {out / 'launcher.log'})")
     summary = summarize(rows, events, opts.speedup)
-    summary["sensing_lag"] = sensing_lag([ap.trace() for ap in fleet.procs.values()])
+    summary["timeliness"] = timeliness([ap.trace() for ap in fleet.procs.values()], world.t0 if world else None)
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

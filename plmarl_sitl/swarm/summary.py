@@ -61,11 +61,20 @@ def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> d
     }
 
 
-def sensing_lag(traces: Sequence[Sequence[dict]]) -> dict:
-    """How stale the users were that the agents decided on: for each decision at second t
-    that saw sensing (agent traces, `sense_t`), t - sense_t. A SITL run that cannot keep
-    up with its speedup shows it here first (the bus backs up), long before coverage."""
-    lags = [r["t"] - r["sense_t"] for rows in traces for r in rows if r.get("decided") and r.get("sense_t") is not None]
-    if not lags:
-        return {"decisions": 0, "mean_s": None, "max_s": None}
-    return {"decisions": len(lags), "mean_s": round(float(np.mean(lags)), 3), "max_s": float(max(lags))}
+def timeliness(traces: Sequence[Sequence[dict]], t0_boot_s: float | None) -> dict:
+    """Did the SITL swarm keep up with its speedup? From the agents' traces:
+    - decision_delay_s: vehicle seconds from mission second t to the moment the agent
+      acted on it (the twin acts at t exactly); bus and CPU latency, x the speedup;
+    - sensing_age_s: t minus the second of the users that decision saw.
+    Each as {"p50", "p95", "max"} over all decisions (None without decisions)."""
+    decisions = [r for rows in traces for r in rows if r.get("decided")]
+
+    def stats(xs: list[float]) -> dict | None:
+        if not xs:
+            return None
+        a = np.asarray(xs, dtype=float)
+        return {k: round(float(v), 3) for k, v in (("p50", np.median(a)), ("p95", np.quantile(a, 0.95)), ("max", a.max()))}
+
+    delays = [r["boot_s"] - (t0_boot_s + r["t"]) for r in decisions if t0_boot_s is not None and "boot_s" in r]
+    ages = [r["t"] - r["sense_t"] for r in decisions if r.get("sense_t") is not None]
+    return {"decisions": len(decisions), "decision_delay_s": stats(delays), "sensing_age_s": stats(ages)}

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 from rich.console import Console
 
-from plmarl_sitl.swarm.summary import failure_recovery, sensing_lag, summarize
+from plmarl_sitl.swarm.summary import failure_recovery, summarize, timeliness
 from plmarl_sitl.ui.live import SwarmView, UavView, headless_line, render, sparkline
 
 
@@ -110,10 +110,14 @@ def test_report_bad_input_is_one_line(tmp_path):
     assert r.returncode == 2 and "summary.json: not valid JSON" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_sensing_lag_counts_decisions_only():
+def test_timeliness_counts_decisions_only():
     traces = [
-        [{"t": 0, "decided": True, "sense_t": None}, {"t": 1, "decided": False, "sense_t": 0.0}, {"t": 3, "decided": True, "sense_t": 3.0}],
-        [{"t": 3, "decided": True, "sense_t": 1.0}, {"t": 6, "decided": True, "sense_t": 6.0}],
+        [{"t": 0, "boot_s": 30.5, "decided": True, "sense_t": None}, {"t": 1, "boot_s": 31.0, "decided": False, "sense_t": 0.0},
+         {"t": 3, "boot_s": 33.1, "decided": True, "sense_t": 3.0}],
+        [{"t": 3, "boot_s": 33.3, "decided": True, "sense_t": 1.0}, {"t": 6, "boot_s": 36.1, "decided": True, "sense_t": 6.0}],
     ]
-    assert sensing_lag(traces) == {"decisions": 3, "mean_s": round(2 / 3, 3), "max_s": 2.0}
-    assert sensing_lag([[{"t": 0, "decided": True, "sense_t": None}]]) == {"decisions": 0, "mean_s": None, "max_s": None}
+    out = timeliness(traces, 30.0)
+    assert out["decisions"] == 4
+    assert out["decision_delay_s"]["max"] == 0.5 and out["decision_delay_s"]["p50"] == 0.2
+    assert out["sensing_age_s"] == {"p50": 0.0, "p95": 1.8, "max": 2.0}
+    assert timeliness([], None) == {"decisions": 0, "decision_delay_s": None, "sensing_age_s": None}
