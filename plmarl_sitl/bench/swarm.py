@@ -29,8 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-gap", type=float, default=0.03, help="largest acceptable coverage gap (default 0.03)")
     p.add_argument("--max-lag", type=float, default=3.0,
                    help="largest acceptable age of the sensing a decision used, mission s (default 3: one decision period)")
-    p.add_argument("--max-delay", type=float, default=1.0,
-                   help="largest acceptable 95th-percentile decision delay, vehicle s (default 1)")
+    p.add_argument("--max-delay", type=float, default=1.5,
+                   help="largest acceptable 95th-percentile decision delay, vehicle s (default 1.5: half a decision period)")
     p.add_argument("--seed", type=int, default=0, help="mission seed (default 0)")
     p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
 

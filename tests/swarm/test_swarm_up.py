@@ -65,7 +65,7 @@ def test_node_failure_completes_and_coverage_recovers(tmp_path):
             assert after[-1]["fail"]
     # The swarm kept up with its speedup: agents acted on time, on fresh sensing.
     on_time = s["timeliness"]
-    assert on_time["decisions"] > 0 and on_time["sensing_age_s"]["max"] <= 3 and on_time["decision_delay_s"]["p95"] <= 1.0
+    assert on_time["decisions"] > 0 and on_time["sensing_age_s"]["max"] <= 3 and on_time["decision_delay_s"]["p95"] <= 1.5
     # Recorded artefacts.
     assert (out / "mission.yaml").exists() and (out / "summary.json").exists()
     assert all((out / "tlogs" / f"vehicle{i}.tlog").stat().st_size > 10_000 for i in range(4))
