@@ -109,6 +109,12 @@ class MqttBus:
             except TimeoutError:
                 self.connected.clear()
                 log.debug("%s: connect to %s timed out", self.name, self.url)
+            # Cancelled while the connection broke (Ctrl-C also stops a local broker): a
+            # TaskGroup then raises the MqttError and drops the CancelledError, and looping
+            # on would keep this task, and whoever waits for it, alive for ever.
+            task = asyncio.current_task()
+            if task is not None and task.cancelling():
+                raise asyncio.CancelledError
             # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
             await asyncio.sleep(delay * (0.5 + self._rng.random()))
             delay = min(self.backoff_max_s, delay * 2.0)
