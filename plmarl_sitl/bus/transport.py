@@ -109,12 +109,6 @@ class MqttBus:
             except TimeoutError:
                 self.connected.clear()
                 log.debug("%s: connect to %s timed out", self.name, self.url)
-            # Cancelled while the connection broke (Ctrl-C also stops a local broker): a
-            # TaskGroup then raises the MqttError and drops the CancelledError, and looping
-            # on would keep this task, and whoever waits for it, alive for ever.
-            task = asyncio.current_task()
-            if task is not None and task.cancelling():
-                raise asyncio.CancelledError
             # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
             await asyncio.sleep(delay * (0.5 + self._rng.random()))
             delay = min(self.backoff_max_s, delay * 2.0)
@@ -141,15 +135,22 @@ class MqttBus:
             self.stats.connects += 1
             self.connected.set()
             log.info("%s: connected to %s", self.name, self.url)
-            lost: aiomqtt.MqttError | None = None
+            # Plain tasks, not a TaskGroup: when the connection breaks while this task is
+            # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup
+            # raises the MqttError and drops the CancelledError, and run() would then
+            # reconnect for ever instead of ending.
+            workers = [asyncio.create_task(self._sender(client), name=f"{self.name}-sender"),
+                       asyncio.create_task(self._receiver(client), name=f"{self.name}-receiver")]
             try:
-                async with asyncio.TaskGroup() as tg:
-                    tg.create_task(self._sender(client), name=f"{self.name}-sender")
-                    tg.create_task(self._receiver(client), name=f"{self.name}-receiver")
-            except* aiomqtt.MqttError as eg:  # unwrap, so run() sees one MqttError
-                lost = eg.exceptions[0]  # type: ignore[assignment]
-            if lost is not None:
-                raise lost
+                done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                for w in workers:
+                    w.cancel()
+                await asyncio.gather(*workers, return_exceptions=True)
+            for w in done:
+                if not w.cancelled() and w.exception() is not None:
+                    raise w.exception()  # an MqttError: run() reconnects
+            raise aiomqtt.MqttError("message stream ended")
         finally:
             self._was_connected = self.connected.is_set()
             if self._was_connected:
