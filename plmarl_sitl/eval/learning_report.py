@@ -100,7 +100,16 @@ def build(d: Path, policies: Path, narrative: str) -> str:
             "![training curves](results/learning/training_curves.png)", "",
         ]
     seeds = _load(d / "seeds.json")
-    if seeds:
+    if seeds and "columns" in seeds:  # {"title", "text", "columns": [...], "rows": [{"method", "tup", "values": [...]}]}
+        cols = seeds["columns"]
+        parts += [f"### {seeds['title']}", "", seeds["text"], "",
+                  "| method | T_up (s) | " + " | ".join(cols) + " | mean |", "|---" * (len(cols) + 3) + "|"]
+        for r in seeds["rows"]:
+            vals = [v for v in r["values"] if v is not None]
+            cells = " | ".join("-" if v is None else f"{v:.3f}" for v in r["values"])
+            parts.append(f"| {r['method']} | {r['tup']} | {cells} | {sum(vals) / len(vals):.3f} |")
+        parts.append("")
+    elif seeds:
         parts += ["### Training-seed spread (same pipeline, seeds 1-3, same evaluation episodes)", "",
                   "Seeds 2 and 3 reuse seed 1's fitted engines (`--predictor`); evaluated with "
                   + ", ".join(f"`{c}`" for c in seeds["commands"] if c) + ". Steady-state coverage:", "",
