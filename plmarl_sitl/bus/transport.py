@@ -160,6 +160,13 @@ class MqttBus:
                 await client.__aexit__(None, None, None)
             except aiomqtt.MqttError:
                 pass  # the connection is already gone; nothing left to close cleanly
+            finally:
+                # aiomqtt keeps an unexpected disconnection's error in a future that its
+                # __aexit__ returns early on without reading; unread, asyncio prints
+                # "Future exception was never retrieved" at exit (e.g. after Ctrl-C).
+                gone = getattr(client, "_disconnected", None)
+                if isinstance(gone, asyncio.Future) and gone.done() and not gone.cancelled():
+                    gone.exception()
 
     async def _sender(self, client: aiomqtt.Client) -> None:
         # Publish whatever is queued as one batch: each aiomqtt publish waits for its
