@@ -251,10 +251,13 @@ class AutopilotHost:
         if self.sp_deadline.min() < self.now:
             for i in np.flatnonzero(self.sp_deadline < self.now).tolist():
                 self.vehicles[i].check_setpoint_loss(self.now)
+        due: dict[int, list[int]] = {}
         for vi, msgid in self.scheduler.pop_due(self.now):
+            due.setdefault(vi, []).append(msgid)
+        for vi, ids in due.items():  # one datagram per vehicle and substep
             v = self.vehicles[vi]
             if v.peers or self.gcs is not None:
-                v.send(telemetry.BUILDERS[msgid](v))
+                v.send_bundle([telemetry.BUILDERS[msgid](v) for msgid in ids])
 
     def _refresh_views(self) -> None:
         # Zero-copy numpy views for the per-vehicle Python code (telemetry, state machines).

@@ -194,6 +194,12 @@ def message_id(name_or_id: str | int) -> int:
     return getattr(d, f"MAVLINK_MSG_ID_{name_or_id.upper()}")
 
 
+# Streams start on a per-vehicle grid (see Scheduler.set_rate): 0.1 s, the period of the
+# 10 Hz streams, split into 5 phases, one per 50 Hz physics substep.
+STREAM_GRID_S = 0.1
+STREAM_PHASES = 5
+
+
 class Scheduler:
     """Heap of (due sim time, vehicle, message) over all vehicles of a host."""
 
@@ -204,7 +210,11 @@ class Scheduler:
         self._interval: dict[tuple[int, int], float] = {}
 
     def set_rate(self, vehicle: int, msgid: int, hz: float, now: float) -> None:
-        """Stream `msgid` of `vehicle` at `hz` (0 stops it); the first one goes out now."""
+        """Stream `msgid` of `vehicle` at `hz` (0 stops it), starting at the vehicle's next
+        grid point: each vehicle's streams share one phase on a STREAM_GRID_S grid, so
+        its 1 Hz messages fall on its 10 Hz ones and leave in the same datagram (as PX4
+        bundles), and the phase differs between vehicles, so N vehicles' telemetry (and
+        their agents' work) does not all land in the same instant."""
         key = (vehicle, msgid)
         gen = self._gen.get(key, 0) + 1
         self._gen[key] = gen
@@ -212,7 +222,9 @@ class Scheduler:
             self._interval.pop(key, None)
             return
         self._interval[key] = 1.0 / hz
-        heapq.heappush(self._heap, (now, next(self._tie), vehicle, msgid, gen))
+        phase = (vehicle % STREAM_PHASES) * STREAM_GRID_S / STREAM_PHASES
+        first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
+        heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
 
     def rate(self, vehicle: int, msgid: int) -> float:
         iv = self._interval.get((vehicle, msgid))

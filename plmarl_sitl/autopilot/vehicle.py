@@ -222,6 +222,24 @@ class Vehicle:
         if gcs is not None and gcs not in self.peers:
             t.sendto(buf, gcs)
 
+    def send_bundle(self, msgs: list[Message | None]) -> None:
+        """Telemetry due together, to every peer and the ground station in one datagram
+        (MAVLink over UDP allows several frames per datagram; PX4 sends them so)."""
+        t = self.transport
+        if t is None or self.killed or t.is_closing():
+            return
+        frames = [self.codec.encode(m) for m in msgs if m is not None]
+        if not frames:
+            return
+        for f in frames:
+            self.record(f)
+        buf = b"".join(frames)
+        for peer in self.peers:
+            t.sendto(buf, peer)
+        gcs = self.host.gcs
+        if gcs is not None and gcs not in self.peers:
+            t.sendto(buf, gcs)
+
     def record(self, raw: bytes) -> None:
         """Append one MAVLink frame to the .tlog: 8-byte big-endian unix time in us, then
         the frame (the format pymavlink and MAVExplorer read)."""

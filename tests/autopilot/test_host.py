@@ -11,6 +11,8 @@ import math
 import pytest
 import torch
 
+from aphelpers import run, running_host
+
 from plmarl_sitl.autopilot import AutopilotHost, handlers, telemetry
 from plmarl_sitl.mavlink.codec import Codec, dialect
 from plmarl_sitl.mission import Origin
@@ -28,6 +30,7 @@ class Client:
         self.acks: list[tuple[int, int]] = []
         self.sent: list = []
         self.v.send = self._capture  # type: ignore[method-assign]
+        self.v.send_bundle = lambda msgs: [self._capture(m) for m in msgs]  # type: ignore[method-assign]
 
     def _capture(self, msg, addr=None) -> None:
         if msg is not None:
@@ -226,3 +229,52 @@ def test_sysid_limits() -> None:
         AutopilotHost(251)
     host = AutopilotHost(3, sysids=[7, 7, 9])
     assert [v.sysid for v in host.vehicles] == [7, 7, 9]
+
+
+def test_streams_share_a_per_vehicle_phase_and_leave_bundled() -> None:
+    """A vehicle's 1 Hz telemetry falls on its 10 Hz ticks and goes out in the same UDP
+    datagram (as PX4 bundles), and different vehicles tick at different phases."""
+    import asyncio
+    import socket
+
+    from plmarl_sitl.autopilot.telemetry import STREAM_GRID_S, Scheduler
+
+    sched = Scheduler()
+    for v in (0, 1):
+        sched.set_rate(v, d.MAVLINK_MSG_ID_HEARTBEAT, 1.0, 0.37)
+        sched.set_rate(v, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 10.0, 0.0)
+    ticks: dict[tuple[int, int], list[float]] = {}
+    for step in range(150):  # 3 s of 50 Hz substeps
+        t = round(step * 0.02, 10)
+        for vi, mid in sched.pop_due(t):
+            ticks.setdefault((vi, mid), []).append(t)
+    for v in (0, 1):
+        hb, lpn = ticks[(v, d.MAVLINK_MSG_ID_HEARTBEAT)], ticks[(v, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED)]
+        assert set(hb) <= set(lpn) and len(hb) >= 2
+    assert ticks[(0, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED)][0] != ticks[(1, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED)][0]
+    assert ticks[(1, d.MAVLINK_MSG_ID_LOCAL_POSITION_NED)][0] < STREAM_GRID_S
+
+    async def body() -> list[int]:
+        async with running_host(1, speedup=5.0) as host:
+            sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            sock.bind(("127.0.0.1", 0))
+            sock.setblocking(False)
+            gcs = Codec(255, 190)
+            loop = asyncio.get_running_loop()
+            await loop.sock_sendto(sock, gcs.encode(gcs.mav.heartbeat_encode(6, 8, 0, 0, 0)), ("127.0.0.1", host.base_port))
+            frames_per_datagram = []
+            async with asyncio.timeout(10):
+                while len(frames_per_datagram) < 60:
+                    data = await loop.sock_recv(sock, 65535)
+                    frames_per_datagram.append(len(gcs.decode_datagram(data).messages))
+            sock.close()
+            return frames_per_datagram
+
+    counts: list[int] = []
+
+    async def collect() -> None:
+        counts.extend(await body())
+
+    run(collect())
+    assert max(counts) >= 3  # HEARTBEAT, SYS_STATUS, ... ride on a LOCAL_POSITION_NED tick
+    assert all(c >= 1 for c in counts)
