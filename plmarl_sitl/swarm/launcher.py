@@ -96,7 +96,9 @@ def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
 class MissionScript:
     """Fires the mission's events on the mission clock and ends the timed ones."""
 
-    def __init__(self, mission: Mission, world: SitlWorld, fleet: AgentFleet, gate: BrokerGate, record: Callable[[dict], None]) -> None:
+    def __init__(
+        self, mission: Mission, world: SitlWorld, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]
+    ) -> None:
         self.world, self.fleet, self.gate, self.record = world, fleet, gate, record
         self.pending = sorted(
             [Event(type="node_failure", at_s=f.at_s, uav=f.uav) for f in mission.failures] + list(mission.events),
@@ -125,6 +127,7 @@ class MissionScript:
             assert ev.duration_s is not None
             self.world.cut_links(blackout_pairs(ev, self.n), ev.duration_s)
         elif ev.type == "broker_outage":
+            assert self.gate is not None  # swarm_up puts a gate in front of the broker for this event
             self.gate.outage(True)
             self.endings.append((ev.end_s(), ev))
         elif ev.type == "tup_change":
@@ -140,6 +143,7 @@ class MissionScript:
 
     def _end(self, ev: Event, t: float) -> None:
         if ev.type == "broker_outage":
+            assert self.gate is not None
             self.gate.outage(False)
         elif ev.type == "gnss_noise":
             for u in ev.uavs or range(self.n):
@@ -211,7 +215,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     fleet = AgentFleet(out / "agents", forked=True)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
     broker, up_host, up_port = await _start_broker(opts.broker)
-    gate = BrokerGate(up_host, up_port)
+    # Every byte through the gate costs this process's event loop two hops, which at
+    # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
+    gate = BrokerGate(up_host, up_port) if any(e.type == "broker_outage" for e in mission.events) else None
+    bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
     script: MissionScript | None = None
     last_headless = [-10.0]
@@ -232,20 +239,22 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             console.print(headless_line(monitor.view()), highlight=False)
 
     try:
-        await gate.start()
+        if gate is not None:
+            await gate.start()
+            bus_url = gate.url
         base_port = free_udp_ports(n)
         world = SitlWorld(
-            WorldConfig(mission, gate.url, swarm=opts.swarm, personality=opts.personality, speedup=opts.speedup,
+            WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, speedup=opts.speedup,
                         base_port=base_port, seed=mission.seed, episode_s=duration),
             on_metrics=on_metrics,
         )
         script = MissionScript(mission, world, fleet, gate, record_event)
         world.host.record_tlogs(out / "tlogs")
         await world.start()
-        observer = MqttBus(gate.url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
+        observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                            monitor.on_bus, name="launcher-bus")
         for i in range(n):
-            await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", gate.url, mission=mission_file,
+            await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", bus_url, mission=mission_file,
                               policy=opts.policy, swarm=opts.swarm, extra=["--autopilot", opts.personality])
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
@@ -264,7 +273,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if world is not None:
             world.stop()
             world.host.close()
-        await gate.close()
+        if gate is not None:
+            await gate.close()
         if broker is not None:
             await asyncio.to_thread(broker.stop)
         metrics_f.close()
