@@ -27,7 +27,7 @@ MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", default="4,20", help="swarm sizes to measure (4 and/or 20; default 4,20)")
-    p.add_argument("--speedups", default="20,10,5,2", help="speedups to try, high to low (default 20,10,5,2)")
+    p.add_argument("--speedups", default="20,15,10,5,2", help="speedups to try, high to low (default 20,15,10,5,2)")
     p.add_argument("--max-gap", type=float, default=0.03, help="largest acceptable coverage gap (default 0.03)")
     p.add_argument("--max-lag", type=float, default=3.0,
                    help="largest acceptable age of the sensing a decision used, mission s (default 3: one decision period)")
