@@ -4,7 +4,8 @@ its own (`broker.AmqttProcess`).
 amqtt is pure Python and needs many event-loop turns per message. Inside the launcher it
 shares a loop with the SITL world, which steps 20 vehicles between turns, and at 20x the
 broker falls ever further behind (sensing arrived 170 mission seconds late). In its own
-process it gets its own turns and the OS schedules it like any broker.
+process it gets its own turns and the OS schedules it like any broker. Like every broker
+child it dies with the process that started it (`proc.die_with_parent`, set at spawn).
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ import asyncio
 import signal
 
 from plmarl_sitl.bus.broker import EmbeddedBroker
-from plmarl_sitl.swarm.forked import die_with_parent
 
 
 async def _serve(host: str, port: int) -> None:
@@ -31,7 +31,6 @@ def main() -> None:
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, required=True)
     args = p.parse_args()
-    die_with_parent()  # never outlive the launcher, even a SIGKILLed one
     asyncio.run(_serve(args.host, args.port))
 
 

@@ -19,6 +19,8 @@ import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
+from plmarl_sitl.proc import die_with_parent
+
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
 
@@ -106,16 +108,27 @@ class _BrokerChild:
     def url(self) -> str:
         return f"mqtt://{self.host}:{self.port}"
 
-    def command(self) -> list[str]:
+    def command(self, workdir: Path) -> list[str]:
+        """The child's command line; `workdir` is a scratch directory for config files."""
         raise NotImplementedError
 
     def start(self, timeout_s: float = 5.0) -> None:
-        self.proc = subprocess.Popen(self.command(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        self._dir = tempfile.TemporaryDirectory(prefix=f"plmarl-{self.what}-")
+        workdir = Path(self._dir.name)
+        # stderr to a file, not a pipe: nobody reads a pipe once the broker runs, and a
+        # chatty broker (amqtt logs every dropped client) would block on a full one.
+        err_path = workdir / "stderr.log"
+        with open(err_path, "wb") as err:
+            # Never outlive the launcher or test that started us, even a SIGKILLed one.
+            self.proc = subprocess.Popen(self.command(workdir), stdout=subprocess.DEVNULL, stderr=err,
+                                         preexec_fn=die_with_parent)
         deadline = time.monotonic() + timeout_s
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
-                err = self.proc.stderr.read().decode(errors="replace") if self.proc.stderr else ""
-                raise RuntimeError(f"{self.what} exited with {self.proc.returncode}: {err.strip()[-500:]}")
+                tail = err_path.read_text(errors="replace").strip()[-500:]
+                code = self.proc.returncode
+                self.stop()
+                raise RuntimeError(f"{self.what} exited with {code}: {tail}")
             with contextlib.suppress(OSError), socket.create_connection((self.host, self.port), timeout=0.2):
                 return
             time.sleep(0.05)
@@ -152,9 +165,8 @@ class MosquittoBroker(_BrokerChild):
         super().__init__(host, port)
         self.binary = binary
 
-    def command(self) -> list[str]:
-        self._dir = tempfile.TemporaryDirectory(prefix="plmarl-mosq-")
-        conf = Path(self._dir.name) / "mosquitto.conf"
+    def command(self, workdir: Path) -> list[str]:
+        conf = workdir / "mosquitto.conf"
         conf.write_text(f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\nlog_dest stderr\nlog_type error\n")
         return [self.binary, "-c", str(conf)]
 
@@ -165,7 +177,7 @@ class AmqttProcess(_BrokerChild):
 
     what = "amqtt"
 
-    def command(self) -> list[str]:
+    def command(self, workdir: Path) -> list[str]:
         return [sys.executable, "-m", "plmarl_sitl.bus.amqtt_main", "--host", self.host, "--port", str(self.port)]
 
 

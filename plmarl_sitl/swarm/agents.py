@@ -18,7 +18,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plmarl_sitl.swarm.forked import ForkedProcess, die_with_parent, fork_agent, warm_up
+from plmarl_sitl.proc import die_with_parent
+from plmarl_sitl.swarm.forked import ForkedProcess, fork_agent, warm_up
 
 
 @dataclass

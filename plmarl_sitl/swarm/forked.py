@@ -21,6 +21,8 @@ import signal
 import sys
 from multiprocessing.context import ForkServerContext
 
+from plmarl_sitl.proc import die_with_parent, set_process_name
+
 # What the forkserver imports once; a forked agent finds these already in sys.modules.
 PRELOAD = ["plmarl_sitl.swarm.forked_child"]
 
@@ -45,25 +47,11 @@ def warm_up() -> None:
     multiprocessing.forkserver.ensure_running()
 
 
-def _prctl(option: int, arg: int | bytes) -> None:
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(option, arg)
-    except (OSError, AttributeError):  # not Linux: best effort
-        pass
-
-
-def die_with_parent() -> None:
-    """Ask Linux to SIGTERM this process when its parent dies, even by SIGKILL."""
-    _prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-
-
 def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str) -> None:
     """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
     `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it."""
     die_with_parent()
-    _prctl(15, name.encode()[:15])  # PR_SET_NAME: the command line is the forkserver's
+    set_process_name(name)  # the command line is the forkserver's
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
