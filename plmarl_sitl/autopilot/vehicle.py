@@ -215,12 +215,8 @@ class Vehicle:
         self.record(buf)
         if addr is not None:
             t.sendto(buf, addr)
-            return
-        for peer in self.peers:
-            t.sendto(buf, peer)
-        gcs = self.host.gcs
-        if gcs is not None and gcs not in self.peers:
-            t.sendto(buf, gcs)
+        else:
+            self._broadcast(t, buf)
 
     def send_bundle(self, msgs: list[Message | None]) -> None:
         """Telemetry due together, to every peer and the ground station in one datagram
@@ -229,11 +225,13 @@ class Vehicle:
         if t is None or self.killed or t.is_closing():
             return
         frames = [self.codec.encode(m) for m in msgs if m is not None]
-        if not frames:
-            return
         for f in frames:
             self.record(f)
-        buf = b"".join(frames)
+        if frames:
+            self._broadcast(t, b"".join(frames))
+
+    def _broadcast(self, t: asyncio.DatagramTransport, buf: bytes) -> None:
+        """One datagram to every peer and to the ground station."""
         for peer in self.peers:
             t.sendto(buf, peer)
         gcs = self.host.gcs
