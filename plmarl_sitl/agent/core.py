@@ -197,11 +197,9 @@ class Agent:
         self.seen: torch.Tensor | None = None
         self.belief = torch.zeros(self.n, 6)
         self.aoi = torch.ones(self.n)
-        self.sensed: torch.Tensor | None = None  # (K, 2) users in R_s, latest sensing message
-        self.sensed_t = -math.inf  # the mission second that message describes
         self.closed_t = -math.inf  # last signalling instant the SITL link emulator closed
-        # The last few sensing messages by mission second: a decision at k uses second k's
-        # users even when k+1's have already arrived (this agent ran late).
+        # The last few sensing messages, (mission second, (K, 2) users in R_s): a decision at
+        # k uses second k's users even when k+1's have already arrived (this agent ran late).
         self.sense_history: collections.deque[tuple[float, torch.Tensor]] = collections.deque(maxlen=8)
         self.used_sense_t: float | None = None
         self.sense_warned = False
@@ -244,9 +242,7 @@ class Agent:
             except Malformed as exc:
                 self.rx.bad(f"sense_{exc.reason}")
                 return
-            self.sensed = torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)
-            self.sensed_t = msg.t_ms / 1000.0
-            self.sense_history.append((self.sensed_t, self.sensed))
+            self.sense_history.append((msg.t_ms / 1000.0, torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)))
         elif topic == t.start:
             if not payload:
                 return  # the world clears a previous run's retained start with an empty payload
@@ -371,7 +367,7 @@ class Agent:
         if tm < k - 1e-9:
             return False
         instant = k % self.tup == 0
-        first_sensing = k % self.tau == 0 and self.sensed is None and not self.sense_warned
+        first_sensing = k % self.tau == 0 and not self.sense_history and not self.sense_warned
         if not instant and not first_sensing:
             return True
         if instant and tm < k + self.cfg.settle_min_s:
