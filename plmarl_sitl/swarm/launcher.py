@@ -1,9 +1,9 @@
 """`plmarl swarm up`: a whole SITL swarm from one command.
 
 This process starts the broker (amqtt in a child process, unless an external one is
-given) and hosts, behind a `BrokerGate` to it, the SITL world (`SitlWorld`: autopilots,
-users, link emulator) and the mission script; it forks one `plmarl agent` per UAV
-(`swarm.forked`) and watches them. The world
+given; behind a `BrokerGate` when the mission has a broker outage) and hosts the SITL
+world (`SitlWorld`: autopilots, users, link emulator) and the mission script; it forks
+one `plmarl agent` per UAV (`swarm.forked`) and watches them. The world
 starts mission time once every vehicle flies under its agent; events fire on that clock.
 Everything is recorded in the run directory:
 
