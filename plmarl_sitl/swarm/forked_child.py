@@ -8,6 +8,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import psutil  # noqa: E402, F401  (rss and start time in the agent)
 import torch  # noqa: E402, F401
 
 import plmarl_sitl.agent.core  # noqa: E402, F401
@@ -17,4 +18,3 @@ import plmarl_sitl.mavlink.connect  # noqa: E402, F401
 import plmarl_sitl.mission  # noqa: E402, F401
 import plmarl_sitl.nn.io  # noqa: E402, F401
 import plmarl_sitl.swarm.forked  # noqa: E402, F401
-import psutil  # noqa: E402, F401  (rss and start time in the agent)

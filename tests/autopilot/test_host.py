@@ -10,7 +10,6 @@ import math
 
 import pytest
 import torch
-
 from aphelpers import run, running_host
 
 from plmarl_sitl.autopilot import AutopilotHost, handlers, telemetry

@@ -10,7 +10,14 @@ from torch.nn import functional as F
 
 from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
 from plmarl_sitl.nn.belief import NEVER
-from plmarl_sitl.nn.deploy import FusedKinematicTracker, FusedPolicy, fuse_policy, fuse_tracker, fused_from_files, is_fused
+from plmarl_sitl.nn.deploy import (
+    FusedKinematicTracker,
+    FusedPolicy,
+    fuse_policy,
+    fuse_tracker,
+    fused_from_files,
+    is_fused,
+)
 from plmarl_sitl.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, quiet_torchscript
 from plmarl_sitl.nn.predictor import KinematicPredictor
 from plmarl_sitl.world.coverage import SENSING_FEATURES
@@ -65,7 +72,7 @@ def test_fused_tracker_is_bit_identical_on_one_agent(m: int) -> None:
         for t, held, t_rx in steps:
             o1 = ref(t, held, t_rx, b1, s1)
             o2 = fused(t, held, t_rx, b2, s2)
-            for a, b in zip(o1, o2):
+            for a, b in zip(o1, o2, strict=True):
                 assert torch.equal(a, b)
             _, _, b1, s1 = o1
             _, _, b2, s2 = o2
@@ -84,7 +91,7 @@ def test_fused_tracker_other_shapes_use_the_reference() -> None:
             for t in range(4):
                 o1 = ref(float(t), held, t_rx, b1, s1)
                 o2 = fused(float(t), held, t_rx, b2, s2)
-                assert all(torch.equal(a, b) for a, b in zip(o1, o2))
+                assert all(torch.equal(a, b) for a, b in zip(o1, o2, strict=True))
                 _, _, b1, s1 = o1
                 _, _, b2, s2 = o2
 
