@@ -22,6 +22,7 @@ import os
 import time
 
 from plmarl_sitl.bench.machine import machine_info
+from plmarl_sitl.cli.common import comma_list
 
 DEFAULT_MISSION = "missions/paper_urban.yaml"
 MEASURE_S = 3.0
@@ -29,7 +30,8 @@ MEASURE_S = 3.0
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", default=DEFAULT_MISSION, help=f"mission YAML (default: {DEFAULT_MISSION})")
-    p.add_argument("--envs", default="1,64,1024", help="comma-separated batch sizes (default: 1,64,1024)")
+    p.add_argument("--envs", default="1,64,1024", type=comma_list(int, "batch size", positive=True),
+                   help="comma-separated batch sizes (default: 1,64,1024)")
     p.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
 
 
@@ -106,7 +108,7 @@ def run(args: argparse.Namespace) -> dict:
 
     mission = load_mission(args.mission)
     rows = []
-    for envs in (int(x) for x in args.envs.split(",")):
+    for envs in args.envs:
         threads = _threads_mode(args.mission, envs, args.seed)
         shards = _shards_mode(args.mission, envs, args.seed)
         best, mode = (shards, "shards") if shards and shards > threads else (threads, "threads")

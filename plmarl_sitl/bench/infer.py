@@ -19,12 +19,14 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.bench.machine import machine_info
+from plmarl_sitl.cli.common import comma_list
 
 DEFAULT_N = "4,8,12,16,20"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--n", default=DEFAULT_N, help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
+    p.add_argument("--n", default=DEFAULT_N, type=comma_list(int, "swarm size", positive=True),
+                   help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
     p.add_argument("--methods", default="pl-marl,gru", help="methods to time side by side (default: pl-marl,gru)")
     p.add_argument("--policies", default="policies", help="directory with <method>/predictor.pt, policy.pt")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
@@ -101,7 +103,7 @@ def run(args: argparse.Namespace) -> dict:
     mods = {m: _modules(m, Path(args.policies)) for m in methods}
     gen = torch.Generator().manual_seed(args.seed)
     rows = []
-    for n in (int(x) for x in args.n.split(",")):
+    for n in args.n:
         rows += _time_n(mods, n, args.calls, gen)
     return {"rows": rows, "weights": {m: mods[m][2] for m in methods}, "machine": machine_info(), "torch_threads": 1,
             "calls": args.calls}

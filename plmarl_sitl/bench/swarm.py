@@ -21,19 +21,21 @@ from pathlib import Path
 import numpy as np
 
 from plmarl_sitl.bench.machine import machine_info
+from plmarl_sitl.cli.common import comma_list
 
 MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--n", default="4,20", help="swarm sizes to measure (4 and/or 20; default 4,20)")
-    p.add_argument("--speedups", default="20,15,10,5,2", help="speedups to try, high to low (default 20,15,10,5,2)")
+    p.add_argument("--n", default="4,20", type=comma_list(int, "swarm size", choices=sorted(MISSIONS)),
+                   help="swarm sizes to measure (4 and/or 20; default 4,20)")
+    p.add_argument("--speedups", default="20,15,10,5,2", type=comma_list(float, "speedup", positive=True), help="speedups to try, high to low (default 20,15,10,5,2)")
     p.add_argument("--max-gap", type=float, default=0.03, help="largest acceptable coverage gap (default 0.03)")
     p.add_argument("--max-lag", type=float, default=3.0,
                    help="largest acceptable age of the sensing a decision used, mission s (default 3: one decision period)")
     p.add_argument("--max-delay", type=float, default=1.5,
                    help="largest acceptable 95th-percentile decision delay, vehicle s (default 1.5: half a decision period)")
-    p.add_argument("--seeds", default="0,1,2",
+    p.add_argument("--seeds", default="0,1,2", type=comma_list(int, "seed"),
                    help="mission seeds; the gap compares mean coverage over them, as one run's is noisy (default 0,1,2)")
     p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
 
@@ -57,14 +59,14 @@ def run(args: argparse.Namespace) -> dict:
     from plmarl_sitl.mission import load_mission
     from plmarl_sitl.swarm.gap import twin_coverage
 
-    seeds = [int(x) for x in args.seeds.split(",")]
+    seeds = args.seeds
     rows = []
-    for n in (int(x) for x in args.n.split(",")):
+    for n in args.n:
         path = MISSIONS[n]
         twin = [float(np.mean(twin_coverage(replace(load_mission(path), seed=s), args.policy, s))) for s in seeds]
         twin_mean = float(np.mean(twin))
         tried = []
-        for k in (float(x) for x in args.speedups.split(",")):
+        for k in args.speedups:
             flights = [_fly(path, args.policy, k, s) for s in seeds]
             sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
             on_time = [f[0]["timeliness"] for f in flights]

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable, Collection
+from typing import TypeVar
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+T = TypeVar("T")
 
 
 def add_seed(p: argparse.ArgumentParser, default: int | None = 0) -> None:
@@ -22,6 +26,29 @@ def tup_arg(text: str) -> int:
     if v < 1:
         raise argparse.ArgumentTypeError("T_up must be >= 1 s")
     return v
+
+
+def comma_list(convert: Callable[[str], T], what: str, *, positive: bool = False,
+               choices: Collection[T] | None = None) -> Callable[[str], list[T]]:
+    """An argparse `type` for 'A,B,C': each item converted, checked, and named in the error."""
+
+    def parse(text: str) -> list[T]:
+        out = []
+        for part in (p.strip() for p in text.split(",") if p.strip()):
+            try:
+                v = convert(part)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{part!r} is not a valid {what}") from None
+            if positive and not v > 0:  # type: ignore[operator]
+                raise argparse.ArgumentTypeError(f"{what} must be > 0, got {part!r}")
+            if choices is not None and v not in choices:
+                raise argparse.ArgumentTypeError(f"{what} {part!r} is not one of {', '.join(map(str, choices))}")
+            out.append(v)
+        if not out:
+            raise argparse.ArgumentTypeError(f"give at least one {what}")
+        return out
+
+    return parse
 
 
 def progress(disable: bool = False) -> Progress:

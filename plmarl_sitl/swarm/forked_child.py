@@ -8,7 +8,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import psutil  # noqa: E402, F401  (rss and start time in the agent)
+import psutil  # noqa: E402, F401  (the agent reports its RSS with it)
 import torch  # noqa: E402, F401
 
 import plmarl_sitl.agent.core  # noqa: E402, F401

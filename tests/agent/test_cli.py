@@ -32,3 +32,21 @@ def test_user_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["bench", "swarm", "--seeds", "0,x"], "'x' is not a valid seed"),
+        (["bench", "swarm", "--n", "7"], "swarm size '7' is not one of 4, 20"),
+        (["bench", "swarm", "--speedups", "10,-1"], "speedup must be > 0"),
+        (["bench", "infer", "--n", ","], "give at least one swarm size"),
+        (["bench", "dt", "--envs", "64,lots"], "'lots' is not a valid batch size"),
+    ],
+)
+def test_bad_lists_are_argparse_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
