@@ -78,9 +78,15 @@ def _first_upcrossing(half_c: torch.Tensor, b: torch.Tensor, d: torch.Tensor, mi
     # Quadratic case: of the two roots, the up-crossing is where f' = 2 half_c t + b > 0.
     disc = b * b - 4.0 * half_c * d
     sq = torch.sqrt(torch.clamp(disc, min=0.0))
+    # Roots as q / half_c and d / q with q = -(b + sign(b) sq) / 2: the textbook
+    # (-b +- sq) / (2 half_c) cancels catastrophically when half_c is tiny (float32, a
+    # 1e-9 m/s^2 vertical command: sq rounds to |b| and a root at t = 0 put a vehicle
+    # 1 m above the floor onto it).
+    q = -0.5 * (b + torch.where(b >= 0, sq, -sq))
     safe_c = torch.where(quad, half_c, torch.ones_like(half_c))
-    r1 = (-b - sq) / (2.0 * safe_c)
-    r2 = (-b + sq) / (2.0 * safe_c)
+    safe_q = torch.where(q != 0, q, torch.ones_like(q))
+    r1 = q / safe_c
+    r2 = torch.where(q != 0, d / safe_q, r1)
     r1 = torch.where((r1 > min_t) & (2.0 * half_c * r1 + b > 0), r1, inf)
     r2 = torch.where((r2 > min_t) & (2.0 * half_c * r2 + b > 0), r2, inf)
     return torch.where(quad, torch.where(disc >= 0, torch.minimum(r1, r2), inf), lin)
