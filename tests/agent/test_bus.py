@@ -36,6 +36,13 @@ async def _pubsub(url: str) -> None:
             t.cancel()
 
 
+async def _clock(host) -> None:  # noqa: ANN001 - an AutopilotHost
+    """Drive a host's sim clock at about 2x real time until cancelled."""
+    while True:
+        host.advance(0.02)
+        await asyncio.sleep(0.01)
+
+
 def test_pubsub_amqtt() -> None:
     async def main() -> None:
         async with EmbeddedBroker() as b:
@@ -114,12 +121,7 @@ def test_udpin_link_learns_the_vehicle() -> None:
         host = AutopilotHost(1, base_port=free_udp_ports(1), gcs=("127.0.0.1", gcs_port))
         await host.start()
 
-        async def clock() -> None:
-            while True:
-                host.advance(0.02)
-                await asyncio.sleep(0.01)
-
-        task = asyncio.create_task(clock(), name="clock")
+        task = asyncio.create_task(_clock(host), name="clock")
         link = connect(f"udpin://127.0.0.1:{gcs_port}")
         try:
             await link.open(timeout=5)
@@ -163,12 +165,7 @@ def test_tcpout_link_through_a_stream_bridge() -> None:
         server = await asyncio.start_server(bridge, "127.0.0.1", 0)
         port = server.sockets[0].getsockname()[1]
 
-        async def clock() -> None:
-            while True:
-                host.advance(0.02)
-                await asyncio.sleep(0.01)
-
-        task = asyncio.create_task(clock(), name="clock")
+        task = asyncio.create_task(_clock(host), name="clock")
         link = connect(f"tcpout://127.0.0.1:{port}")
         try:
             await link.open(timeout=5)
