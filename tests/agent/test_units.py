@@ -215,3 +215,31 @@ def test_world_closes_an_instant_once_every_live_vehicle_has_signalled():
     closed = [i for i, (t, _) in enumerate(seen) if t == topics.closed]
     assert len(closed) == 1 and decode_json(seen[closed[0]][1])["t_s"] == 15.0
     assert closed[0] == len(seen) - 1  # after every delivery of the instant
+
+
+def test_agent_counts_and_drops_bad_control_payloads(policy_dir) -> None:  # noqa: ANN001 - fixture
+    """Malformed `closed`, `start`, `ctl` and sensing payloads are counted by reason and
+    change nothing; a good `closed` moves the agent's closed instant forward only."""
+    import dataclasses
+    import math
+
+    from plmarl_sitl.agent.core import Agent, AgentConfig
+    from plmarl_sitl.bus.schema import encode_json
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.nn.io import load_policy
+
+    from .conftest import MISSION
+
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=3)
+    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
+                  load_policy(policy_dir, mission))
+    t = agent.topics
+    for topic, payload in [(t.closed, b"{not json"), (t.closed, encode_json({"t_s": "x"})), (t.closed, b'{"t_s": 3}'),
+                           (t.start, b"\x00\x01"), (t.ctl, encode_json({})), (t.sense(0), b"\x01")]:
+        agent._on_message(topic, payload)
+    assert agent.closed_t == -math.inf and agent.t0 is None and not agent.sense_history
+    assert agent.rx.reasons.get("closed") == 3 and agent.rx.reasons.get("start") == 1 and agent.rx.reasons.get("ctl") == 1
+    assert any(r.startswith("sense_") for r in agent.rx.reasons)
+    agent._on_message(t.closed, encode_json({"t_s": 15}))
+    agent._on_message(t.closed, encode_json({"t_s": 0}))  # an old instant does not move it back
+    assert agent.closed_t == 15.0
