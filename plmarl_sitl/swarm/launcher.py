@@ -316,14 +316,18 @@ async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Ta
 
 
 def run_up(opts: UpOptions) -> dict:
-    """Run `swarm_up` in a fresh event loop; SIGTERM is handled like Ctrl-C."""
+    """Run `swarm_up` in a fresh event loop; SIGINT (Ctrl-C) and SIGTERM stop it cleanly."""
 
     async def main() -> dict:
         task = asyncio.current_task()
         loop = asyncio.get_running_loop()
         assert task is not None
+        # SIGINT too, and explicitly: a launcher started in the background of a script
+        # inherits an ignored SIGINT, while its agents install their own handler and stop
+        # on Ctrl-C; the launcher would then report them as failed instead of stopping.
         with contextlib.suppress(NotImplementedError):
-            loop.add_signal_handler(signal.SIGTERM, task.cancel)
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, task.cancel)
         return await swarm_up(opts)
 
     try:
