@@ -27,3 +27,43 @@ def die_with_parent() -> None:
 def set_process_name(name: str) -> None:
     """What ps, top and psutil's name() show (15 bytes at most)."""
     _prctl(15, name.encode()[:15])  # PR_SET_NAME
+
+
+RT_HOWTO = (
+    "SCHED_FIFO needs CAP_SYS_NICE: run as root, `sudo setcap cap_sys_nice+ep $(readlink -f $(which python3))`, "
+    "or allow it in /etc/security/limits.conf (`USER - rtprio 20`)"
+)
+
+
+def realtime_permitted(priority: int) -> bool:
+    """Whether this process may switch itself to SCHED_FIFO at `priority` (CAP_SYS_NICE,
+    or an RLIMIT_RTPRIO at least that high)."""
+    import resource
+
+    try:
+        soft, _ = resource.getrlimit(resource.RLIMIT_RTPRIO)
+        if soft == resource.RLIM_INFINITY or soft >= priority:
+            return True
+        with open("/proc/self/status") as f:
+            cap_eff = next(int(line.split()[1], 16) for line in f if line.startswith("CapEff:"))
+        return bool(cap_eff >> 23 & 1)  # CAP_SYS_NICE
+    except (OSError, StopIteration, ValueError, AttributeError):
+        return False
+
+
+def use_realtime(priority: int) -> None:
+    """Run this process's threads (this one and those it starts later) under SCHED_FIFO
+    at `priority` (1-99), as PX4 runs its own tasks on Linux and as a companion computer
+    should run a control loop: nothing at normal priority then preempts it mid-decision.
+    The kernel's RT throttling (95 % of each second by default) still bounds a runaway.
+    Raises UserError, saying how to allow it, when the process may not."""
+    import os
+
+    from plmarl_sitl.errors import UserError
+
+    if not 1 <= priority <= 99:
+        raise UserError(f"real-time priority {priority}: must be 1-99")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except PermissionError as exc:
+        raise UserError(f"cannot use real-time priority {priority}: {RT_HOWTO}") from exc

@@ -105,6 +105,9 @@ class LoopStats:
     # CPU time of the same ticks: what the code costs, without the time the OS gave the
     # core to other processes mid-tick (which the wall figure includes on a loaded machine).
     decision_cpu_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200_000))
+    # From the telemetry datagram's arrival in the kernel (UDP links): also the time the
+    # message waited for this process to get a CPU and read it.
+    decision_arrival_ms: deque[float] = field(default_factory=lambda: deque(maxlen=200_000))
     startup_s: float | None = None
     decisions: int = 0
     seconds: int = 0
@@ -121,6 +124,8 @@ class LoopStats:
             "loop_p99_ms": pct(self.decision_ms, 0.99),
             "loop_cpu_p50_ms": pct(self.decision_cpu_ms, 0.5),
             "loop_cpu_p99_ms": pct(self.decision_cpu_ms, 0.99),
+            "arrival_p50_ms": pct(self.decision_arrival_ms, 0.5),
+            "arrival_p99_ms": pct(self.decision_arrival_ms, 0.99),
             "all_p50_ms": pct(self.all_ms, 0.5),
             "all_p99_ms": pct(self.all_ms, 0.99),
             "startup_s": self.startup_s,
@@ -338,6 +343,9 @@ class Agent:
         if decided:
             self.stats.decision_ms.append(dt_ms)
             self.stats.decision_cpu_ms.append((time.thread_time() - c_in) * 1e3)
+            rx_ns = getattr(m, "rx_ns", None)
+            if rx_ns is not None:
+                self.stats.decision_arrival_ms.append((time.time_ns() - rx_ns) / 1e6)
 
     def _track_rate(self) -> None:
         """Vehicle seconds per wall second (the SITL speedup; 1 on a real vehicle)."""
@@ -526,6 +534,7 @@ class Agent:
         cfg = self.cfg
         self.warm_up()
         link = connect(cfg.connect_url)
+        link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)
         self.link = link
         try:
             await link.open(timeout=cfg.connect_timeout_s)
@@ -702,6 +711,7 @@ class Agent:
             "rss_mb": rss_mb(),
             "decision_ms_samples": [round(x, 4) for x in list(self.stats.decision_ms)[-5000:]],
             "decision_cpu_ms_samples": [round(x, 4) for x in list(self.stats.decision_cpu_ms)[-5000:]],
+            "decision_arrival_ms_samples": [round(x, 4) for x in list(self.stats.decision_arrival_ms)[-5000:]],
             "rx": self.rx.as_dict(),
             "bus": self.bus.stats.as_dict(),
             "dropped": self.table.dropped,

@@ -31,7 +31,18 @@ EPILOG = """\
 examples:
   plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
   plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff
-  plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot"""
+  plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot \\
+      --rt-priority 20          # SCHED_FIFO, as for any control loop on a companion computer"""
+
+
+def rt_priority_arg(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a priority (1-99)") from None
+    if not 1 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"SCHED_FIFO priority {value} is outside 1-99")
+    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -61,6 +72,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "now: start at once (default with --bus direct)")
     p.add_argument("--trace", default=None, metavar="PATH", help="write one JSON line per mission second (P-AoI, N_i, f, action)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write loop timing, RSS and counters here on exit")
+    p.add_argument("--rt-priority", type=rt_priority_arg, default=None, metavar="P",
+                   help="run under SCHED_FIFO at priority P (1-99), as a control loop on a companion computer "
+                   "should: then no normal-priority process preempts a decision (needs CAP_SYS_NICE; default off)")
     p.add_argument("-v", "--verbose", action="store_true")
     p.set_defaults(func=run)
 
@@ -109,6 +123,13 @@ def run(args: argparse.Namespace) -> int:
         stats_path=Path(args.stats_json) if args.stats_json else None,
     )
     agent = Agent(cfg, lp)
+    if args.rt_priority is not None:
+        # After the imports and the policy load (seconds of CPU a FIFO task would take
+        # from everything else), before the first MAVLink message.
+        from plmarl_sitl.proc import use_realtime
+
+        use_realtime(args.rt_priority)
+        logging.getLogger("plmarl.agent").info("running under SCHED_FIFO, priority %d", args.rt_priority)
     return asyncio.run(_main(agent))
 
 

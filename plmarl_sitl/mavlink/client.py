@@ -26,12 +26,35 @@ POSITION_ONLY = 0x0DF8
 Predicate = Callable[[Message], bool]
 
 
+SIOCGSTAMPNS = 0x8907  # Linux: the kernel's receive time of the socket's last datagram
+
+
+def kernel_rx_ns(transport: asyncio.BaseTransport) -> int | None:
+    """CLOCK_REALTIME ns at which the kernel received the datagram just read from
+    `transport`'s socket (None where the ioctl is unsupported): the telemetry's arrival,
+    before any time the process spent waiting for a CPU."""
+    import fcntl
+    import struct
+
+    sock = transport.get_extra_info("socket")
+    try:
+        sec, nsec = struct.unpack("qq", fcntl.ioctl(sock.fileno(), SIOCGSTAMPNS, bytes(16)))
+    except (OSError, AttributeError):
+        return None
+    return sec * 1_000_000_000 + nsec
+
+
 class _Protocol(asyncio.DatagramProtocol):
     def __init__(self, link: VehicleLink) -> None:
         self.link = link
+        self.transport: asyncio.BaseTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = transport
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.link._on_datagram(data)
+        rx_ns = kernel_rx_ns(self.transport) if self.link.stamp_arrivals and self.transport is not None else None
+        self.link._on_datagram(data, rx_ns)
 
     def error_received(self, exc: Exception) -> None:
         pass  # "port unreachable" while the vehicle is not up yet: keep trying
@@ -60,6 +83,9 @@ class VehicleLink:
         self.sent = 0
         self._waiters: list[tuple[str, Predicate, asyncio.Future[Message]]] = []
         self._transport: asyncio.DatagramTransport | None = None
+        # Stamp each message with its datagram's kernel arrival time (`m.rx_ns`, UDP
+        # links only): one ioctl per datagram, for latency measurements.
+        self.stamp_arrivals = False
 
     # ------------------------------------------------------------------ lifecycle
     async def open(self, timeout: float = 5.0) -> None:
@@ -114,11 +140,13 @@ class VehicleLink:
         return self.target_sysid
 
     # ------------------------------------------------------------------ receiving
-    def _on_datagram(self, data: bytes) -> None:
+    def _on_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
         out = self.codec.decode_datagram(data)
         if out.fault is not None:
             self.bad_datagrams += 1
         for m in out.messages:
+            if rx_ns is not None:
+                m.rx_ns = rx_ns
             t = m.get_type()
             self.latest[t] = m
             self.counts[t] += 1

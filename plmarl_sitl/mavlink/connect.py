@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from urllib.parse import urlsplit
 
 from plmarl_sitl.errors import UserError
-from plmarl_sitl.mavlink.client import VehicleLink
+from plmarl_sitl.mavlink.client import VehicleLink, _Protocol
 from plmarl_sitl.mavlink.codec import dialect
 
 
@@ -59,13 +59,12 @@ def connect(url: str, **kwargs: object) -> VehicleLink:
     return cls(ep.host, ep.port, **kwargs)  # type: ignore[arg-type]
 
 
-class _InProtocol(asyncio.DatagramProtocol):
-    def __init__(self, link: UdpInLink) -> None:
-        self.link = link
+class _InProtocol(_Protocol):
+    link: UdpInLink
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         self.link._peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
-        self.link._on_datagram(data)
+        super().datagram_received(data, addr)
 
     def error_received(self, exc: Exception) -> None:
         pass  # ICMP from a peer that went away; the next datagram re-learns it

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import shutil
+import time
 
 import pytest
 
@@ -123,10 +124,18 @@ def test_udpin_link_learns_the_vehicle() -> None:
 
         task = asyncio.create_task(_clock(host), name="clock")
         link = connect(f"udpin://127.0.0.1:{gcs_port}")
+        link.stamp_arrivals = True
         try:
             await link.open(timeout=5)
             assert link.personality is not None and link.personality.name == "px4"
             await link.set_message_interval("LOCAL_POSITION_NED", 20)  # a command round trip
+            # Every message carries its datagram's kernel receive time (CLOCK_REALTIME).
+            before = time.time_ns()
+            m = await link.recv("LOCAL_POSITION_NED", 3.0)
+            assert before - 60_000_000 <= m.rx_ns <= time.time_ns()
+            link.stamp_arrivals = False
+            await link.recv("LOCAL_POSITION_NED", 3.0)
+            assert not hasattr(await link.recv("LOCAL_POSITION_NED", 3.0), "rx_ns")
         finally:
             link.close()
             task.cancel()
