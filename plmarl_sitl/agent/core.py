@@ -44,6 +44,8 @@ from plmarl_sitl.agent.frames import home_offset_ned
 from plmarl_sitl.agent.guard import band_guard
 from plmarl_sitl.agent.neighbours import NeighbourTable
 from plmarl_sitl.bus.schema import (
+    INSTANT_WAIT_MIN_S,
+    INSTANT_WAIT_WALL_S,
     Malformed,
     RxCounters,
     SeqFilter,
@@ -53,6 +55,7 @@ from plmarl_sitl.bus.schema import (
     decode_sense,
     decode_state,
     encode_state,
+    split_states,
 )
 from plmarl_sitl.bus.transport import MqttBus
 from plmarl_sitl.errors import CommandRejected, UserError, VehicleTimeout
@@ -89,7 +92,7 @@ class AgentConfig:
     takeoff: bool = True
     wait_start: bool = True  # wait for the world's start announcement (else start now)
     settle_min_s: float = 0.1  # vehicle s: an instant is never closed earlier than this
-    settle_wall_s: float = 0.15  # wall s: ... and at most this late (x the observed speedup, >= 0.2 vehicle s)
+    settle_wall_s: float = INSTANT_WAIT_WALL_S  # wall s: ... and at most this late (x the observed speedup, >= INSTANT_WAIT_MIN_S)
     connect_timeout_s: float = 30.0
     takeoff_timeout_s: float = 120.0  # vehicle seconds
     trace_path: Path | None = None
@@ -287,6 +290,15 @@ class Agent:
 
     def _on_state(self, payload: bytes) -> None:
         try:
+            parts = split_states(payload)
+        except Malformed as exc:
+            self.rx.bad(exc.reason)
+            return
+        for part in parts:
+            self._on_one_state(part)
+
+    def _on_one_state(self, payload: bytes) -> None:
+        try:
             msg = decode_state(payload)
         except Malformed as exc:
             self.rx.bad(exc.reason)
@@ -361,7 +373,7 @@ class Agent:
             self._rate_ref = (now, self.boot_s)
 
     def settle_max_s(self) -> float:
-        return max(0.2, self.cfg.settle_wall_s * (self.rate or 1.0))
+        return max(INSTANT_WAIT_MIN_S, self.cfg.settle_wall_s * (self.rate or 1.0))
 
     def _second_due(self, k: int, tm: float) -> bool:
         """Second k can be processed: at once, except

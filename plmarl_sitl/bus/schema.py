@@ -23,6 +23,12 @@ MAX_ABS_POS_M = 1.0e6
 MAX_ABS_VEL_MPS = 1.0e3
 MAX_SENSED_USERS = 4096
 
+# How long past a signalling instant an agent waits for its updates, in vehicle seconds:
+# at most max(INSTANT_WAIT_MIN_S, INSTANT_WAIT_WALL_S x the speedup). The SITL link
+# emulator closes an instant whose updates are not all in after half that wall bound.
+INSTANT_WAIT_MIN_S = 0.2
+INSTANT_WAIT_WALL_S = 0.15
+
 # version, kind, sender, session, seq, t_ms, p_n, p_e, p_d, v_n, v_e, v_d
 _STATE = struct.Struct("<BBHHIi6f")
 # version, kind, receiver, t_ms, count; then count x (north, east) float32
@@ -76,6 +82,19 @@ def decode_state(payload: bytes) -> StateMsg:
     if any(abs(x) > MAX_ABS_POS_M for x in s[:3]) or any(abs(x) > MAX_ABS_VEL_MPS for x in s[3:]):
         raise Malformed("out_of_range")
     return StateMsg(sender, session, seq, t_ms, tuple(s))  # type: ignore[arg-type]
+
+
+def split_states(payload: bytes) -> list[bytes]:
+    """The state messages of an rx payload: one, or several back to back (the SITL link
+    emulator delivers an instant's updates to a receiver in one message). Raises
+    Malformed("length") when the payload is not whole messages; each part is then
+    decoded (and counted if malformed) on its own."""
+    n = len(payload)
+    if n <= STATE_SIZE:
+        return [payload]
+    if n % STATE_SIZE:
+        raise Malformed("length")
+    return [payload[i : i + STATE_SIZE] for i in range(0, n, STATE_SIZE)]
 
 
 def peek_sender(payload: bytes) -> int:

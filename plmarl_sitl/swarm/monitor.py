@@ -13,7 +13,7 @@ from __future__ import annotations
 import collections
 import math
 
-from plmarl_sitl.bus.schema import Malformed, Topics, decode_json, decode_state
+from plmarl_sitl.bus.schema import Malformed, Topics, decode_json, decode_state, split_states
 from plmarl_sitl.ui.live import SwarmView, UavView
 
 HISTORY_S = 120  # seconds of coverage kept for the sparkline
@@ -49,15 +49,16 @@ class SwarmMonitor:
         if who is None:
             return
         try:
-            msg = decode_state(payload)
+            msgs = [decode_state(part) for part in split_states(payload)]
         except Malformed:
             self.malformed += 1
             return
         if topic == self.topics.tx(who):
-            self.tx_total += 1
-            self.tx_times.append(self.t or 0.0)
+            self.tx_total += len(msgs)
+            self.tx_times.extend([self.t or 0.0] * len(msgs))
         elif topic == self.topics.rx(who):
-            self.last_rx[who][msg.sender] = msg.t_s
+            for msg in msgs:
+                self.last_rx[who][msg.sender] = msg.t_s
 
     def on_metrics(self, m: dict) -> None:
         """The world's per-second metrics (see SitlWorld._second)."""

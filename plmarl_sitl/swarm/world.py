@@ -39,7 +39,15 @@ import torch
 
 from plmarl_sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.bus.linkemu import LinkEmulator
-from plmarl_sitl.bus.schema import Malformed, Topics, decode_state, encode_json, encode_sense
+from plmarl_sitl.bus.schema import (
+    INSTANT_WAIT_MIN_S,
+    INSTANT_WAIT_WALL_S,
+    Malformed,
+    Topics,
+    decode_state,
+    encode_json,
+    encode_sense,
+)
 from plmarl_sitl.bus.transport import MqttBus
 from plmarl_sitl.dt.env import launch_positions
 from plmarl_sitl.mavlink.personality import Behaviour
@@ -132,6 +140,10 @@ class SitlWorld:
         self._pending: list[tuple[float, int, str, bytes]] = []  # (due sim s, tiebreak, topic, payload)
         self._tiebreak = itertools.count()
         self._instants: dict[float, set[int]] = {}  # open signalling instants: who has signalled
+        # Deliveries of each open instant, per receiver: sent as one rx message when the
+        # instant closes (N messages per instant instead of N (N - 1) through the broker).
+        self._batches: dict[float, dict[int, list[bytes]]] = {}
+        self._closed_upto = -math.inf  # instants up to here are closed: late updates go out alone
         self._stop = asyncio.Event()
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
@@ -184,8 +196,14 @@ class SitlWorld:
             return
         pos = self.host.mission_positions()
         alive = self.alive()
-        for i in self.links.receivers(sender, pos, alive, self.host.now):
-            self._send_after_latency(self.topics.rx(i), payload)
+        receivers = self.links.receivers(sender, pos, alive, self.host.now)  # decided at arrival
+        if msg.t_s <= self._closed_upto:  # late for its instant: deliver it on its own
+            for i in receivers:
+                self._send_after_latency(self.topics.rx(i), payload)
+            return
+        batch = self._batches.setdefault(msg.t_s, {})
+        for i in receivers:
+            batch.setdefault(i, []).append(payload)
         heard = self._instants.setdefault(msg.t_s, set())
         heard.add(sender)
         if heard >= {i for i in range(self.n) if bool(alive[i])}:
@@ -198,11 +216,26 @@ class SitlWorld:
             self.bus.publish(topic, payload)
 
     def _close_instant(self, t_s: float) -> None:
-        """Tell the agents that instant t_s has delivered all it will (after its deliveries,
-        through the same latency queue), so none waits out its timeout for a neighbour
-        that is out of range. Without this marker (real radios) agents wait the timeout."""
+        """Deliver instant t_s's updates, one rx message per receiver, then tell the agents
+        that it has delivered all it will (through the same latency queue), so none waits
+        out its timeout for a neighbour that is out of range. Without this marker (real
+        radios) agents wait the timeout."""
         self._instants.pop(t_s, None)
+        self._closed_upto = max(self._closed_upto, t_s)
+        for i, payloads in sorted(self._batches.pop(t_s, {}).items()):
+            self._send_after_latency(self.topics.rx(i), b"".join(payloads))
         self._send_after_latency(self.topics.closed, encode_json({"t_s": t_s}))
+
+    def _close_overdue(self) -> None:
+        """Close every open instant some updates are still missing from after half the
+        agents' own wait bound (a vehicle whose agent died signals no more): the others'
+        updates must reach them before they give up waiting."""
+        if not self._instants or self.t0 is None:
+            return
+        now_t = self.host.now - self.t0
+        wait = max(INSTANT_WAIT_MIN_S, 0.5 * INSTANT_WAIT_WALL_S * self.cfg.speedup)
+        for t_s in [t for t in self._instants if now_t >= t + wait]:
+            self._close_instant(t_s)
 
     def _deliver_due(self) -> None:
         while self._pending and self._pending[0][0] <= self.host.now:
@@ -248,8 +281,6 @@ class SitlWorld:
             if k >= 1:
                 self.users = step_users(self.users, m, m.timing.dt_s, self.gen)
             self.mission_t = k
-            for t_s in [t for t in self._instants if t <= k - 1]:
-                self._close_instant(t_s)  # someone did not signal (a dead agent process)
         pos = self.positions()
         alive = self.alive()
         users = self.users.xy[0]  # (U, 2)
@@ -327,6 +358,7 @@ class SitlWorld:
             last = now
             while todo > 1e-9 and not self._stop.is_set():
                 todo = self._advance(todo)
+                self._close_overdue()
                 self._deliver_due()
                 await asyncio.sleep(0)  # let datagrams and MQTT messages in between chunks
             next_tick = max(next_tick + period, now - period)

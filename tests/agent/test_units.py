@@ -26,6 +26,7 @@ from plmarl_sitl.bus.schema import (
     encode_json,
     encode_sense,
     encode_state,
+    split_states,
 )
 from plmarl_sitl.bus.url import parse_broker_url
 from plmarl_sitl.errors import UserError
@@ -167,14 +168,16 @@ def test_urls() -> None:
         parse_broker_url("http://x")
 
 
-def test_world_closes_an_instant_once_every_live_vehicle_has_signalled():
-    """The SITL link emulator publishes `closed` after the deliveries of an instant, when
-    every live vehicle has signalled, so agents stop waiting for out-of-range neighbours."""
+def test_world_delivers_an_instant_in_one_message_per_receiver_then_closes_it():
+    """The SITL link emulator holds an instant's deliveries until every live vehicle has
+    signalled, then sends each receiver one rx message with all of them, then `closed`.
+    An update for an instant already closed goes out alone at once; an instant a vehicle
+    stays silent in is closed after half the agents' wait bound."""
     import asyncio
     import dataclasses
 
     from plmarl_sitl.bus.broker import EmbeddedBroker
-    from plmarl_sitl.bus.schema import StateMsg, Topics, decode_json, encode_state
+    from plmarl_sitl.bus.schema import INSTANT_WAIT_MIN_S, StateMsg, Topics, decode_json, encode_state, split_states
     from plmarl_sitl.bus.transport import MqttBus
     from plmarl_sitl.mission import load_mission
     from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
@@ -184,8 +187,18 @@ def test_world_closes_an_instant_once_every_live_vehicle_has_signalled():
     topics = Topics("sitl")
     seen: list[tuple[str, bytes]] = []
 
-    def tx(sender: int) -> tuple[str, bytes]:
-        return topics.tx(sender), encode_state(StateMsg(sender, 7, 1, 15_000, (100.0 * sender, 0.0, -60.0, 0.0, 0.0, 0.0)))
+    def tx(sender: int, t_s: int = 15) -> tuple[str, bytes]:
+        return topics.tx(sender), encode_state(StateMsg(sender, 7, 1, t_s * 1000, (40.0 * sender, 0.0, -60.0, 0.0, 0.0, 0.0)))
+
+    def senders(payload: bytes) -> list[int]:
+        return [decode_state(part).sender for part in split_states(payload)]
+
+    async def until(cond) -> None:  # noqa: ANN001
+        while not cond():
+            await asyncio.sleep(0.02)
+
+    def closings() -> list[float]:
+        return [decode_json(p)["t_s"] for t, p in seen if t == topics.closed]
 
     async def main() -> None:
         async with EmbeddedBroker() as broker:
@@ -199,22 +212,54 @@ def test_world_closes_an_instant_once_every_live_vehicle_has_signalled():
                     await listener.connected.wait()
                     world._on_message(*tx(0))
                     world._on_message(*tx(1))
-                    while len(seen) < 2:  # the two deliveries, but no closing yet
-                        await asyncio.sleep(0.02)
-                    await asyncio.sleep(0.2)
-                    assert all(t != topics.closed for t, _ in seen)
+                    await asyncio.sleep(0.3)
+                    assert seen == []  # held until the instant closes
                     world._on_message(*tx(2))  # the last live vehicle signals
-                    while not any(t == topics.closed for t, _ in seen):
-                        await asyncio.sleep(0.02)
+                    await until(lambda: closings())
+                    batch = seen[:-1]
+                    assert [t for t, _ in seen[-1:]] == [topics.closed] and closings() == [15.0]
+                    rx = {topics.id_of(t): senders(p) for t, p in batch}
+                    assert len(rx) == len(batch) == 3  # one message per receiver (all within 80 m)
+                    assert all(sorted(v) == sorted({0, 1, 2} - {i}) for i, v in rx.items())
+                    # Late for instant 15: delivered alone, and no second closing.
+                    n = len(seen)
+                    world._on_message(*tx(0))
+                    await until(lambda: len(seen) == n + 2)
+                    assert all(senders(p) == [0] for _, p in seen[n:]) and closings() == [15.0]
+                    # Vehicle 2 stays silent at instant 30: closed once the bound has passed.
+                    world.t0, n = 0.0, len(seen)
+                    world._on_message(*tx(0, 30))
+                    world._on_message(*tx(1, 30))
+                    world.host.now = 30.0 + 0.5 * INSTANT_WAIT_MIN_S
+                    world._close_overdue()
+                    await asyncio.sleep(0.3)
+                    assert len(seen) == n
+                    world.host.now = 30.0 + INSTANT_WAIT_MIN_S
+                    world._close_overdue()
+                    await until(lambda: closings() == [15.0, 30.0])
+                    late = {topics.id_of(t): sorted(senders(p)) for t, p in seen[n:] if t != topics.closed}
+                    assert late == {0: [1], 1: [0], 2: [0, 1]}
             finally:
                 for t in tasks:
                     t.cancel()
                 await asyncio.gather(*tasks, return_exceptions=True)
 
     asyncio.run(main())
-    closed = [i for i, (t, _) in enumerate(seen) if t == topics.closed]
-    assert len(closed) == 1 and decode_json(seen[closed[0]][1])["t_s"] == 15.0
-    assert closed[0] == len(seen) - 1  # after every delivery of the instant
+
+
+@given(st.lists(st.tuples(st.integers(0, 19), st.integers(0, 2**31 - 1)), min_size=1, max_size=20))
+def test_rx_batches_split_into_their_messages(parts) -> None:
+    msgs = [StateMsg(s, 1, seq, 15_000, (1.0, 2.0, -60.0, 0.0, 0.0, 0.0)) for s, seq in parts]
+    payload = b"".join(encode_state(m) for m in msgs)
+    assert [decode_state(p) for p in split_states(payload)] == msgs
+
+
+def test_a_batch_that_is_not_whole_messages_is_malformed() -> None:
+    good = encode_state(StateMsg(1, 2, 3, 15000, (1.0, 2.0, -60.0, 0.0, 0.0, 0.0)))
+    with pytest.raises(Malformed) as exc:
+        split_states(good + good[:10])
+    assert exc.value.reason == "length"
+    assert split_states(good[:5]) == [good[:5]]  # short: decode_state names the reason
 
 
 def test_agent_counts_and_drops_bad_control_payloads(policy_dir) -> None:  # noqa: ANN001 - fixture
