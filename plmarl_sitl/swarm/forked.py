@@ -47,11 +47,14 @@ def warm_up() -> None:
     multiprocessing.forkserver.ensure_running()
 
 
-def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str) -> None:
+def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> None:
     """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
-    `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it."""
+    `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice`
+    is added to its niceness."""
     die_with_parent()
     set_process_name(name)  # the command line is the forkserver's
+    if nice:
+        os.nice(nice)
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
@@ -92,9 +95,9 @@ class ForkedProcess:
         self.send_signal(signal.SIGKILL)
 
 
-async def fork_agent(argv: list[str], log_path: str, env: dict[str, str], name: str) -> ForkedProcess:
+async def fork_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> ForkedProcess:
     """Fork `plmarl agent ARGV` from the preloaded forkserver (started on first use; its
     imports run in a thread so the caller's event loop keeps serving the vehicles)."""
-    proc = context().Process(target=run_agent, args=(argv, log_path, env, name), name=name)
+    proc = context().Process(target=run_agent, args=(argv, log_path, env, name, nice), name=name)
     await asyncio.get_running_loop().run_in_executor(None, proc.start)
     return ForkedProcess(proc)

@@ -22,7 +22,7 @@ import torch
 
 from plmarl_sitl.bus.broker import free_udp_ports, local_broker
 from plmarl_sitl.mission import Mission, load_mission
-from plmarl_sitl.swarm.agents import AgentFleet
+from plmarl_sitl.swarm.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
 
 
@@ -50,7 +50,7 @@ async def sitl_coverage(
     n = mission.n_uavs
     base = free_udp_ports(n)
     tmp = workdir or Path(tempfile.mkdtemp(prefix="plmarl-gap-"))
-    fleet = AgentFleet(tmp)
+    fleet = AgentFleet(tmp, nice=SITL_AGENT_NICE)
     async with local_broker() as broker:
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
                                       episode_s=mission.timing.episode_s))

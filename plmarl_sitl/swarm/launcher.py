@@ -41,7 +41,7 @@ from plmarl_sitl.bus.url import parse_broker_url
 from plmarl_sitl.config import REPO_ROOT, to_dict
 from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Event, Mission, load_mission
-from plmarl_sitl.swarm.agents import AgentFleet
+from plmarl_sitl.swarm.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.swarm.monitor import SwarmMonitor
 from plmarl_sitl.swarm.summary import summarize, timeliness
 from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
@@ -212,7 +212,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs, {duration} s at {opts.speedup:g}x, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
-    fleet = AgentFleet(out / "agents", forked=True)
+    fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
     broker, up_host, up_port = await _start_broker(opts.broker)
     # Every byte through the gate costs this process's event loop two hops, which at
