@@ -121,3 +121,24 @@ def test_timeliness_counts_decisions_only():
     assert out["decision_delay_s"]["max"] == 0.5 and out["decision_delay_s"]["p50"] == 0.2
     assert out["sensing_age_s"] == {"p50": 0.0, "p95": 1.8, "max": 2.0}
     assert timeliness([], None) == {"decisions": 0, "decision_delay_s": None, "sensing_age_s": None}
+
+
+def test_monitor_reads_batched_deliveries_and_counts_bad_payloads():
+    """What the live view shows of N_i comes from the link emulator's rx messages, which
+    carry an instant's updates to one receiver back to back."""
+    from plmarl_sitl.bus.schema import StateMsg, encode_json, encode_state
+    from plmarl_sitl.swarm.monitor import SwarmMonitor
+
+    mon = SwarmMonitor("sitl", tup_s=15, drop_after_missed=2)
+    t = mon.topics
+
+    def state(sender: int) -> bytes:
+        return encode_state(StateMsg(sender, 1, 1, 15_000, (0.0, 0.0, -60.0, 0.0, 0.0, 0.0)))
+
+    mon.on_bus(t.metrics, encode_json({"t": 20, "coverage": 0.5}))
+    mon.on_bus(t.rx(0), state(1) + state(2))
+    mon.on_bus(t.tx(1), state(1))
+    assert mon.neighbours(0) == {1: 5.0, 2: 5.0} and mon.aoi_max(0) == 5.0
+    assert mon.tx_total == 1 and mon.neighbours(1) == {}
+    mon.on_bus(t.rx(1), state(0) + state(2)[:20])  # not whole messages: dropped whole
+    assert mon.malformed == 1 and mon.neighbours(1) == {}
