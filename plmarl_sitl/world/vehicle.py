@@ -225,7 +225,9 @@ def _free_flight(
     inside = (reach_v < lim.max_speed * (1.0 - 1e3 * _speed_snap(vel))) & (alt - reach_h > lim.alt_min + margin) & (
         alt + reach_h < lim.alt_max - margin
     )
-    resting = (speed == 0) & (acc[..., 0] == 0) & (acc[..., 1] == 0) & (acc[..., 2] >= 0) & (alt <= lim.alt_min)
+    # Still means every component zero: a subnormal speed squares to 0 in the norm.
+    still = (vel == 0).all(-1)
+    resting = still & (acc[..., 0] == 0) & (acc[..., 1] == 0) & (acc[..., 2] >= 0) & (alt <= lim.alt_min)
     return inside, resting
 
 

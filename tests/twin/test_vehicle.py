@@ -120,6 +120,9 @@ def test_goto_reaches_target_and_stops():
 # Found by CI: the solver's textbook root formula cancelled in float32 and put this
 # vehicle, 1 m above the floor, onto it; the shortcut had it right.
 @example(alt=41.0, v=(0.0, 0.0, 1.0), a=(0.0, 0.0, 1e-9), dt=0.02, dtype=torch.float32)
+# Found by CI: on the floor with a subnormal sink rate the shortcut took the vehicle for
+# one standing still (the rate squares to 0 in the norm) and kept what the solver zeroes.
+@example(alt=40.0, v=(0.0, 0.0, 1.401298464324817e-45), a=(0.0, 0.0, 0.0), dt=0.02, dtype=torch.float32)
 def test_free_flight_shortcut_is_bit_identical_to_the_event_solver(alt, v, a, dt, dtype):
     """Small batches take a ballistic shortcut when no vehicle can meet a limit; it must
     give exactly what the event solver gives (three vehicles: mixed and all-free cases)."""
