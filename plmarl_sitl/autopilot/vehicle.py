@@ -427,6 +427,8 @@ class Vehicle:
             if kind == Kind.LAND:
                 fast = self.params["max_climb_mps"]
                 g.descent[self.index] = fast if alt > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
+            elif alt <= ON_GROUND_ALT_M:
+                self.host.vel_np[self.index] = 0.0  # a falling airframe stops where it hits the ground
             if self.on_ground():
                 self._touchdown()
                 return False
@@ -442,6 +444,9 @@ class Vehicle:
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
         self.host.guidance.set(self.index, Kind.IDLE)
+        # Ground contact stops the airframe (the floor only removes vertical velocity; a
+        # landed vehicle drifted on at up to the touchdown check's 0.5 m/s).
+        self.host.vel_np[self.index] = 0.0  # a view of the host's velocity tensor
         if was_armed:
             self.statustext("Landed, disarmed")
 

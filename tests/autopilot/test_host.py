@@ -186,6 +186,8 @@ def test_true_states_home_offsets_and_global_position() -> None:
 
 def test_kill_silences_and_drops_the_vehicle() -> None:
     host, c = airborne("px4", count=2)
+    with torch.inference_mode():  # the host's state is made of inference tensors
+        host.vel[0] = torch.tensor([5.0, -2.0, 0.0], dtype=torch.float64)  # cruising when it fails
     host.kill(0)
     n, seen = len(c.sent), c.v.counters.datagrams
     c.feed(c.codec.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
@@ -193,6 +195,11 @@ def test_kill_silences_and_drops_the_vehicle() -> None:
     host.advance(20.0)
     assert c.v.altitude() == pytest.approx(0.0, abs=0.02)
     assert float(host.true_states()[1, 2]) == pytest.approx(0.0, abs=0.02)  # the other one never moved
+    # On the ground it stays where it fell: no sliding on at its crash speed.
+    wreck = host.true_states()[0].clone()
+    assert torch.equal(wreck[3:], torch.zeros(3, dtype=torch.float64))
+    host.advance(10.0)
+    assert torch.equal(host.true_states()[0], wreck)
 
 
 def test_param_set_validation() -> None:
