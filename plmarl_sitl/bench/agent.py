@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.bench.machine import machine_info
+from plmarl_sitl.cli.common import rt_priority_arg
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -43,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", default="policies/pl-marl")
     p.add_argument("--mission-s", type=int, default=120, help="mission seconds flown together (default 120)")
     p.add_argument("--workdir", default=None, help="keep agent logs/traces here (default: a temp dir)")
-    p.add_argument("--rt-priority", type=int, default=None, metavar="P",
+    p.add_argument("--rt-priority", type=rt_priority_arg(0), default=None, metavar="P",
                    help="SCHED_FIFO priority of the second fleet (default 20 when permitted; 0: fly only at normal priority)")
 
 

@@ -22,7 +22,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from plmarl_sitl.cli.common import tup_arg  # noqa: E402
+from plmarl_sitl.cli.common import rt_priority_arg, tup_arg  # noqa: E402
 from plmarl_sitl.errors import UserError  # noqa: E402
 
 DEFAULT_MISSION = "missions/paper_urban.yaml"
@@ -33,16 +33,6 @@ examples:
   plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff
   plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot \\
       --rt-priority 20          # SCHED_FIFO, as for any control loop on a companion computer"""
-
-
-def rt_priority_arg(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a priority (1-99)") from None
-    if not 1 <= value <= 99:
-        raise argparse.ArgumentTypeError(f"SCHED_FIFO priority {value} is outside 1-99")
-    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -72,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "now: start at once (default with --bus direct)")
     p.add_argument("--trace", default=None, metavar="PATH", help="write one JSON line per mission second (P-AoI, N_i, f, action)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write loop timing, RSS and counters here on exit")
-    p.add_argument("--rt-priority", type=rt_priority_arg, default=None, metavar="P",
+    p.add_argument("--rt-priority", type=rt_priority_arg(), default=None, metavar="P",
                    help="run under SCHED_FIFO at priority P (1-99), as a control loop on a companion computer "
                    "should: then no normal-priority process preempts a decision (needs CAP_SYS_NICE; default off)")
     p.add_argument("-v", "--verbose", action="store_true")

@@ -51,6 +51,22 @@ def comma_list(convert: Callable[[str], T], what: str, *, positive: bool = False
     return parse
 
 
+def rt_priority_arg(low: int = 1) -> Callable[[str], int]:
+    """An argparse `type` for a SCHED_FIFO priority, low..99 (`plmarl agent`: 1; a bench
+    that takes 0 for "normal priority only": 0)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a priority ({low}-99)") from None
+        if not low <= value <= 99:
+            raise argparse.ArgumentTypeError(f"SCHED_FIFO priority {value} is outside {low}-99")
+        return value
+
+    return parse
+
+
 def progress(disable: bool = False) -> Progress:
     """A rich progress bar on stderr, so stdout stays clean for --json."""
     return Progress(

@@ -42,6 +42,7 @@ def test_user_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture
         (["bench", "swarm", "--speedups", "10,-1"], "speedup must be > 0"),
         (["bench", "infer", "--n", ","], "give at least one swarm size"),
         (["bench", "dt", "--envs", "64,lots"], "'lots' is not a valid batch size"),
+        (["bench", "agent", "--rt-priority", "150"], "SCHED_FIFO priority 150 is outside 0-99"),
     ],
 )
 def test_bad_lists_are_argparse_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture[str]) -> None:
