@@ -10,7 +10,9 @@ command raises `CommandRejected` with the MAV_RESULT.
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import math
+import struct
 from collections import Counter
 from collections.abc import Callable
 
@@ -29,17 +31,13 @@ Predicate = Callable[[Message], bool]
 SIOCGSTAMPNS = 0x8907  # Linux: the kernel's receive time of the socket's last datagram
 
 
-def kernel_rx_ns(transport: asyncio.BaseTransport) -> int | None:
-    """CLOCK_REALTIME ns at which the kernel received the datagram just read from
-    `transport`'s socket (None where the ioctl is unsupported): the telemetry's arrival,
-    before any time the process spent waiting for a CPU."""
-    import fcntl
-    import struct
-
-    sock = transport.get_extra_info("socket")
+def kernel_rx_ns(fd: int) -> int | None:
+    """CLOCK_REALTIME ns at which the kernel received the datagram just read from socket
+    `fd` (None where the ioctl is unsupported): the telemetry's arrival, before any time
+    the process spent waiting for a CPU."""
     try:
-        sec, nsec = struct.unpack("qq", fcntl.ioctl(sock.fileno(), SIOCGSTAMPNS, bytes(16)))
-    except (OSError, AttributeError):
+        sec, nsec = struct.unpack("qq", fcntl.ioctl(fd, SIOCGSTAMPNS, bytes(16)))
+    except OSError:
         return None
     return sec * 1_000_000_000 + nsec
 
@@ -47,13 +45,14 @@ def kernel_rx_ns(transport: asyncio.BaseTransport) -> int | None:
 class _Protocol(asyncio.DatagramProtocol):
     def __init__(self, link: VehicleLink) -> None:
         self.link = link
-        self.transport: asyncio.BaseTransport | None = None
+        self.fd = -1  # the datagram socket, for arrival stamps
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        self.fd = sock.fileno() if sock is not None else -1
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        rx_ns = kernel_rx_ns(self.transport) if self.link.stamp_arrivals and self.transport is not None else None
+        rx_ns = kernel_rx_ns(self.fd) if self.link.stamp_arrivals and self.fd >= 0 else None
         self.link._on_datagram(data, rx_ns)
 
     def error_received(self, exc: Exception) -> None:

@@ -66,9 +66,6 @@ class _InProtocol(_Protocol):
         self.link._peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
         super().datagram_received(data, addr)
 
-    def error_received(self, exc: Exception) -> None:
-        pass  # ICMP from a peer that went away; the next datagram re-learns it
-
 
 class UdpInLink(VehicleLink):
     """Listen on BIND:PORT; replies go to the address the vehicle sent from."""
