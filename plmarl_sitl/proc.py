@@ -1,8 +1,9 @@
-"""Child-process lifetime on Linux: a child asks the kernel to end it with its parent.
+"""Process lifetime and scheduling on Linux.
 
-Used by everything the launcher starts (agents, forked or exec'd, and broker children),
-so that no process outlives the launcher, even when it is SIGKILLed. Best effort where
-prctl is unavailable (not Linux)."""
+- A child asks the kernel to end it with its parent: used by everything the launcher
+  starts (agents, forked or exec'd, and broker children), so that no process outlives
+  the launcher, even when it is SIGKILLed (best effort where prctl is unavailable).
+- An agent may lower its priority (SITL) or run under SCHED_FIFO (a companion computer)."""
 
 from __future__ import annotations
 
@@ -22,6 +23,16 @@ def die_with_parent() -> None:
     """Ask Linux to SIGTERM this process when its parent dies, even by SIGKILL (as a
     `preexec_fn`, or first thing in a forked child)."""
     _prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+def agent_child_setup(nice: int = 0) -> None:
+    """First thing in an agent child, exec'd (`preexec_fn`) or forked: die with the
+    parent, then add `nice` to its niceness."""
+    die_with_parent()
+    if nice:
+        import os
+
+        os.nice(nice)
 
 
 def set_process_name(name: str) -> None:

@@ -19,7 +19,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plmarl_sitl.proc import die_with_parent
+from plmarl_sitl.proc import agent_child_setup
 from plmarl_sitl.swarm.forked import ForkedProcess, fork_agent, warm_up
 
 
@@ -46,12 +46,6 @@ class AgentProc:
 
 
 SITL_AGENT_NICE = 5
-
-
-def _child_setup(nice: int) -> None:
-    die_with_parent()
-    if nice:
-        os.nice(nice)
 
 
 @dataclass
@@ -112,7 +106,7 @@ class AgentFleet:
             with open(log_path, "wb") as log:
                 proc = await asyncio.create_subprocess_exec(
                     sys.executable, "-m", "plmarl_sitl.cli", "agent", *cmd, stdout=log, stderr=asyncio.subprocess.STDOUT,
-                    env=dict(os.environ, **threads), preexec_fn=functools.partial(_child_setup, self.nice),
+                    env=dict(os.environ, **threads), preexec_fn=functools.partial(agent_child_setup, self.nice),
                 )
         ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
         self.procs[uav_id] = ap

@@ -21,7 +21,7 @@ import signal
 import sys
 from multiprocessing.context import ForkServerContext
 
-from plmarl_sitl.proc import die_with_parent, set_process_name
+from plmarl_sitl.proc import agent_child_setup, set_process_name
 
 # What the forkserver imports once; a forked agent finds these already in sys.modules.
 PRELOAD = ["plmarl_sitl.swarm.forked_child"]
@@ -51,10 +51,8 @@ def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, ni
     """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
     `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice`
     is added to its niceness."""
-    die_with_parent()
+    agent_child_setup(nice)
     set_process_name(name)  # the command line is the forkserver's
-    if nice:
-        os.nice(nice)
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
     os.dup2(fd, 2)
