@@ -427,9 +427,9 @@ class Vehicle:
             if kind == Kind.LAND:
                 fast = self.params["max_climb_mps"]
                 g.descent[self.index] = fast if alt > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
-            elif alt <= ON_GROUND_ALT_M:
-                self.host.vel_np[self.index] = 0.0  # a falling airframe stops where it hits the ground
-            if self.on_ground():
+            # A fall ends where the airframe hits the ground, at whatever speed (on_ground
+            # also asks for a slow drift, which only a controlled landing has).
+            if self.on_ground() or kind == Kind.FALL and alt <= ON_GROUND_ALT_M:
                 self._touchdown()
                 return False
             return True
@@ -444,8 +444,8 @@ class Vehicle:
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
         self.host.guidance.set(self.index, Kind.IDLE)
-        # Ground contact stops the airframe (the floor only removes vertical velocity; a
-        # landed vehicle drifted on at up to the touchdown check's 0.5 m/s).
+        # Ground contact stops the airframe: the floor only removes vertical velocity, and
+        # a wreck (or a landing drifting under 0.5 m/s) slid on for ever.
         self.host.vel_np[self.index] = 0.0  # a view of the host's velocity tensor
         if was_armed:
             self.statustext("Landed, disarmed")
