@@ -288,3 +288,24 @@ def test_agent_counts_and_drops_bad_control_payloads(policy_dir) -> None:  # noq
     agent._on_message(t.closed, encode_json({"t_s": 15}))
     agent._on_message(t.closed, encode_json({"t_s": 0}))  # an old instant does not move it back
     assert agent.closed_t == 15.0
+
+
+def test_agent_keeps_the_good_messages_of_a_batch_with_a_bad_one(policy_dir) -> None:  # noqa: ANN001 - fixture
+    import dataclasses
+
+    from plmarl_sitl.agent.core import Agent, AgentConfig
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.nn.io import load_policy
+
+    from .conftest import MISSION
+
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=3)
+    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
+                  load_policy(policy_dir, mission))
+    good = encode_state(StateMsg(1, 7, 1, 15_000, (40.0, 0.0, -60.0, 0.0, 0.0, 0.0)))
+    bad = b"\x09" + encode_state(StateMsg(2, 7, 1, 15_000, (80.0, 0.0, -60.0, 0.0, 0.0, 0.0)))[1:]  # wrong version
+    agent._on_message(agent.topics.rx(0), good + bad)
+    assert agent.rx.accepted == 1 and agent.rx.reasons.get("version") == 1
+    assert float(agent.table.t_rx[1]) == 15.0 and float(agent.table.t_rx[2]) < 0
+    agent._on_message(agent.topics.rx(0), good + bad[:20])  # not whole messages: dropped whole
+    assert agent.rx.reasons.get("length") == 1 and agent.rx.accepted == 1
