@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.bench.machine import machine_info
-from plmarl_sitl.cli.common import rt_priority_arg
+from plmarl_sitl.cmdline import rt_priority_arg
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -58,10 +58,10 @@ def _pct(xs: list[float], q: float) -> float | None:
 async def _run(args: argparse.Namespace, rt_priority: int, workdir: Path) -> dict:
     import dataclasses
 
-    from plmarl_sitl.bus.broker import free_udp_ports, local_broker
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.swarm.agents import AgentFleet
-    from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
+    from plmarl_sitl.sitl.agents import AgentFleet
+    from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
+    from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
     mission = dataclasses.replace(load_mission(args.mission), n_uavs=args.n)
     n = args.n

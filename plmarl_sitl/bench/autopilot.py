@@ -53,7 +53,7 @@ def _load_main(ports: list[int], speedup: float, warmup: float, window: float, q
 
 
 async def _load(ports: list[int], speedup: float, warmup: float, window: float) -> dict:
-    from plmarl_sitl.mavlink.client import VehicleLink
+    from plmarl_sitl.deploy.mavlink.client import VehicleLink
 
     links = [VehicleLink("127.0.0.1", p) for p in ports]
     async with asyncio.timeout(60):
@@ -113,7 +113,7 @@ def _summarise(a: dict, b: dict) -> dict:
 
 
 async def _trial_async(count: int, speedup: float, warmup: float, window: float) -> dict:
-    from plmarl_sitl.autopilot import AutopilotHost, run_realtime
+    from plmarl_sitl.sitl.autopilot import AutopilotHost, run_realtime
 
     for _ in range(20):
         host = AutopilotHost(

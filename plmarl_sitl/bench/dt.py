@@ -22,7 +22,7 @@ import os
 import time
 
 from plmarl_sitl.bench.machine import machine_info
-from plmarl_sitl.cli.common import comma_list
+from plmarl_sitl.cmdline import comma_list
 
 DEFAULT_MISSION = "missions/paper_urban.yaml"
 MEASURE_S = 3.0
@@ -39,8 +39,8 @@ def _steps_for(mission_path: str, envs: int, seed: int, threads: int, start_at: 
     """Step a CoverageEnv from `start_at` (wall clock) for `seconds`; (agent-steps, wall)."""
     import torch
 
-    from plmarl_sitl.dt.env import CoverageEnv
     from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.twin.env import CoverageEnv
 
     torch.set_num_threads(threads)
     env = CoverageEnv(load_mission(mission_path), envs, seed)
@@ -88,8 +88,8 @@ def _shards_mode(mission_path: str, envs: int, seed: int) -> float | None:
 def _time_oracle(mission, seed: int) -> float:
     import torch
 
-    from plmarl_sitl.dt.env import CoverageEnv
-    from plmarl_sitl.dt.oracle import OracleController
+    from plmarl_sitl.twin.env import CoverageEnv
+    from plmarl_sitl.twin.oracle import OracleController
 
     env = CoverageEnv(mission, 1, seed)
     ctl = OracleController(env)

@@ -3,7 +3,7 @@
 One decision of one deployed agent with M = N - 1 neighbours: one belief-tracker step
 (predictor.pt over the M neighbours, Algorithm 1) followed by one policy.pt call
 (policy input, attention fusion, actor), both TorchScript (the fused deployment form of
-plmarl_sitl/nn/deploy.py, as exported), torch on ONE thread, no
+plmarl_sitl/learning/nn/deploy.py, as exported), torch on ONE thread, no
 autograd (inference_mode). Methods are timed interleaved, call by call, in the same run,
 so machine load hits them equally; report the median and the 99th percentile.
 
@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.bench.machine import machine_info
-from plmarl_sitl.cli.common import comma_list
+from plmarl_sitl.cmdline import comma_list
 
 DEFAULT_N = "4,8,12,16,20"
 
@@ -34,9 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _modules(method: str, policies: Path):
-    from plmarl_sitl.nn.deploy import fuse_policy, fuse_tracker
-    from plmarl_sitl.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
-    from plmarl_sitl.train.mappo import METHOD_PREDICTOR
+    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
+    from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 
     d = policies / method
     if (d / "card.yaml").is_file():
@@ -44,7 +44,7 @@ def _modules(method: str, policies: Path):
         return lp.tracker, lp.policy, "trained"
     import torch
 
-    from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
+    from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
 
     torch.manual_seed(0)
     tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR[method]), 10, 1.0)
@@ -56,7 +56,7 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
-    from plmarl_sitl.world.coverage import SENSING_FEATURES
+    from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
     held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([1000.0, 1000.0, -100.0]),

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from plmarl_sitl.bench.machine import machine_info
-from plmarl_sitl.cli.common import comma_list
+from plmarl_sitl.cmdline import comma_list
 
 MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
 
@@ -44,7 +44,7 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int) -> tuple[dic
     """(summary, wall seconds) of one headless run."""
     from rich.console import Console
 
-    from plmarl_sitl.swarm.launcher import UpOptions, swarm_up
+    from plmarl_sitl.sitl.launcher import UpOptions, swarm_up
 
     out = Path(tempfile.mkdtemp(prefix="plmarl-bench-swarm-"))
     opts = UpOptions(Path(mission_path), speedup=speedup, headless=True, out=out, seed=seed, policy=Path(policy))
@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.swarm.gap import twin_coverage
+    from plmarl_sitl.sitl.gap import twin_coverage
 
     seeds = args.seeds
     rows = []

@@ -22,7 +22,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from plmarl_sitl.cli.common import rt_priority_arg, tup_arg  # noqa: E402
+from plmarl_sitl.cmdline import rt_priority_arg, tup_arg  # noqa: E402
 from plmarl_sitl.errors import UserError  # noqa: E402
 
 DEFAULT_MISSION = "missions/paper_urban.yaml"
@@ -72,10 +72,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plmarl_sitl.agent.core import Agent, AgentConfig
-    from plmarl_sitl.mavlink.connect import parse_url
+    from plmarl_sitl.deploy.agent.core import Agent, AgentConfig
+    from plmarl_sitl.deploy.mavlink.connect import parse_url
+    from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.nn.io import load_policy
 
     torch.set_num_threads(1)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         mission = dataclasses.replace(mission, n_uavs=args.n_uavs)
     if not Path(args.policy).is_dir():
         raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
-    from plmarl_sitl.agent.core import process_start_time
+    from plmarl_sitl.deploy.agent.core import process_start_time
 
     t_imports = time.time() - process_start_time()
     lp = load_policy(args.policy, mission)

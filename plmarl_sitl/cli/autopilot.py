@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _main(args: argparse.Namespace) -> int:
-    from plmarl_sitl.autopilot import AutopilotHost, run_realtime
+    from plmarl_sitl.sitl.autopilot import AutopilotHost, run_realtime
 
     host = AutopilotHost(
         args.count,

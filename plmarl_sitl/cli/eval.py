@@ -7,14 +7,14 @@ import json
 import math
 from pathlib import Path
 
-from plmarl_sitl.cli.common import add_seed, progress, tup_arg
+from plmarl_sitl.cmdline import add_seed, progress, tup_arg
 from plmarl_sitl.errors import UserError
 
 DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,oracle"
 
 
 def _methods(text: str) -> list[str]:
-    from plmarl_sitl.eval.evaluate import ALL_METHODS
+    from plmarl_sitl.learning.eval.evaluate import ALL_METHODS
 
     out = [m.strip() for m in text.split(",") if m.strip()]
     bad = [m for m in out if m not in ALL_METHODS]
@@ -68,10 +68,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from plmarl_sitl.eval.evaluate import evaluate_methods, needed_policies
-    from plmarl_sitl.eval.report import write_outputs
+    from plmarl_sitl.learning.eval.evaluate import evaluate_methods, needed_policies
+    from plmarl_sitl.learning.eval.report import write_outputs
+    from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.nn.io import load_policy
 
     torch.set_num_threads(1)
     if args.episodes < 2:
@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"results": res["results"], "p_values": res["p_values"]}))
     else:
-        from plmarl_sitl.eval.report import print_tables
+        from plmarl_sitl.learning.eval.report import print_tables
 
         print_tables(res)
     return 0

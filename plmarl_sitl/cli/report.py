@@ -23,8 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from plmarl_sitl.swarm.report import draw, load_run
-    from plmarl_sitl.swarm.summary import summarize
+    from plmarl_sitl.sitl.report import draw, load_run
+    from plmarl_sitl.sitl.summary import summarize
 
     metrics, events, summary = load_run(args.run_dir)
     if summary is None:
@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     from rich.console import Console
 
-    from plmarl_sitl.swarm.report import print_summary
+    from plmarl_sitl.sitl.report import print_summary
 
     console = Console()
     print_summary(summary, console, title=f"run {args.run_dir}")

@@ -6,12 +6,12 @@ import argparse
 import json
 import math
 
-from plmarl_sitl.cli.common import add_seed, progress, tup_arg
-from plmarl_sitl.dt.heuristic import HeuristicController
-from plmarl_sitl.dt.oracle import OracleController
-from plmarl_sitl.dt.rollout import run_episodes
-from plmarl_sitl.eval.stats import mean_ci95
+from plmarl_sitl.cmdline import add_seed, progress, tup_arg
+from plmarl_sitl.learning.eval.stats import mean_ci95
 from plmarl_sitl.mission import load_mission
+from plmarl_sitl.twin.heuristic import HeuristicController
+from plmarl_sitl.twin.oracle import OracleController
+from plmarl_sitl.twin.rollout import run_episodes
 
 METHODS = {
     "oracle": lambda env: OracleController(env),

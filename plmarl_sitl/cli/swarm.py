@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from plmarl_sitl.cli.common import add_seed
+from plmarl_sitl.cmdline import add_seed
 
 UP_EPILOG = """\
 examples:
@@ -63,8 +63,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_up(args: argparse.Namespace) -> int:
     from plmarl_sitl.errors import UserError
-    from plmarl_sitl.swarm.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
-    from plmarl_sitl.swarm.launcher import run_up as launch
+    from plmarl_sitl.sitl.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
+    from plmarl_sitl.sitl.launcher import run_up as launch
 
     if args.speedup <= 0:
         raise UserError("--speedup must be > 0")
@@ -85,14 +85,14 @@ def run_up(args: argparse.Namespace) -> int:
         return 0
     from rich.console import Console
 
-    from plmarl_sitl.swarm.report import print_summary
+    from plmarl_sitl.sitl.report import print_summary
 
     print_summary(summary, Console(), title=f"run {summary['run_dir']}")
     return 0
 
 
 def run_status(args: argparse.Namespace) -> int:
-    from plmarl_sitl.swarm.launcher import status
+    from plmarl_sitl.sitl.launcher import status
 
     status(args.broker, args.swarm)
     return 0

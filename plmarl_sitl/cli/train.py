@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from plmarl_sitl.cli.common import add_seed, progress
+from plmarl_sitl.cmdline import add_seed, progress
 from plmarl_sitl.errors import UserError
 
 METHODS = ("pl-marl", "gru", "tag-mappo")
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from plmarl_sitl.train.pipeline import run_training  # heavy imports only when used
+    from plmarl_sitl.learning.pipeline import run_training  # heavy imports only when used
 
     if args.episodes < 1:
         raise UserError("--episodes must be >= 1")

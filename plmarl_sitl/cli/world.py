@@ -15,7 +15,7 @@ import logging
 import signal
 import sys
 
-from plmarl_sitl.cli.common import add_seed
+from plmarl_sitl.cmdline import add_seed
 from plmarl_sitl.errors import UserError
 
 EPILOG = """\
@@ -66,9 +66,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
-    from plmarl_sitl.bus.broker import EmbeddedBroker
-    from plmarl_sitl.bus.url import parse_broker_url
-    from plmarl_sitl.swarm.world import SitlWorld, WorldConfig
+    from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+    from plmarl_sitl.sitl.network.broker import EmbeddedBroker
+    from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
     cfg = WorldConfig(
         mission=mission,

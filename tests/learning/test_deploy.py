@@ -1,4 +1,4 @@
-"""The fused deployment forms (plmarl_sitl/nn/deploy.py) compute what the reference modules compute."""
+"""The fused deployment forms (plmarl_sitl/learning/nn/deploy.py) compute what the reference modules compute."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import pytest
 import torch
 from torch.nn import functional as F
 
-from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
-from plmarl_sitl.nn.belief import NEVER
-from plmarl_sitl.nn.deploy import (
+from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
+from plmarl_sitl.learning.nn.belief import NEVER
+from plmarl_sitl.learning.nn.deploy import (
     FusedKinematicTracker,
     FusedPolicy,
     fuse_policy,
@@ -18,9 +18,9 @@ from plmarl_sitl.nn.deploy import (
     fused_from_files,
     is_fused,
 )
-from plmarl_sitl.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, quiet_torchscript
-from plmarl_sitl.nn.predictor import KinematicPredictor
-from plmarl_sitl.world.coverage import SENSING_FEATURES
+from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, quiet_torchscript
+from plmarl_sitl.learning.nn.predictor import KinematicPredictor
+from plmarl_sitl.model.coverage import SENSING_FEATURES
 
 SCALES = (1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
 

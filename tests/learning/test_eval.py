@@ -12,10 +12,10 @@ from scipy import stats
 
 from plmarl_sitl.cli import main
 from plmarl_sitl.cli.eval import _tups
-from plmarl_sitl.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
+from plmarl_sitl.learning.nn.io import export_policy
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
-from plmarl_sitl.nn.io import export_policy
 
 ROOT = Path(__file__).resolve().parents[2]
 

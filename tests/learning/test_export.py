@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from plmarl_sitl.errors import PolicyFileError, UserError
+from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
+from plmarl_sitl.learning.nn.io import export_policy, load_policy
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
-from plmarl_sitl.nn.io import export_policy, load_policy
-from plmarl_sitl.world.coverage import SENSING_FEATURES
+from plmarl_sitl.model.coverage import SENSING_FEATURES
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -78,7 +78,7 @@ def test_corrupt_files_are_named(tmp_path: Path, mission) -> None:
     import yaml
 
     c = yaml.safe_load(card)
-    from plmarl_sitl.nn.io import sha256
+    from plmarl_sitl.learning.nn.io import sha256
 
     c["sha256"]["predictor.pt"] = sha256(tmp_path / "predictor.pt")
     (tmp_path / "card.yaml").write_text(yaml.safe_dump(c))

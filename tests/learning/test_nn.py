@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from plmarl_sitl.nn import (
+from plmarl_sitl.learning.nn import (
     NEVER,
     Actor,
     AttentionFusion,
@@ -15,8 +15,8 @@ from plmarl_sitl.nn import (
     build_policy_input,
     make_predictor,
 )
-from plmarl_sitl.nn.features import EGO_FEATURES, NBR_FEATURES, state_norm
-from plmarl_sitl.world.coverage import SENSING_FEATURES
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, state_norm
+from plmarl_sitl.model.coverage import SENSING_FEATURES
 
 SCALES = (1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
 

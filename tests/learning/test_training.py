@@ -7,9 +7,9 @@ from pathlib import Path
 
 import torch
 
-from plmarl_sitl.nn import BeliefTracker, make_predictor
-from plmarl_sitl.train.mappo import Args, train
-from plmarl_sitl.train.predictor import PredictorArgs, dead_reckoning_tracker, position_errors, train_predictor
+from plmarl_sitl.learning.nn import BeliefTracker, make_predictor
+from plmarl_sitl.learning.train.mappo import Args, train
+from plmarl_sitl.learning.train.predictor import PredictorArgs, dead_reckoning_tracker, position_errors, train_predictor
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,9 +58,9 @@ def test_predictor_fit_beats_dead_reckoning_on_braking_targets() -> None:
 def test_imitation_tup_chunks_cover_the_choices() -> None:
     """tup_chunks > 1: each round is split into batches whose T_up walk through a shuffled
     cycle of the choices, so no T_up range is left out of the warm start."""
+    from plmarl_sitl.learning.nn import Actor
+    from plmarl_sitl.learning.train.imitation import ImitationArgs, imitate_oracle
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.nn import Actor
-    from plmarl_sitl.train.imitation import ImitationArgs, imitate_oracle
 
     mission = load_mission(ROOT / "missions" / "paper_urban.yaml")
     torch.manual_seed(0)

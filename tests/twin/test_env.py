@@ -4,12 +4,12 @@ import dataclasses
 
 import torch
 
-from plmarl_sitl.dt.env import CoverageEnv
-from plmarl_sitl.dt.heuristic import HeuristicController
-from plmarl_sitl.dt.oracle import OracleController
-from plmarl_sitl.dt.rollout import run_episodes
 from plmarl_sitl.mission import Failure, Launch, load_mission
-from plmarl_sitl.world.coverage import SENSING_FEATURES
+from plmarl_sitl.model.coverage import SENSING_FEATURES
+from plmarl_sitl.twin.env import CoverageEnv
+from plmarl_sitl.twin.heuristic import HeuristicController
+from plmarl_sitl.twin.oracle import OracleController
+from plmarl_sitl.twin.rollout import run_episodes
 
 MISSION = load_mission("missions/paper_urban.yaml")
 

@@ -1,0 +1,60 @@
+"""One agent's decision (Agent._second at a decision second, N = 20) timed in isolation,
+back to back and with a sleep before each call: how much of the loop's cost is a cold
+cache after the process slept (docs/RESULTS.md, issue 5, "Loop p99").
+
+    python -m plmarl_sitl.bench.decision_cold [--sleeps-ms 0,10,100] [--calls 300]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import time
+
+import torch
+
+from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.deploy.agent.core import Agent, AgentConfig
+from plmarl_sitl.learning.nn.io import load_policy
+from plmarl_sitl.mission import load_mission
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--sleeps-ms", type=comma_list(float, "sleep"), default="0,10,100")
+    p.add_argument("--calls", type=int, default=300)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    torch.manual_seed(args.seed)
+    mission = dataclasses.replace(load_mission("missions/paper_urban.yaml"), n_uavs=20)
+    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
+                  load_policy("policies/pl-marl", mission))
+    agent.warm_up()
+    agent.sense_history.append((0.0, torch.rand(40, 2) * 100 + 450))
+    agent.ego = torch.tensor([500.0, 500.0, -80.0, 1.0, 0.0, 0.0])
+    agent.t0, agent.next_close = 0.0, 0
+    k = 0
+    print(f"seed {args.seed}; N = 20, decision seconds only")
+    for sleep_ms in args.sleeps_ms:
+        wall, cpu = [], []
+        while len(wall) < args.calls:
+            if k % 15 == 0:  # every neighbour signals at each instant
+                for j in range(1, 20):
+                    agent.table.on_state(j, float(k), tuple((torch.randn(6) * 50 + torch.tensor([500, 500, -80, 0, 0, 0.0])).tolist()))
+            time.sleep(sleep_ms / 1e3)
+            t, c = time.perf_counter(), time.thread_time()
+            decided = agent._second(k)
+            if decided and k >= 30:
+                wall.append((time.perf_counter() - t) * 1e3)
+                cpu.append((time.thread_time() - c) * 1e3)
+            k += 1
+        wall.sort()
+        cpu.sort()
+        print(f"sleep {sleep_ms:g} ms before each second: decision wall p50 {statistics.median(wall):.3f} ms "
+              f"p99 {wall[int(0.99 * len(wall))]:.3f} ms, CPU p50 {statistics.median(cpu):.3f} ms")
+
+
+if __name__ == "__main__":
+    main()

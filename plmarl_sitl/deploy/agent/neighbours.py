@@ -1,0 +1,64 @@
+"""What an agent holds of its neighbours: the deployed twin of `world.signalling.Holdings`.
+
+Slots are indexed by UAV id (N slots, the agent's own slot always masked), exactly the
+twin's layout, so the same tracker and policy see the same tensors. The rules are the
+twin's: a state received for instant t replaces the held one (t_rx = t); at every
+signalling instant each neighbour either delivered (missed = 0) or missed one more;
+j is in N_i while fewer than `drop_after_missed` instants in a row were missed; the
+failure state f becomes true (and stays) once a neighbour that was in N_i is dropped.
+
+Over a real network an update can arrive after its instant. Delivery counts when it
+arrives (`on_state` resets the miss count at once, as the twin does at the instant), and
+a miss is only booked when the agent closes the instant (`close_instant`), which it does
+a grace period after the instant, so a late update is not a miss.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from plmarl_sitl.model.signalling import NEVER
+
+
+class NeighbourTable:
+    def __init__(self, n: int, me: int, drop_after_missed: int) -> None:
+        self.n, self.me, self.drop = n, me, drop_after_missed
+        self.state = torch.zeros(n, 6)
+        self.t_rx = torch.full((n,), NEVER)
+        self.missed = [0] * n
+        self.ever = [False] * n
+        self.lost = False
+        self.dropped: list[int] = []  # ids dropped, in order (for logs and tests)
+
+    def on_state(self, j: int, t_s: float, state: tuple[float, ...]) -> bool:
+        """Take a received state; False if it is not newer than what we hold."""
+        if j == self.me or not 0 <= j < self.n or t_s < float(self.t_rx[j]):
+            return False
+        self.state[j] = torch.tensor(state, dtype=torch.float32)
+        self.t_rx[j] = t_s
+        self.ever[j] = True
+        self.missed[j] = 0  # delivered for instant t_s
+        return True
+
+    def in_set(self, j: int) -> bool:
+        return j != self.me and self.ever[j] and self.missed[j] < self.drop
+
+    def mask(self) -> torch.Tensor:
+        return torch.tensor([self.in_set(j) for j in range(self.n)], dtype=torch.bool)
+
+    def close_instant(self, t_s: float) -> list[int]:
+        """Account for signalling instant t; returns the neighbours dropped by it."""
+        newly = []
+        for j in range(self.n):
+            if j == self.me:
+                continue
+            if float(self.t_rx[j]) >= t_s:
+                continue  # delivered (on_state already reset the count)
+            was = self.in_set(j)
+            self.missed[j] += 1
+            if was and not self.in_set(j):
+                newly.append(j)
+        if newly:
+            self.lost = True
+            self.dropped.extend(newly)
+        return newly

@@ -1,0 +1,280 @@
+"""Asyncio MAVLink client for one vehicle: typed helpers instead of raw 7-parameter calls.
+
+Used by the agent (deploy side) and the autopilot benchmark's load generator. One UDP
+socket per vehicle, connected like `udpout:` (we speak first, the vehicle answers the
+address it saw), so several vehicles never share a link and nothing can latch onto "the
+first heartbeat" of the wrong one. Every wait is bounded (`asyncio.timeout`) and a refused
+command raises `CommandRejected` with the MAV_RESULT.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import fcntl
+import math
+import struct
+from collections import Counter
+from collections.abc import Callable
+
+from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect, enum_name, param_id_str
+from plmarl_sitl.deploy.mavlink.personality import Personality, personality_for_autopilot
+from plmarl_sitl.errors import CommandRejected, VehicleTimeout
+
+d = dialect
+ACCEL_ONLY = 0x0C3F  # as MAVSDK sends acceleration setpoints
+VELOCITY_ONLY = 0x0DC7
+POSITION_ONLY = 0x0DF8
+
+Predicate = Callable[[Message], bool]
+
+
+SIOCGSTAMPNS = 0x8907  # Linux: the kernel's receive time of the socket's last datagram
+
+
+def kernel_rx_ns(fd: int) -> int | None:
+    """CLOCK_REALTIME ns at which the kernel received the datagram just read from socket
+    `fd` (None where the ioctl is unsupported): the telemetry's arrival, before any time
+    the process spent waiting for a CPU."""
+    try:
+        sec, nsec = struct.unpack("qq", fcntl.ioctl(fd, SIOCGSTAMPNS, bytes(16)))
+    except OSError:
+        return None
+    return sec * 1_000_000_000 + nsec
+
+
+class _Protocol(asyncio.DatagramProtocol):
+    def __init__(self, link: VehicleLink) -> None:
+        self.link = link
+        self.fd = -1  # the datagram socket, for arrival stamps
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        sock = transport.get_extra_info("socket")
+        self.fd = sock.fileno() if sock is not None else -1
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        rx_ns = kernel_rx_ns(self.fd) if self.link.stamp_arrivals and self.fd >= 0 else None
+        self.link._on_datagram(data, rx_ns)
+
+    def error_received(self, exc: Exception) -> None:
+        pass  # "port unreachable" while the vehicle is not up yet: keep trying
+
+
+class VehicleLink:
+    """MAVLink 2 link to the vehicle at udp host:port (target sysid learnt or given)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        *,
+        sysid: int = 255,
+        compid: int = d.MAV_COMP_ID_MISSIONPLANNER,
+        target_sysid: int | None = None,
+        signing_key: bytes | None = None,
+    ) -> None:
+        self.addr = (host, port)
+        self.codec = Codec(sysid, compid, signing_key, allow_unsigned=())
+        self.target_sysid = target_sysid
+        self.personality: Personality | None = None
+        self.latest: dict[str, Message] = {}
+        self.counts: Counter[str] = Counter()
+        self.bad_datagrams = 0
+        self.sent = 0
+        self._waiters: list[tuple[str, Predicate, asyncio.Future[Message]]] = []
+        self._transport: asyncio.DatagramTransport | None = None
+        # Stamp each message with its datagram's kernel arrival time (`m.rx_ns`, UDP
+        # links only): one ioctl per datagram, for latency measurements.
+        self.stamp_arrivals = False
+
+    # ------------------------------------------------------------------ lifecycle
+    async def open(self, timeout: float = 5.0) -> None:
+        """Bind, say hello, and wait for the vehicle's autopilot heartbeat."""
+        await self._open_transport()
+        want = self.target_sysid
+
+        def is_autopilot(m: Message) -> bool:
+            return m.get_srcComponent() == d.MAV_COMP_ID_AUTOPILOT1 and (want is None or m.get_srcSystem() == want)
+
+        async def hello() -> None:
+            while True:
+                self.send_heartbeat()
+                await asyncio.sleep(0.5)
+
+        greeter = asyncio.create_task(hello(), name=f"hello-{self.addr[1]}")
+        try:
+            hb = await self.recv("HEARTBEAT", timeout, is_autopilot)
+        finally:
+            greeter.cancel()
+        self.target_sysid = hb.get_srcSystem()
+        self.personality = personality_for_autopilot(hb.autopilot)
+
+    async def _open_transport(self) -> None:
+        """udpout: a connected UDP socket (subclasses in `mavlink.connect` add udpin, tcp, serial)."""
+        loop = asyncio.get_running_loop()
+        self._transport, _ = await loop.create_datagram_endpoint(lambda: _Protocol(self), remote_addr=self.addr)
+
+    def _write(self, data: bytes) -> None:
+        assert self._transport is not None
+        self._transport.sendto(data)
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        for _, _, fut in self._waiters:
+            fut.cancel()
+        self._waiters.clear()
+
+    async def __aenter__(self) -> VehicleLink:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def sysid(self) -> int:
+        if self.target_sysid is None:
+            raise RuntimeError("link not open")
+        return self.target_sysid
+
+    # ------------------------------------------------------------------ receiving
+    def _on_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
+        out = self.codec.decode_datagram(data)
+        if out.fault is not None:
+            self.bad_datagrams += 1
+        for m in out.messages:
+            if rx_ns is not None:
+                m.rx_ns = rx_ns
+            t = m.get_type()
+            self.latest[t] = m
+            self.counts[t] += 1
+            if self._waiters:
+                self._wake(t, m)
+
+    def _wake(self, mtype: str, m: Message) -> None:
+        keep = []
+        for w in self._waiters:
+            wt, pred, fut = w
+            if fut.done():
+                continue
+            if wt == mtype and pred(m):
+                fut.set_result(m)
+            else:
+                keep.append(w)
+        self._waiters = keep
+
+    async def recv(self, mtype: str, timeout: float = 3.0, pred: Predicate | None = None) -> Message:
+        """The next `mtype` message (matching `pred`) from the vehicle."""
+        fut: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
+        self._waiters.append((mtype, pred or (lambda _m: True), fut))
+        try:
+            async with asyncio.timeout(timeout):
+                return await fut
+        except TimeoutError:
+            raise VehicleTimeout(self.target_sysid or 0, mtype, timeout) from None
+        finally:
+            fut.cancel()
+
+    # ------------------------------------------------------------------ sending
+    def send(self, msg: Message) -> None:
+        if self._transport is None:
+            raise RuntimeError("link not open")
+        self._write(self.codec.encode(msg))
+        self.sent += 1
+
+    def send_heartbeat(self) -> None:
+        self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))
+
+    def _setpoint(self, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0)) -> None:
+        self.send(
+            self.codec.mav.set_position_target_local_ned_encode(
+                0, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0
+            )
+        )
+
+    def send_accel_ned(self, north: float, east: float, down: float) -> None:
+        """Net acceleration setpoint (m/s^2, gravity compensated); (0,0,0) keeps velocity."""
+        self._setpoint(ACCEL_ONLY, acc=(north, east, down))
+
+    def send_velocity_ned(self, north: float, east: float, down: float) -> None:
+        self._setpoint(VELOCITY_ONLY, vel=(north, east, down))
+
+    def send_position_ned(self, north: float, east: float, down: float) -> None:
+        self._setpoint(POSITION_ONLY, pos=(north, east, down))
+
+    # ------------------------------------------------------------------ commands
+    async def command(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3) -> None:
+        """COMMAND_LONG with retries (confirmation counts up); raises unless ACCEPTED."""
+        p = list(params) + [math.nan] * (7 - len(params))
+        for attempt in range(retries):
+            self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
+            try:
+                ack = await self.recv("COMMAND_ACK", timeout, lambda m: m.command == command)
+            except VehicleTimeout:
+                continue
+            if ack.result != d.MAV_RESULT_ACCEPTED:
+                raise CommandRejected(self.sysid, command, ack.result, enum_name("MAV_RESULT", ack.result))
+            return
+        raise VehicleTimeout(self.sysid, f"COMMAND_ACK for command {command}", timeout * retries)
+
+    async def arm(self, force: bool = False) -> None:
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 21196.0 if force else 0.0)
+
+    async def disarm(self, force: bool = False) -> None:
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0 if force else 0.0)
+
+    async def set_mode(self, name: str) -> None:
+        """Mode by name in the vehicle's personality ('OFFBOARD', 'AUTO.LOITER', 'GUIDED', ...)."""
+        if self.personality is None:
+            raise RuntimeError("link not open")
+        p2, p3 = self.personality.set_mode_params(name)
+        await self.command(d.MAV_CMD_DO_SET_MODE, float(d.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), p2, p3)
+
+    async def takeoff(self, alt_rel_m: float | None = None, home_amsl_m: float | None = None) -> None:
+        """Take off to `alt_rel_m` above home (None: the vehicle's takeoff-altitude parameter).
+
+        PX4 wants param7 as AMSL altitude, so pass `home_amsl_m` with a PX4 vehicle.
+        """
+        alt = math.nan
+        if alt_rel_m is not None:
+            if self.personality is not None and self.personality.takeoff_alt_is_amsl:
+                if home_amsl_m is None:
+                    home = await self.request("HOME_POSITION", d.MAVLINK_MSG_ID_HOME_POSITION)
+                    home_amsl_m = home.altitude / 1000.0
+                alt = home_amsl_m + alt_rel_m
+            else:
+                alt = alt_rel_m
+        await self.command(d.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt)
+
+    async def land(self) -> None:
+        await self.command(d.MAV_CMD_NAV_LAND)
+
+    async def set_message_interval(self, message: str | int, hz: float) -> None:
+        """Stream `message` at `hz` (0 stops it)."""
+        msgid = message if isinstance(message, int) else getattr(d, f"MAVLINK_MSG_ID_{message.upper()}")
+        interval = -1.0 if hz <= 0 else 1e6 / hz
+        await self.command(d.MAV_CMD_SET_MESSAGE_INTERVAL, float(msgid), interval)
+
+    async def request(self, mtype: str, msgid: int, timeout: float = 2.0) -> Message:
+        """MAV_CMD_REQUEST_MESSAGE and the message it brings (in either order)."""
+        waiter = asyncio.ensure_future(self.recv(mtype, timeout))
+        try:
+            await self.command(d.MAV_CMD_REQUEST_MESSAGE, float(msgid), timeout=timeout)
+            return await waiter
+        finally:
+            waiter.cancel()
+
+    # ------------------------------------------------------------------ parameters
+    async def param_get(self, name: str, timeout: float = 2.0) -> float:
+        """A parameter's wire value (REAL32 as is; integers as their wire float)."""
+        waiter = asyncio.ensure_future(self.recv("PARAM_VALUE", timeout, lambda m: param_id_str(m.param_id) == name))
+        self.send(self.codec.mav.param_request_read_encode(self.sysid, 1, name.encode(), -1))
+        return float((await waiter).param_value)
+
+    async def param_set(self, name: str, value: float, param_type: int = d.MAV_PARAM_TYPE_REAL32,
+                        timeout: float = 2.0) -> float:
+        """Set a parameter; returns the value the vehicle reports back (unchanged if refused)."""
+        waiter = asyncio.ensure_future(self.recv("PARAM_VALUE", timeout, lambda m: param_id_str(m.param_id) == name))
+        self.send(self.codec.mav.param_set_encode(self.sysid, 1, name.encode(), value, param_type))
+        return float((await waiter).param_value)

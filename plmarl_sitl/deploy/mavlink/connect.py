@@ -1,0 +1,181 @@
+"""`connect(url)`: a `VehicleLink` for a MAVSDK-style connection URL.
+
+| URL | transport |
+|---|---|
+| `udpout://HOST:PORT` (also `udp://` without a bind address) | we send first to HOST:PORT (PX4 SITL's offboard port, the emulator) |
+| `udpin://BIND:PORT` | we listen; the autopilot sends first and we answer the address it used |
+| `tcpout://HOST:PORT` | TCP client (ArduPilot SITL serial0 on 5760) |
+| `serial:///dev/ttyACM0:57600` | serial port (a thread reads, so the event loop never blocks) |
+
+Datagram links parse one datagram at a time; stream links (tcp, serial) keep the parser
+state across reads, since frames span chunks there.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import threading
+from dataclasses import dataclass
+from urllib.parse import urlsplit
+
+from plmarl_sitl.deploy.mavlink.client import VehicleLink, _Protocol
+from plmarl_sitl.deploy.mavlink.codec import dialect
+from plmarl_sitl.errors import UserError
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    scheme: str  # udpout | udpin | tcpout | serial
+    host: str  # host, bind address, or device path
+    port: int  # port or baud rate
+
+
+def parse_url(url: str) -> Endpoint:
+    parts = urlsplit(url)
+    scheme = parts.scheme
+    if scheme == "serial":
+        path = (parts.netloc + parts.path) or ""
+        dev, _, baud = path.rpartition(":")
+        if not dev or not baud.isdigit():
+            raise UserError(f"connection URL {url!r}: expected serial:///dev/DEVICE:BAUD")
+        return Endpoint("serial", dev, int(baud))
+    if scheme not in ("udp", "udpout", "udpin", "tcp", "tcpout"):
+        raise UserError(f"connection URL {url!r}: scheme must be udpout, udpin, tcpout or serial")
+    try:
+        port = parts.port
+    except ValueError as exc:
+        raise UserError(f"connection URL {url!r}: bad port") from exc
+    if port is None or not parts.hostname:
+        raise UserError(f"connection URL {url!r}: expected {scheme}://HOST:PORT")
+    scheme = {"udp": "udpout", "tcp": "tcpout"}.get(scheme, scheme)
+    return Endpoint(scheme, parts.hostname, port)
+
+
+def connect(url: str, **kwargs: object) -> VehicleLink:
+    """An unopened link for `url` (kwargs as for VehicleLink); `await link.open()` next."""
+    ep = parse_url(url)
+    cls = {"udpout": VehicleLink, "udpin": UdpInLink, "tcpout": TcpLink, "serial": SerialLink}[ep.scheme]
+    return cls(ep.host, ep.port, **kwargs)  # type: ignore[arg-type]
+
+
+class _InProtocol(_Protocol):
+    link: UdpInLink
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.link._peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
+        super().datagram_received(data, addr)
+
+
+class UdpInLink(VehicleLink):
+    """Listen on BIND:PORT; replies go to the address the vehicle sent from."""
+
+    _peer: tuple[str, int] | None = None
+
+    async def _open_transport(self) -> None:
+        loop = asyncio.get_running_loop()
+        self._transport, _ = await loop.create_datagram_endpoint(lambda: _InProtocol(self), local_addr=self.addr)
+
+    def _write(self, data: bytes) -> None:
+        if self._peer is not None and self._transport is not None:
+            self._transport.sendto(data, self._peer)
+        # Before the vehicle has spoken there is nobody to answer: the hello is dropped.
+
+
+class _StreamMixin:
+    """Stream decoding: keep the pymavlink parser's buffer between reads."""
+
+    def _on_stream(self: VehicleLink, data: bytes) -> None:  # type: ignore[misc]
+        mav = self.codec.mav
+        try:
+            msgs = mav.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - pymavlink raises odd errors on hostile bytes
+            self.bad_datagrams += 1
+            return
+        for m in msgs:
+            if m.get_msgId() in (dialect.MAVLINK_MSG_ID_BAD_DATA, dialect.MAVLINK_MSG_ID_UNKNOWN):
+                self.bad_datagrams += 1
+                continue
+            t = m.get_type()
+            self.latest[t] = m
+            self.counts[t] += 1
+            if self._waiters:
+                self._wake(t, m)
+
+
+class _WriterTransport:
+    """Just enough of a transport for VehicleLink (close); writes go through `_write`."""
+
+    def __init__(self, close: object) -> None:
+        self._close = close
+
+    def close(self) -> None:
+        self._close()  # type: ignore[operator]
+
+
+class TcpLink(_StreamMixin, VehicleLink):
+    _writer: asyncio.StreamWriter | None = None
+
+    async def _open_transport(self) -> None:
+        async with asyncio.timeout(5.0):
+            reader, self._writer = await asyncio.open_connection(*self.addr)
+        self._reader_task = asyncio.create_task(self._read(reader), name=f"mavlink-tcp-{self.addr[1]}")
+        self._transport = _WriterTransport(self._close_stream)  # type: ignore[assignment]
+
+    async def _read(self, reader: asyncio.StreamReader) -> None:
+        while data := await reader.read(4096):
+            self._on_stream(data)
+
+    def _write(self, data: bytes) -> None:
+        if self._writer is not None and not self._writer.is_closing():
+            self._writer.write(data)  # buffered by asyncio: never blocks
+
+    def _close_stream(self) -> None:
+        self._reader_task.cancel()
+        if self._writer is not None:
+            self._writer.close()
+
+
+class SerialLink(_StreamMixin, VehicleLink):
+    """pyserial in two daemon threads (read, write), so blocking I/O stays off the loop."""
+
+    async def _open_transport(self) -> None:
+        import queue
+
+        import serial  # pyserial, imported only when a serial URL is used
+
+        loop = asyncio.get_running_loop()
+        dev, baud = self.addr
+        try:
+            self._serial = await loop.run_in_executor(None, lambda: serial.Serial(dev, baud, timeout=0.1))
+        except serial.SerialException as exc:
+            raise UserError(f"cannot open serial port {dev}: {exc}") from exc
+        self._out: queue.Queue[bytes | None] = queue.Queue(maxsize=256)
+        self._running = True
+
+        def reader() -> None:
+            while self._running:
+                with contextlib.suppress(Exception):
+                    data = self._serial.read(self._serial.in_waiting or 1)
+                    if data:
+                        loop.call_soon_threadsafe(self._on_stream, data)
+
+        def writer() -> None:
+            while (item := self._out.get()) is not None:
+                with contextlib.suppress(Exception):
+                    self._serial.write(item)
+
+        threading.Thread(target=reader, name=f"serial-read-{dev}", daemon=True).start()
+        threading.Thread(target=writer, name=f"serial-write-{dev}", daemon=True).start()
+        self._transport = _WriterTransport(self._close_serial)  # type: ignore[assignment]
+
+    def _write(self, data: bytes) -> None:
+        with contextlib.suppress(Exception):  # a full queue drops the frame (a slow radio)
+            self._out.put_nowait(data)
+
+    def _close_serial(self) -> None:
+        self._running = False
+        with contextlib.suppress(Exception):
+            self._out.put_nowait(None)
+        with contextlib.suppress(Exception):
+            self._serial.close()

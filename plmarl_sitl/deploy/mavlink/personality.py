@@ -1,0 +1,179 @@
+"""Autopilot personalities: how PX4 and ArduPilot spell modes and parameters on the wire.
+
+The emulator has one set of behaviours (hold, offboard, takeoff, land, brake); a
+personality maps them to the custom_mode numbers, parameter names, units and encodings
+that real clients expect, so MAVSDK, pymavlink and MAVProxy all recognise the vehicle.
+Facts come from PX4 `px4_custom_mode.h`, ArduCopter `mode.h` and `Parameters.cpp`.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from plmarl_sitl.deploy.mavlink.codec import dialect
+
+
+class Behaviour(enum.Enum):
+    """What the vehicle does in a mode. Modes without RC sticks hold position."""
+
+    HOLD = "hold"
+    OFFBOARD = "offboard"  # PX4 OFFBOARD, ArduPilot GUIDED: follow external setpoints
+    TAKEOFF = "takeoff"
+    LAND = "land"
+    BRAKE = "brake"
+
+
+class Failsafe(enum.Enum):
+    """What happens when the setpoint stream stops."""
+
+    LEAVE_TO_HOLD = "leave_to_hold"  # PX4: leave OFFBOARD after COM_OF_LOSS_T, hold position
+    BRAKE_IN_PLACE = "brake_in_place"  # ArduPilot: stay GUIDED, brake to zero after GUID_TIMEOUT
+
+
+@dataclass(frozen=True)
+class ModeSpec:
+    name: str
+    custom_mode: int
+    behaviour: Behaviour
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One exposed parameter. `key` names the emulator quantity it controls (SI units);
+    the wire value is SI × `scale` (ArduPilot speaks cm and cm/s)."""
+
+    name: str
+    key: str
+    param_type: int
+    scale: float = 1.0
+
+
+@dataclass(frozen=True)
+class Personality:
+    name: str
+    autopilot: int  # MAV_AUTOPILOT_*
+    modes: tuple[ModeSpec, ...]
+    boot_mode: str
+    hold_mode: str  # where PX4 goes after takeoff and on offboard loss
+    offboard_mode: str
+    land_mode: str
+    takeoff_mode: str | None  # None: takeoff happens inside the offboard (GUIDED) mode
+    failsafe: Failsafe
+    params: tuple[ParamSpec, ...]
+    param_bytewise: bool  # integer params packed into the float's bits (PX4) or cast (ArduPilot)
+    takeoff_alt_is_amsl: bool  # NAV_TAKEOFF param7: PX4 AMSL, ArduPilot relative to home
+    takeoff_needs_offboard_mode: bool  # ArduPilot only takes off in GUIDED
+
+    def mode(self, name: str) -> ModeSpec:
+        for m in self.modes:
+            if m.name == name:
+                return m
+        raise KeyError(f"{self.name} has no mode {name!r}")
+
+    def mode_by_custom(self, custom_mode: int) -> ModeSpec | None:
+        for m in self.modes:
+            if m.custom_mode == custom_mode:
+                return m
+        return None
+
+    def custom_mode_from_set_mode(self, p2: float, p3: float) -> int:
+        """custom_mode requested by MAV_CMD_DO_SET_MODE (param2, param3)."""
+        if self.autopilot == dialect.MAV_AUTOPILOT_PX4:
+            sub = 0 if p3 != p3 else int(p3)  # NaN (unset) means no sub mode
+            return px4_custom_mode(int(p2), sub)
+        return int(p2)
+
+    def set_mode_params(self, name: str) -> tuple[float, float]:
+        """(param2, param3) of MAV_CMD_DO_SET_MODE for mode `name` (client side)."""
+        cm = self.mode(name).custom_mode
+        if self.autopilot == dialect.MAV_AUTOPILOT_PX4:
+            return float((cm >> 16) & 0xFF), float((cm >> 24) & 0xFF)
+        return float(cm), 0.0
+
+
+def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
+    """PX4 packs {uint16 reserved; uint8 main_mode; uint8 sub_mode} into custom_mode."""
+    return ((main_mode & 0xFF) << 16) | ((sub_mode & 0xFF) << 24)
+
+
+_REAL32 = dialect.MAV_PARAM_TYPE_REAL32
+
+PX4 = Personality(
+    name="px4",
+    autopilot=dialect.MAV_AUTOPILOT_PX4,
+    modes=(
+        ModeSpec("MANUAL", px4_custom_mode(1), Behaviour.HOLD),
+        ModeSpec("ALTCTL", px4_custom_mode(2), Behaviour.HOLD),
+        ModeSpec("POSCTL", px4_custom_mode(3), Behaviour.HOLD),
+        ModeSpec("AUTO.TAKEOFF", px4_custom_mode(4, 2), Behaviour.TAKEOFF),
+        ModeSpec("AUTO.LOITER", px4_custom_mode(4, 3), Behaviour.HOLD),
+        ModeSpec("AUTO.LAND", px4_custom_mode(4, 6), Behaviour.LAND),
+        ModeSpec("OFFBOARD", px4_custom_mode(6), Behaviour.OFFBOARD),
+        ModeSpec("STABILIZED", px4_custom_mode(7), Behaviour.HOLD),
+    ),
+    boot_mode="AUTO.LOITER",
+    hold_mode="AUTO.LOITER",
+    offboard_mode="OFFBOARD",
+    land_mode="AUTO.LAND",
+    takeoff_mode="AUTO.TAKEOFF",
+    failsafe=Failsafe.LEAVE_TO_HOLD,
+    params=(
+        ParamSpec("COM_OF_LOSS_T", "offboard_timeout_s", _REAL32),
+        ParamSpec("MAV_SYS_ID", "sysid", dialect.MAV_PARAM_TYPE_INT32),
+        ParamSpec("MIS_TAKEOFF_ALT", "takeoff_alt_m", _REAL32),
+        ParamSpec("MPC_ACC_HOR_MAX", "max_accel_mps2", _REAL32),
+        ParamSpec("MPC_LAND_SPEED", "land_speed_mps", _REAL32),
+        ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
+        ParamSpec("MPC_Z_VEL_MAX_UP", "max_climb_mps", _REAL32),
+    ),
+    param_bytewise=True,
+    takeoff_alt_is_amsl=True,
+    takeoff_needs_offboard_mode=False,
+)
+
+ARDUPILOT = Personality(
+    name="ardupilot",
+    autopilot=dialect.MAV_AUTOPILOT_ARDUPILOTMEGA,
+    modes=(
+        ModeSpec("STABILIZE", 0, Behaviour.HOLD),
+        ModeSpec("ALT_HOLD", 2, Behaviour.HOLD),
+        ModeSpec("GUIDED", 4, Behaviour.OFFBOARD),
+        ModeSpec("LOITER", 5, Behaviour.HOLD),
+        ModeSpec("LAND", 9, Behaviour.LAND),
+        ModeSpec("POSHOLD", 16, Behaviour.HOLD),
+        ModeSpec("BRAKE", 17, Behaviour.BRAKE),
+    ),
+    boot_mode="STABILIZE",
+    hold_mode="LOITER",
+    offboard_mode="GUIDED",
+    land_mode="LAND",
+    takeoff_mode=None,
+    failsafe=Failsafe.BRAKE_IN_PLACE,
+    params=(
+        ParamSpec("GUID_TIMEOUT", "offboard_timeout_s", _REAL32),
+        ParamSpec("LAND_SPEED", "land_speed_mps", dialect.MAV_PARAM_TYPE_INT16, 100.0),
+        ParamSpec("PILOT_TKOFF_ALT", "takeoff_alt_m", _REAL32, 100.0),
+        ParamSpec("SYSID_THISMAV", "sysid", dialect.MAV_PARAM_TYPE_INT16),
+        ParamSpec("WPNAV_ACCEL", "max_accel_mps2", _REAL32, 100.0),
+        ParamSpec("WPNAV_SPEED", "max_speed_mps", _REAL32, 100.0),
+        ParamSpec("WPNAV_SPEED_UP", "max_climb_mps", _REAL32, 100.0),
+    ),
+    param_bytewise=False,
+    takeoff_alt_is_amsl=False,
+    takeoff_needs_offboard_mode=True,
+)
+
+PERSONALITIES = {p.name: p for p in (PX4, ARDUPILOT)}
+
+
+def personality(name: str) -> Personality:
+    try:
+        return PERSONALITIES[name]
+    except KeyError:
+        raise KeyError(f"unknown personality {name!r} (choose {', '.join(PERSONALITIES)})") from None
+
+
+def personality_for_autopilot(autopilot: int) -> Personality:
+    """The personality a client should assume for a HEARTBEAT's autopilot field."""
+    return PX4 if autopilot == dialect.MAV_AUTOPILOT_PX4 else ARDUPILOT

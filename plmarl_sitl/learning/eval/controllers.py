@@ -1,0 +1,28 @@
+"""Learnt policies as twin controllers (`reset()`, `act(obs) -> accel`), deterministic.
+
+A LearnedController runs exactly what a deployed agent runs: the belief tracker once per
+physics second (replayed up to the observation time, see `Beliefs.catch_up`) and the
+exported policy on the raw physical tensors, batched over the twin's (B, N) agents.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from plmarl_sitl.learning.nn.belief import Beliefs
+from plmarl_sitl.twin.env import Observation
+
+
+class LearnedController:
+    def __init__(self, tracker: nn.Module, policy: nn.Module) -> None:
+        self.beliefs = Beliefs(tracker)
+        self.policy = policy
+
+    def reset(self) -> None:
+        self.beliefs.reset()
+
+    @torch.no_grad()
+    def act(self, obs: Observation) -> torch.Tensor:
+        belief, _ = self.beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)

@@ -1,0 +1,151 @@
+"""Deterministic evaluation sweeps in the twin: methods x T_up, paired episodes.
+
+Every method sees the same episodes: batch k of a sweep point uses twin seed `seed + k`,
+and no controller draws from the twin's generator, so users start and move identically.
+That makes "fraction of the Oracle on the same episodes" and paired comparisons exact.
+
+Coverage of an episode = mean C(t) over the steady-state window t in (from_s, T]
+(default: after the first 50 s, which the swarm needs to fly out from the launch line;
+the paper's Fig. 3b reports steady-state coverage). The full-episode mean is reported
+beside it. lambda_2 is averaged over the same window.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from plmarl_sitl.errors import UserError
+from plmarl_sitl.learning.eval.controllers import LearnedController
+from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.nn.io import LoadedPolicy, script
+from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.twin.env import CoverageEnv
+
+LEARNT = ("pl-marl", "gru", "tag-mappo")
+ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic")
+
+
+@dataclass
+class MethodRun:
+    coverage: np.ndarray  # (E,) steady-state mean C
+    coverage_full: np.ndarray  # (E,) whole-episode mean C
+    lambda2: np.ndarray  # (E,) steady-state mean lambda_2
+    trace: np.ndarray  # (E, T) C(t)
+
+
+def needed_policies(methods: list[str]) -> set[str]:
+    need = {m for m in methods if m in LEARNT}
+    if "dead-reckoning" in methods:
+        need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker
+    return need
+
+
+def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> Callable[[CoverageEnv], object]:
+    if method == "oracle":
+        from plmarl_sitl.twin.oracle import OracleController
+
+        return lambda env: OracleController(env)
+    if method == "heuristic":
+        from plmarl_sitl.twin.heuristic import HeuristicController
+
+        return lambda env: HeuristicController(env.mission)
+    if method == "dead-reckoning":
+        pol = loaded["pl-marl"].policy
+        buffer_len = int(loaded["pl-marl"].card["io"]["buffer_len"])
+        cv = script(dead_reckoning_tracker(buffer_len))
+        return lambda env: LearnedController(cv, pol)
+    if method in LEARNT:
+        lp = loaded[method]
+        return lambda env: LearnedController(lp.tracker, lp.policy)
+    raise UserError(f"unknown method {method!r} (choose from {', '.join(ALL_METHODS)})")
+
+
+def run_method(
+    mission: Mission,
+    make: Callable[[CoverageEnv], object],
+    episodes: int,
+    seed: int,
+    *,
+    batch: int = 50,
+    from_s: int = 50,
+    failure_prob: float = 0.0,
+    on_decision: Callable[[int], None] | None = None,
+) -> MethodRun:
+    covs, fulls, lams, traces = [], [], [], []
+    torch.set_grad_enabled(False)
+    try:
+        for k, lo in enumerate(range(0, episodes, batch)):
+            b = min(batch, episodes - lo)
+            env = CoverageEnv(mission, b, seed + k, track_lambda2=True, failure_prob=failure_prob)
+            ctl = make(env)
+            ctl.reset()  # type: ignore[attr-defined]
+            obs = env.observe()
+            cs, ls = [], []
+            while not env.done:
+                obs, _, info = env.step(ctl.act(obs))  # type: ignore[attr-defined]
+                cs.append(info.coverage)
+                ls.append(info.lambda2)
+                if on_decision:
+                    on_decision(b)
+            c, lam = torch.cat(cs, -1), torch.cat(ls, -1)  # (b, T): value after second t = 1..T
+            traces.append(c.numpy())
+            covs.append(c[:, from_s:].mean(-1).numpy())
+            fulls.append(c.mean(-1).numpy())
+            lams.append(lam[:, from_s:].mean(-1).numpy())
+    finally:
+        torch.set_grad_enabled(True)
+    return MethodRun(np.concatenate(covs), np.concatenate(fulls), np.concatenate(lams), np.concatenate(traces))
+
+
+def evaluate_methods(
+    mission: Mission,
+    loaded: dict[str, LoadedPolicy],
+    methods: list[str],
+    tups: list[int],
+    episodes: int,
+    seed: int,
+    *,
+    from_s: int = 50,
+    failure_prob: float = 0.0,
+    batch: int = 50,
+    on_decision: Callable[[int], None] | None = None,
+) -> dict:
+    """-> {"results": [...], "p_values": [...], "extra": {...}} (see `plmarl eval --help`)."""
+    runs: dict[tuple[str, int], MethodRun] = {}
+    for tup in tups:
+        m = mission.with_tup(tup)
+        for method in methods:
+            runs[(method, tup)] = run_method(
+                m, controller_factory(method, loaded), episodes, seed, batch=batch, from_s=from_s,
+                failure_prob=failure_prob, on_decision=on_decision,
+            )
+    results, p_values, extra = [], [], []
+    for tup in tups:
+        for method in methods:
+            r = runs[(method, tup)]
+            mean, (lo, hi) = mean_ci95(r.coverage)
+            results.append({"method": method, "tup": tup, "coverage_mean": mean, "coverage_ci95": [lo, hi],
+                            "lambda2_mean": float(r.lambda2.mean())})
+            row = {"method": method, "tup": tup, "coverage_full_mean": float(r.coverage_full.mean()),
+                   "coverage_full_ci95": list(mean_ci95(r.coverage_full)[1])}
+            if ("oracle", tup) in runs:
+                o = runs[("oracle", tup)]
+                frac = r.coverage / np.maximum(o.coverage, 1e-9)
+                fm, (flo, fhi) = mean_ci95(frac)
+                row.update({"fraction_of_oracle_mean": fm, "fraction_of_oracle_ci95": [flo, fhi]})
+            extra.append(row)
+        if "pl-marl" in methods:
+            for other in methods:
+                if other == "pl-marl":
+                    continue
+                p = mann_whitney_p(runs[("pl-marl", tup)].coverage, runs[(other, tup)].coverage)
+                p_values.append({"method": "pl-marl", "versus": other, "tup": tup, "p": p})
+    traces = {f"{m}@{t}": r.trace.mean(0).tolist() for (m, t), r in runs.items()}
+    return {"results": results, "p_values": p_values,
+            "extra": {"rows": extra, "from_s": from_s, "episodes": episodes, "seed": seed,
+                      "failure_prob": failure_prob, "mean_traces": traces}}

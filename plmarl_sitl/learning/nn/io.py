@@ -1,0 +1,176 @@
+"""TorchScript export and checked loading of trained policies (policies/<method>/).
+
+A policy directory holds:
+
+* predictor.pt  the scripted `BeliefTracker` (Algorithm 1) with the method's predictor
+                inside: `forward(t, held_state, held_t_rx, buf, seen_t_rx)` and
+                `init_state(held_state)`;
+* policy.pt     the scripted `DeployedPolicy`: `forward(ego, beliefs, mask, sense,
+                fail_flag) -> accel`, feature normalisation included;
+* card.yaml     method, config, seed, git commit, training wall time, evaluation
+                numbers, the I/O contract constants and each file's sha256.
+
+docs/POLICY_IO.md is the contract. TorchScript is deprecated in torch 2.13 and warns on
+every script/save/load; it is still the format we ship, so these helpers silence exactly
+those DeprecationWarnings (`quiet_torchscript()`), nothing else.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import yaml
+from torch import nn
+
+from plmarl_sitl.errors import PolicyFileError
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
+from plmarl_sitl.model.coverage import SENSING_FEATURES
+
+CARD_VERSION = 1
+FILES = ("predictor.pt", "policy.pt", "card.yaml")
+
+
+@contextlib.contextmanager
+def quiet_torchscript() -> Iterator[None]:
+    """Silence torch 2.13's TorchScript deprecation warnings (and only those)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".*torch\.jit\..* is deprecated.*", category=DeprecationWarning)
+        warnings.filterwarnings("ignore", message=r".*TorchScript.*deprecated.*")
+        yield
+
+
+def script(module: nn.Module) -> torch.jit.ScriptModule:
+    with quiet_torchscript():
+        return torch.jit.script(module.eval())
+
+
+TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
+POLICY_ATTRS = ["area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm"]
+
+
+def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
+    """Script and freeze (weights and attributes become constants: fewer interpreter ops
+    per call, which is most of the cost at these sizes), keeping the public API `keep`."""
+    keep = keep + [a for a in ("deploy_form",) if hasattr(module, a)]
+    with quiet_torchscript():
+        return torch.jit.freeze(torch.jit.script(module.eval()), preserved_attrs=keep)
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, card: dict) -> Path:
+    """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+
+    tracker, policy = fuse_tracker(tracker), fuse_policy(policy)  # unchanged if not fusable (GRU, hold, scripted)
+    with quiet_torchscript():
+        torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
+        torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
+    card = dict(card)
+    card["card_version"] = CARD_VERSION
+    card["io"] = {
+        "state_dim": STATE_DIM,
+        "sense_dim": SENSING_FEATURES,
+        "ego_features": EGO_FEATURES,
+        "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
+        "dt_s": float(tracker.dt),  # type: ignore[arg-type]
+        "scales": {k: float(getattr(policy, k)) for k in ("area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm")},
+    }
+    card["sha256"] = {f: sha256(out / f) for f in ("predictor.pt", "policy.pt")}
+    (out / "card.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
+    return out
+
+
+@dataclass(frozen=True)
+class LoadedPolicy:
+    directory: Path
+    tracker: torch.jit.ScriptModule
+    policy: torch.jit.ScriptModule
+    card: dict
+
+
+def _load_card(path: Path) -> dict:
+    if not path.is_file():
+        raise PolicyFileError(str(path), "missing (every policy directory needs card.yaml)")
+    try:
+        card = yaml.safe_load(path.read_text())
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise PolicyFileError(str(path), f"corrupt YAML: {exc}") from exc
+    if not isinstance(card, dict):
+        raise PolicyFileError(str(path), "corrupt: expected a mapping")
+    for key in ("method", "card_version", "io", "sha256"):
+        if key not in card:
+            raise PolicyFileError(str(path), f"corrupt: missing key {key!r}")
+    if card["card_version"] != CARD_VERSION:
+        raise PolicyFileError(str(path), f"card_version {card['card_version']} is not supported (expected {CARD_VERSION})")
+    return card
+
+
+def _load_script(path: Path, card: dict) -> torch.jit.ScriptModule:
+    if not path.is_file():
+        raise PolicyFileError(str(path), "missing")
+    want = card["sha256"].get(path.name)
+    if want is not None and sha256(path) != want:
+        raise PolicyFileError(str(path), "does not match card.yaml (sha256 differs): the file was replaced or damaged")
+    try:
+        with quiet_torchscript():
+            return torch.jit.load(str(path), map_location="cpu")
+    except Exception as exc:  # torch raises RuntimeError/ValueError/zip errors for junk
+        raise PolicyFileError(str(path), f"corrupt: not a loadable TorchScript file ({type(exc).__name__}: {str(exc).splitlines()[0]})") from exc
+
+
+def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: ANN001
+    """Load and check a policy directory; with `mission`, also check it was made for it.
+
+    Raises PolicyFileError naming the file and the problem: missing, corrupt, a sha256
+    that does not match the card, or constants (buffer length, normalisation) that do not
+    match the card or the mission. Finally both modules are run once on dummy inputs.
+    """
+    d = Path(directory)
+    if not d.is_dir():
+        raise PolicyFileError(str(d), "missing policy directory (expected predictor.pt, policy.pt, card.yaml)")
+    card = _load_card(d / "card.yaml")
+    tracker = _load_script(d / "predictor.pt", card)
+    policy = _load_script(d / "policy.pt", card)
+    io = card["io"]
+    try:
+        buffer_len, scales = int(tracker.buffer_len), {k: float(getattr(policy, k)) for k in io["scales"]}
+    except (AttributeError, RuntimeError) as exc:
+        raise PolicyFileError(str(d / "policy.pt"), f"mismatched: not a PL-MARL policy/tracker ({exc})") from exc
+    if buffer_len != io["buffer_len"]:
+        raise PolicyFileError(str(d / "predictor.pt"), f"mismatched: buffer length {buffer_len}, card.yaml says {io['buffer_len']}")
+    for k, v in scales.items():
+        if abs(v - io["scales"][k]) > 1e-6:
+            raise PolicyFileError(str(d / "policy.pt"), f"mismatched: scale {k} = {v}, card.yaml says {io['scales'][k]}")
+    if mission is not None:
+        from plmarl_sitl.learning.nn.features import FeatureScales
+
+        ms = FeatureScales.from_mission(mission)._asdict()
+        for k, v in scales.items():
+            if abs(v - ms[k]) > 1e-6:
+                raise PolicyFileError(str(d / "policy.pt"), f"mismatched with mission {mission.name!r}: {k} = {v}, mission has {ms[k]}")
+        if buffer_len != mission.signalling.buffer_len:
+            raise PolicyFileError(
+                str(d / "predictor.pt"), f"mismatched with mission {mission.name!r}: buffer length {buffer_len}, mission has {mission.signalling.buffer_len}"
+            )
+    try:
+        with torch.no_grad():
+            held = torch.zeros(2, STATE_DIM)
+            buf, seen = tracker.init_state(held)
+            belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
+            policy(
+                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)
+            )
+    except RuntimeError as exc:
+        raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc
+    return LoadedPolicy(d, tracker, policy, card)

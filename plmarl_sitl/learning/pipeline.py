@@ -1,0 +1,121 @@
+"""End to end for one method: engine fit -> MAPPO -> TorchScript export -> card.
+
+Used by `plmarl train`. The predictor for pl-marl / gru is fitted first (unless a state
+dict is given), frozen, and shipped inside predictor.pt together with the tracker.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+import subprocess
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from plmarl_sitl.bench.machine import machine_info
+from plmarl_sitl.learning.nn.belief import BeliefTracker
+from plmarl_sitl.learning.nn.features import FeatureScales
+from plmarl_sitl.learning.nn.io import export_policy
+from plmarl_sitl.learning.nn.policy import DeployedPolicy
+from plmarl_sitl.learning.nn.predictor import make_predictor
+from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR, Args, train
+from plmarl_sitl.learning.train.predictor import (
+    PredictorArgs,
+    dead_reckoning_tracker,
+    pair_rows,
+    position_errors,
+    train_predictor,
+)
+from plmarl_sitl.mission import load_mission
+
+
+def git_commit() -> str:
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "plmarl_sitl"], capture_output=True, text=True).stdout.strip()
+        return sha + ("+dirty" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, log: Callable[[str], None]) -> tuple[str, dict]:  # noqa: ANN001
+    from plmarl_sitl.learning.train.run_predictors import build_dataset
+
+    vm = mission.vehicle_model()
+    t0 = time.time()
+    train_set = build_dataset(mission, seed)
+    test_set = build_dataset(mission, seed + 1000, scale=0.25)
+    gen = torch.Generator().manual_seed(seed)
+    xs, os_ = zip(*(pair_rows(v, gen) for v in train_set.values()), strict=True)
+    tracker = BeliefTracker(make_predictor(kind, mission.signalling.buffer_len, mission.timing.dt_s, vm.max_speed_mps, vm.max_accel_mps2))
+    pargs = PredictorArgs(iters=iters or (1500 if kind == "mlp" else 300), rows=512 if kind == "mlp" else 256, seed=seed)
+    curve = train_predictor(tracker, torch.cat(xs), torch.cat(os_), pargs, log=log)
+    path = out / f"predictor_{kind}_state.pt"
+    torch.save(tracker.predictor.state_dict(), path)
+    (out / "predictor_curve.json").write_text(json.dumps(curve))
+    wall = time.time() - t0
+    errors = {c: position_errors(tracker, pair_rows(v, gen)[0]) for c, v in test_set.items()}
+    dr = {c: position_errors(dead_reckoning_tracker(mission.signalling.buffer_len), pair_rows(v, gen)[0]) for c, v in test_set.items()}
+    args = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(pargs).items()}
+    return str(path), {"wall_s": wall, "iters": pargs.iters, "position_error_m": errors,
+                       "dead_reckoning_position_error_m": dr, "test_episodes": {c: int(v.shape[0]) for c, v in test_set.items()},
+                       "args": args}
+
+
+def run_training(
+    method: str,
+    mission_path: str,
+    episodes: int,
+    seed: int,
+    out: Path,
+    num_envs: int = 16,
+    predictor_state: str | None = None,
+    predictor_iters: int | None = None,
+    eval_episodes: int = 100,
+    threads: int = 1,
+    on_iter: Callable[[int, dict], None] | None = None,
+    log: Callable[[str], None] = print,
+    args_overrides: dict | None = None,
+) -> dict:
+    torch.set_num_threads(threads)
+    out.mkdir(parents=True, exist_ok=True)
+    # Intermediate files (engine state, MAPPO checkpoint); `out` gets only what ships.
+    work = Path("runs") / "work" / (out.resolve().as_posix().strip("/").replace("/", "_") + f"-seed{seed}")
+    work.mkdir(parents=True, exist_ok=True)
+    mission = load_mission(mission_path)
+    card: dict = {"method": method, "mission": mission.name, "seed": seed, "git_commit": git_commit(), "training": {}}
+    kind = METHOD_PREDICTOR[method]
+    if kind in ("mlp", "gru") and predictor_state is None:
+        log(f"fitting the {kind} inference engine ...")
+        predictor_state, info = fit_predictor(kind, mission, seed, predictor_iters, work, log)
+        card["training"]["predictor_wall_s"] = info["wall_s"]
+        card["predictor"] = info
+    args = Args(method=method, mission=mission_path, predictor_state=predictor_state, seed=seed, episodes=episodes,
+                num_envs=num_envs, out=str(work / "mappo"), threads=threads, **(args_overrides or {}))
+    res = train(args, progress=on_iter)
+    if res.get("imitation"):
+        card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
+        card["imitation"] = res["imitation"]
+    card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],
+                             "machine": machine_info(), "torch_threads": threads})
+    card["config"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}
+    card["training"]["total_wall_s"] = sum(card["training"].get(k, 0.0) for k in ("predictor_wall_s", "imitation_wall_s", "mappo_wall_s"))
+    shutil.copy(res["curve"], out / "curve.jsonl")
+    tracker = res["tracker"]
+    for p in tracker.parameters():
+        p.requires_grad_(False)
+    policy = DeployedPolicy(res["actor"], *FeatureScales.from_mission(mission))
+    export_policy(out, tracker, policy, card)
+    if eval_episodes > 0:
+        from plmarl_sitl.learning.eval.evaluate import evaluate_methods
+        from plmarl_sitl.learning.nn.io import load_policy
+
+        loaded = load_policy(out, mission)
+        ev = evaluate_methods(mission, {method: loaded}, [method], [5, 15, 50], eval_episodes, seed=10_000 + seed)
+        card["eval"] = {"episodes": eval_episodes, "seed": 10_000 + seed, "coverage": ev["results"]}
+        export_policy(out, tracker, policy, card)  # rewrite the card with the numbers
+    return card

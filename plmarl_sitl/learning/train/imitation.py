@@ -1,0 +1,111 @@
+"""Warm start for MAPPO: imitate the Oracle (DAgger), centralised knowledge used in training only.
+
+Why: with Table I's budget (1000 episodes, lr 1e-4) MAPPO from scratch settles in a local
+optimum where the four symmetric agents split over the two clusters nearest the launch
+line (about 0.5 coverage; see docs/RESULTS.md). The Oracle of the twin (global knowledge,
+greedy placement + Hungarian assignment) is a teacher that is available in the DT at
+training time, exactly like the centralised critic: the student acts on its OWN local
+inputs (own state, beliefs from its tracker, local sensing, fail flag), so nothing about
+decentralised execution changes.
+
+DAgger (Ross et al. 2011): round 0 rolls out the teacher, later rounds roll out the
+student (with probability beta per environment the teacher still drives), every visited
+state is labelled with the teacher's action, the dataset is aggregated and the actor's
+mean is regressed on the labels (MSE in normalised action units).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
+from plmarl_sitl.learning.nn.features import FeatureScales, build_policy_input
+from plmarl_sitl.learning.nn.policy import Actor
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.twin.env import CoverageEnv
+from plmarl_sitl.twin.oracle import OracleController
+
+
+@dataclass
+class ImitationArgs:
+    rounds: int = 4
+    episodes_per_round: int = 32
+    epochs: int = 30
+    batch: int = 1024
+    lr: float = 1e-3
+    failure_prob: float = 0.2
+    tup_choices: tuple[int, ...] = (5, 10, 15, 20, 25, 30, 35, 40, 45, 50)
+    seed: int = 0
+    # 1: one T_up per round, drawn at random (4 rounds may miss whole T_up ranges). k > 1:
+    # each round's episodes are split into k batches whose T_up walk through a shuffled
+    # cycle of tup_choices, so every T_up is imitated equally often.
+    tup_chunks: int = 1
+
+
+def imitate_oracle(
+    actor: Actor, tracker: BeliefTracker, mission: Mission, args: ImitationArgs, log: Callable[[str], None] = print
+) -> dict:
+    """Train `actor` in place; returns {"episodes", "samples", "wall_s", "final_mse"}."""
+    scales = FeatureScales.from_mission(mission)
+    norm = scales.norm()
+    rng = np.random.default_rng(args.seed)
+    opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
+    data: dict[str, list[torch.Tensor]] = {"ego": [], "nbr": [], "rel": [], "mask": [], "u": []}
+    t0 = time.time()
+    mse = float("nan")
+    episodes = 0
+    cycle = [int(x) for x in rng.permutation(args.tup_choices)] if args.tup_chunks > 1 else []
+    tups: list[int] = []
+    for rnd in range(args.rounds):
+        beta = 1.0 if rnd == 0 else 0.5 ** rnd
+        if args.tup_chunks <= 1:
+            batches = [(int(rng.choice(args.tup_choices)), args.episodes_per_round, args.seed + 7 * rnd + 1)]
+        else:
+            per = max(1, args.episodes_per_round // args.tup_chunks)
+            batches = [(cycle[(rnd * args.tup_chunks + c) % len(cycle)], per, args.seed + 7 * rnd + 1 + 1000 * c)
+                       for c in range(args.tup_chunks)]
+        for tup, n_eps, env_seed in batches:
+            tups.append(tup)
+            m = dataclasses.replace(mission, signalling=dataclasses.replace(mission.signalling, tup_s=tup))
+            env = CoverageEnv(m, n_eps, env_seed, failure_prob=args.failure_prob)
+            teacher = OracleController(env)
+            beliefs = Beliefs(tracker)
+            obs = env.reset()
+            teacher.reset()
+            use_teacher = torch.from_numpy(rng.random(n_eps) < beta).view(-1, 1, 1)
+            with torch.no_grad():
+                while not env.done:
+                    belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+                    ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm)
+                    a_teacher = teacher.act(obs)
+                    u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
+                    live = obs.alive
+                    data["ego"].append(ego_x[live])
+                    data["nbr"].append(nbr_x[live])
+                    data["rel"].append(rel_x[live])
+                    data["mask"].append(mask[live])
+                    data["u"].append(u[live])
+                    a_student = actor(ego_x, nbr_x, rel_x, mask) * scales.a_max
+                    obs, _, _ = env.step(torch.where(use_teacher, a_teacher, a_student))
+            episodes += n_eps
+        ds = {k: torch.cat(v) for k, v in data.items()}
+        n = ds["u"].shape[0]
+        for _ in range(args.epochs):
+            perm = torch.randperm(n)
+            for lo in range(0, n, args.batch):
+                idx = perm[lo : lo + args.batch]
+                pred = actor(ds["ego"][idx], ds["nbr"][idx], ds["rel"][idx], ds["mask"][idx])
+                loss = ((pred - ds["u"][idx]) ** 2).sum(-1).mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+                mse = float(loss.detach())
+        log(f"imitation round {rnd}: beta {beta:.2f}, T_up {[b[0] for b in batches]}, {n} samples, mse {mse:.4f} ({time.time() - t0:.0f} s)")
+    return {"episodes": episodes, "samples": int(ds["u"].shape[0]), "wall_s": time.time() - t0, "final_mse": mse, "tups": tups,
+            "args": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}}

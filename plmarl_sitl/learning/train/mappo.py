@@ -1,0 +1,344 @@
+"""MAPPO for PL-MARL and its learnt baselines, CTDE, one file top to bottom (CleanRL style).
+
+Decentralised actors (one shared attention policy, Sec. III-B) act on their own state,
+their beliefs about neighbours (Algorithm 1's tracker with the method's predictor) and
+their local user sensing. A centralised critic sees the twin's global state. The
+reward is the twin's adaptive Eq. (4): its weights switch with the failure state f.
+
+Methods differ only in the neighbour-belief engine (frozen during MAPPO):
+  pl-marl    KinematicPredictor phi (trained by plmarl_sitl.learning.train.predictor)
+  gru        GRUPredictor (GRU-MARL)
+  tag-mappo  StaleHold: the last received state, no inference
+
+Table I: 1000 episodes; from episode 500 on, p = 0.2 of one random node failing at
+t = 100 s; lr 1e-4 (actor) / 5e-4 (critic) annealed linearly to 0.1x over 800 episodes;
+minibatch 800 agent-decisions, 5 epochs, entropy 0.05 -> 0.02, gamma 0.99.
+MAPPO details (Yu et al. 2022, on-policy repo): value normalisation (running mean/var of
+returns), GAE, clipped value loss, advantage normalisation, and death masking: a failed
+node's decisions are excluded from the actor loss (its actions are ignored by the twin).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, FeatureScales, build_policy_input
+from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
+from plmarl_sitl.learning.nn.predictor import make_predictor
+from plmarl_sitl.learning.train.trajectories import mixed_mobility
+from plmarl_sitl.mission import Mission, load_mission
+from plmarl_sitl.twin.env import CoverageEnv
+
+METHOD_PREDICTOR = {"pl-marl": "mlp", "gru": "gru", "tag-mappo": "hold", "dead-reckoning": "cv"}
+
+
+@dataclass
+class Args:
+    method: str = "pl-marl"
+    mission: str = "missions/paper_urban.yaml"
+    predictor_state: str | None = None  # state dict of the trained predictor (pl-marl, gru)
+    seed: int = 1
+    episodes: int = 1000
+    num_envs: int = 16  # parallel episodes per rollout
+    lr_actor: float = 1e-4
+    lr_critic: float = 5e-4
+    anneal_episodes: int = 800
+    lr_min_ratio: float = 0.1
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    update_epochs: int = 5
+    minibatch_size: int = 800  # agent-decisions
+    clip_coef: float = 0.2
+    vf_clip: float = 0.2
+    ent_start: float = 0.05
+    ent_end: float = 0.02
+    vf_coef: float = 1.0
+    max_grad_norm: float = 0.5
+    failure_start_episode: int = 500
+    failure_prob: float = 0.2
+    failure_at_s: float = 100.0
+    tup_choices: tuple[int, ...] = (5, 10, 15, 20, 25, 30, 35, 40, 45, 50)
+    mixed_mobility: bool = True
+    # Exploring starts: this share of rollouts starts the swarm at random positions instead
+    # of the launch line (the twin has no start-position argument yet; see scatter_start).
+    random_start_frac: float = 0.0
+    # Oracle-imitation warm start (plmarl_sitl.learning.train.imitation), 0 rounds = MAPPO from scratch.
+    imitation_rounds: int = 6
+    imitation_episodes_per_round: int = 40
+    imitation_tup_chunks: int = 5  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
+    critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
+    embed_dim: int = 32
+    log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start
+    out: str = "runs/pl-marl"
+    threads: int = 1
+    checkpoint_every: int = 10  # iterations
+    extra: dict = field(default_factory=dict)
+
+
+class ValueNorm(nn.Module):
+    """Running mean/variance of value targets (debiased EMA, as the on-policy MAPPO repo)."""
+
+    def __init__(self, beta: float = 0.99999, eps: float = 1e-5) -> None:
+        super().__init__()
+        self.beta, self.eps = beta, eps
+        self.register_buffer("mean", torch.zeros(()))
+        self.register_buffer("mean_sq", torch.zeros(()))
+        self.register_buffer("debias", torch.zeros(()))
+
+    def stats(self) -> tuple[torch.Tensor, torch.Tensor]:
+        d = torch.clamp(self.debias, min=self.eps)
+        mean, mean_sq = self.mean / d, self.mean_sq / d
+        return mean, torch.sqrt(torch.clamp(mean_sq - mean**2, min=1e-2))
+
+    @torch.no_grad()
+    def update(self, x: torch.Tensor) -> None:
+        self.mean.mul_(self.beta).add_(x.mean() * (1 - self.beta))
+        self.mean_sq.mul_(self.beta).add_((x**2).mean() * (1 - self.beta))
+        self.debias.mul_(self.beta).add_(1 - self.beta)
+
+    def normalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, std = self.stats()
+        return (x - mean) / std
+
+    def denormalize(self, x: torch.Tensor) -> torch.Tensor:
+        mean, std = self.stats()
+        return x * std + mean
+
+
+def make_tracker(method: str, mission: Mission, predictor_state: str | None) -> BeliefTracker:
+    vm = mission.vehicle_model()
+    sig = mission.signalling
+    pred = make_predictor(METHOD_PREDICTOR[method], sig.buffer_len, mission.timing.dt_s, vm.max_speed_mps, vm.max_accel_mps2)
+    if predictor_state is not None:
+        pred.load_state_dict(torch.load(predictor_state, weights_only=True))
+    elif method in ("pl-marl", "gru"):
+        raise ValueError(f"method {method} needs a trained predictor (predictor_state)")
+    pred.eval()
+    for p in pred.parameters():
+        p.requires_grad_(False)
+    return BeliefTracker(pred, sig.buffer_len, mission.timing.dt_s)
+
+
+def scatter_start(env: CoverageEnv, gen: torch.Generator, margin_m: float = 150.0) -> None:
+    """Move every UAV of a freshly reset twin to a random position at launch altitude.
+
+    A workaround until CoverageEnv.reset takes start positions: it redoes the t = 0
+    signalling instant and coverage with the new positions (uses the twin's private
+    _signal; the state is otherwise exactly a reset one).
+    """
+    from plmarl_sitl.model.coverage import covered_users
+    from plmarl_sitl.model.signalling import Holdings
+
+    m = env.mission
+    b, n = env.num_envs, env.n
+    r = torch.rand(b, n, 2, generator=gen)
+    north = margin_m + r[..., 0] * (m.area.north_m - 2 * margin_m)
+    east = margin_m + r[..., 1] * (m.area.east_m - 2 * margin_m)
+    env.pos = torch.stack([north, east, env.pos[..., 2]], -1).to(env.dtype)
+    env.holdings = Holdings.empty((b,), n, env.dtype, env.device)
+    env._signal()
+    env.covered = covered_users(env.users.xy, env.pos, env.alive, env.radius(-env.pos[..., 2]))
+
+
+def linear(start: float, end: float, frac: float) -> float:
+    return start + (end - start) * min(max(frac, 0.0), 1.0)
+
+
+def train(args: Args, progress=None) -> dict:
+    # ------------------------------------------------------------------ seeding, setup
+    random.seed(args.seed)
+    np.random.seed(args.seed)
+    torch.manual_seed(args.seed)
+    torch.set_num_threads(args.threads)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    base = load_mission(args.mission)
+    mission = mixed_mobility(base) if args.mixed_mobility else base
+    scales = FeatureScales.from_mission(mission)
+    norm = scales.norm()
+    env = CoverageEnv(mission, args.num_envs, args.seed, failure_at_s=args.failure_at_s)
+    B, N = args.num_envs, env.n
+    T = math.ceil(env.horizon / mission.timing.decision_every_s)  # decisions per episode
+    G = env.global_state_dim()
+    tracker = make_tracker(args.method, mission, args.predictor_state)
+    beliefs = Beliefs(tracker)
+    actor = Actor(args.embed_dim, log_std_init=args.log_std_init)
+    critic = Critic(G)
+    vnorm = ValueNorm()
+    warm: dict = {}
+    if args.imitation_rounds > 0:
+        from plmarl_sitl.learning.train.imitation import ImitationArgs, imitate_oracle
+
+        warm = imitate_oracle(
+            actor, tracker, mission,
+            ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
+                          tup_chunks=args.imitation_tup_chunks),
+        )
+    opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
+    opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)
+    iterations = math.ceil(args.episodes / B)
+    rng = np.random.default_rng(args.seed)
+    torch_gen = torch.Generator().manual_seed(args.seed)
+
+    # ------------------------------------------------------------------ rollout buffers
+    ego_b = torch.zeros(T, B, N, EGO_FEATURES)
+    nbr_b = torch.zeros(T, B, N, N, NBR_FEATURES)
+    rel_b = torch.zeros(T, B, N, N, 3)
+    mask_b = torch.zeros(T, B, N, N, dtype=torch.bool)
+    act_b = torch.zeros(T, B, N, 3)
+    logp_b = torch.zeros(T, B, N)
+    live_b = torch.zeros(T, B, N, dtype=torch.bool)
+    gs_b = torch.zeros(T, B, G)
+    val_b = torch.zeros(T, B)  # normalised values
+    rew_b = torch.zeros(T, B)
+    cov_b = torch.zeros(T, B)
+
+    curve_path = out / "curve.jsonl"
+    curve_f = curve_path.open("w")
+    t_start = time.time()
+    episodes_done = 0
+    summary: dict = {}
+    for it in range(iterations):
+        # -------------------------------------------------------------- schedules
+        frac_lr = episodes_done / max(args.anneal_episodes, 1)
+        lr_mult = linear(1.0, args.lr_min_ratio, frac_lr)
+        for g in opt_a.param_groups:
+            g["lr"] = args.lr_actor * lr_mult
+        for g in opt_c.param_groups:
+            g["lr"] = args.lr_critic * lr_mult
+        ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
+        tup = int(rng.choice(args.tup_choices))
+        p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
+        env = CoverageEnv(mission.with_tup(tup), B, args.seed * 100_003 + it, failure_prob=p_fail, failure_at_s=args.failure_at_s)
+
+        # -------------------------------------------------------------- rollout
+        obs = env.reset()
+        if rng.random() < args.random_start_frac:
+            scatter_start(env, torch_gen)
+            obs = env.observe()
+        beliefs.reset()
+        cov_last = []
+        with torch.no_grad():
+            for step in range(T):
+                belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+                ego_x, nbr_x, rel_x, mask = build_policy_input(
+                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm
+                )
+                gs = env.global_state()
+                dist = actor.dist(ego_x, nbr_x, rel_x, mask)
+                u = dist.sample()
+                ego_b[step], nbr_b[step], rel_b[step], mask_b[step] = ego_x, nbr_x, rel_x, mask
+                act_b[step], logp_b[step] = u, dist.log_prob(u).sum(-1)
+                live_b[step], gs_b[step], val_b[step] = obs.alive, gs, critic(gs)
+                obs, reward, info = env.step(action_to_accel(u, scales.a_max))
+                rew_b[step] = reward
+                cov_b[step] = info.coverage.mean(-1)
+                if obs.t > 50:
+                    cov_last.append(info.coverage.mean(-1))
+
+            # ---------------------------------------------------------- GAE (terminal at T)
+            values = vnorm.denormalize(val_b)
+            adv = torch.zeros(T, B)
+            last = torch.zeros(B)
+            for step in reversed(range(T)):
+                next_v = values[step + 1] if step + 1 < T else torch.zeros(B)
+                delta = rew_b[step] + args.gamma * next_v - values[step]
+                last = delta + args.gamma * args.gae_lambda * last
+                adv[step] = last
+            returns = adv + values
+            vnorm.update(returns.flatten())
+            ret_n = vnorm.normalize(returns)
+        episodes_done += B
+
+        # -------------------------------------------------------------- flatten, death mask
+        live = live_b.flatten()
+        idx_all = torch.nonzero(live).flatten()
+        f_ego, f_nbr, f_rel, f_mask = ego_b.flatten(0, 2), nbr_b.flatten(0, 2), rel_b.flatten(0, 2), mask_b.flatten(0, 2)
+        f_act, f_logp = act_b.flatten(0, 2), logp_b.flatten(0, 2)
+        env_of = torch.arange(T * B).repeat_interleave(N)  # agent sample -> (step, env) row
+        f_adv = adv.flatten()[env_of]
+        f_gs, f_val, f_ret = gs_b.flatten(0, 1), val_b.flatten(), ret_n.flatten()
+
+        # -------------------------------------------------------------- PPO update
+        stats = {"pg": [], "v": [], "ent": [], "kl": [], "clipfrac": []}
+        for _epoch in range(args.update_epochs):
+            perm = idx_all[torch.randperm(len(idx_all))]
+            for lo in range(0, len(perm), args.minibatch_size):
+                mb = perm[lo : lo + args.minibatch_size]
+                if len(mb) < 2:
+                    continue
+                rows = env_of[mb]
+                dist = actor.dist(f_ego[mb], f_nbr[mb], f_rel[mb], f_mask[mb])
+                logp = dist.log_prob(f_act[mb]).sum(-1)
+                ratio = (logp - f_logp[mb]).exp()
+                a = f_adv[mb]
+                a = (a - a.mean()) / (a.std() + 1e-8)
+                pg = torch.max(-a * ratio, -a * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)).mean()
+                ent = dist.entropy().sum(-1).mean()
+                v = critic(f_gs[rows])
+                v_old = f_val[rows]
+                v_clip = v_old + torch.clamp(v - v_old, -args.vf_clip, args.vf_clip)
+                v_loss = torch.max((v - f_ret[rows]) ** 2, (v_clip - f_ret[rows]) ** 2).mean()
+                opt_a.zero_grad()
+                opt_c.zero_grad()
+                actor_on = it >= args.critic_warmup_iters
+                ((pg - ent_coef * ent) * float(actor_on) + args.vf_coef * v_loss).backward()
+                nn.utils.clip_grad_norm_(actor.parameters(), args.max_grad_norm)
+                nn.utils.clip_grad_norm_(critic.parameters(), args.max_grad_norm)
+                if actor_on:
+                    opt_a.step()
+                opt_c.step()
+                with torch.no_grad():
+                    log_ratio = logp - f_logp[mb]
+                    stats["kl"].append(float(((ratio - 1) - log_ratio).mean()))
+                    stats["clipfrac"].append(float(((ratio - 1).abs() > args.clip_coef).float().mean()))
+                stats["pg"].append(float(pg.detach()))
+                stats["v"].append(float(v_loss.detach()))
+                stats["ent"].append(float(ent.detach()))
+
+        # -------------------------------------------------------------- logging
+        wall = time.time() - t_start
+        row = {
+            "iteration": it,
+            "episodes": episodes_done,
+            "wall_s": round(wall, 2),
+            "charts/episodic_return": float(rew_b.sum(0).mean()),
+            "charts/coverage": float(cov_b.mean()),
+            "charts/coverage_steady": float(torch.stack(cov_last).mean()) if cov_last else float("nan"),
+            "charts/tup": tup,
+            "charts/failure_prob": p_fail,
+            "charts/lr_actor": args.lr_actor * lr_mult,
+            "charts/ent_coef": ent_coef,
+            "charts/action_std": float(actor.log_std.detach().exp().mean()),
+            "charts/SPS": episodes_done * T * N / max(wall, 1e-9),
+            "losses/policy_loss": float(np.mean(stats["pg"])),
+            "losses/value_loss": float(np.mean(stats["v"])),
+            "losses/entropy": float(np.mean(stats["ent"])),
+            "losses/approx_kl": float(np.mean(stats["kl"])),
+            "losses/clipfrac": float(np.mean(stats["clipfrac"])),
+        }
+        curve_f.write(json.dumps(row) + "\n")
+        curve_f.flush()
+        summary = row
+        if progress is not None:
+            progress(episodes_done, row)
+        if (it + 1) % args.checkpoint_every == 0 or it == iterations - 1:
+            torch.save(
+                {"actor": actor.state_dict(), "critic": critic.state_dict(), "vnorm": vnorm.state_dict(),
+                 "iteration": it, "episodes": episodes_done, "args": dataclasses.asdict(args)},
+                out / "checkpoint.pt",
+            )
+    curve_f.close()
+    return {"actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
+            "episodes": episodes_done, "last": summary, "curve": str(curve_path), "imitation": warm}

@@ -1,0 +1,139 @@
+"""Agent processes for a SITL run: spawn `plmarl agent` children, stop them, never orphan them.
+
+Used by the integration tests, `plmarl bench agent` and the sim-to-SITL gap run; the
+launcher builds on it. Every child gets OPENBLAS/OMP threads = 1 and its own log file.
+A fleet either execs each agent (`python -m plmarl_sitl.cli agent ...`, exactly what a
+user runs) or, with `forked=True`, forks it from a forkserver that has imported torch
+once (`swarm.forked`), which is how a launcher starts 20 agents on 2 cores quickly.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import json
+import os
+import signal
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from plmarl_sitl.proc import agent_child_setup
+from plmarl_sitl.sitl.forked import ForkedProcess, fork_agent, warm_up
+
+
+@dataclass
+class AgentProc:
+    uav_id: int
+    proc: asyncio.subprocess.Process | ForkedProcess
+    log_path: Path
+    trace_path: Path | None
+    stats_path: Path | None
+
+    def trace(self) -> list[dict]:
+        if self.trace_path is None or not self.trace_path.exists():
+            return []
+        return [json.loads(line) for line in self.trace_path.read_text().splitlines() if line.strip()]
+
+    def stats(self) -> dict | None:
+        if self.stats_path is None or not self.stats_path.exists():
+            return None
+        return json.loads(self.stats_path.read_text())
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace") if self.log_path.exists() else ""
+
+
+SITL_AGENT_NICE = 5
+
+
+@dataclass
+class AgentFleet:
+    """Children started by `spawn`; `stop()` (SIGTERM, then SIGKILL) in any case.
+
+    `nice` is added to every agent's niceness. A SITL swarm runs its agents at
+    SITL_AGENT_NICE: the world process and the broker stand in for physics, autopilots and
+    radios, which never wait for a companion computer's CPU. At equal priority, 20 agents
+    waking together on 2 cores held the broker's and the world's signalling for tens of
+    milliseconds (most of a second of vehicle time at 15x)."""
+
+    workdir: Path
+    forked: bool = False
+    nice: int = 0
+    procs: dict[int, AgentProc] = field(default_factory=dict)
+
+    def warm_up(self) -> None:
+        """Forked fleets: get the forkserver importing before the first `spawn`."""
+        if self.forked:
+            warm_up()
+
+    async def spawn(
+        self,
+        uav_id: int,
+        connect_url: str,
+        broker_url: str,
+        *,
+        mission: str | Path,
+        policy: str | Path,
+        n_uavs: int | None = None,
+        swarm: str = "sitl",
+        tup_s: int | None = None,
+        extra: list[str] | None = None,
+        trace: bool = True,
+        stats: bool = True,
+    ) -> AgentProc:
+        self.workdir.mkdir(parents=True, exist_ok=True)
+        trace_path = self.workdir / f"agent{uav_id}.trace.jsonl" if trace else None
+        stats_path = self.workdir / f"agent{uav_id}.stats.json" if stats else None
+        log_path = self.workdir / f"agent{uav_id}.log"
+        cmd = ["--id", str(uav_id), "--connect", connect_url,
+               "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm, "-v"]
+        if n_uavs is not None:
+            cmd += ["--n-uavs", str(n_uavs)]
+        if tup_s is not None:
+            cmd += ["--tup", str(tup_s)]
+        if trace_path is not None:
+            cmd += ["--trace", str(trace_path)]
+        if stats_path is not None:
+            cmd += ["--stats-json", str(stats_path)]
+        cmd += extra or []
+        threads = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+        proc: asyncio.subprocess.Process | ForkedProcess
+        if self.forked:
+            proc = await fork_agent(cmd, str(log_path), threads, name=f"plmarl-agent{uav_id}", nice=self.nice)
+        else:
+            with open(log_path, "wb") as log:
+                proc = await asyncio.create_subprocess_exec(
+                    sys.executable, "-m", "plmarl_sitl.cli", "agent", *cmd, stdout=log, stderr=asyncio.subprocess.STDOUT,
+                    env=dict(os.environ, **threads), preexec_fn=functools.partial(agent_child_setup, self.nice),
+                )
+        ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
+        self.procs[uav_id] = ap
+        return ap
+
+    def kill(self, uav_id: int) -> None:
+        """Abrupt process death (SIGKILL): no hold command, the autopilot's failsafe acts."""
+        p = self.procs[uav_id].proc
+        if p.returncode is None:
+            p.kill()
+
+    async def stop(self, grace_s: float = 5.0) -> None:
+        live = [ap.proc for ap in self.procs.values() if ap.proc.returncode is None]
+        for p in live:
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGTERM)
+        for p in live:
+            try:
+                async with asyncio.timeout(grace_s):
+                    await p.wait()
+            except TimeoutError:
+                with contextlib.suppress(ProcessLookupError):
+                    p.kill()
+                await p.wait()
+
+    async def __aenter__(self) -> AgentFleet:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()

@@ -1,0 +1,72 @@
+"""Batched guidance: turn each vehicle's active target into an acceleration command.
+
+Every vehicle has one guidance *kind* and a target vector. They live in numpy arrays that
+the per-vehicle state machines write at events (a setpoint arrives, a mode changes), and
+the host reads them once per physics substep as zero-copy torch views, so one batched call
+of the shared controllers (`goto_accel`, `velocity_tracking_accel`) serves all N vehicles.
+Per-vehicle speed/acceleration limits are (N, 1) tensors: the controllers broadcast them.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+import torch
+
+from plmarl_sitl.model.vehicle import clip_norm, goto_accel, velocity_tracking_accel
+
+# Position and velocity loops: a multirotor's position controller settles in about a second.
+TIME_CONST_S = 0.5
+
+
+class Kind(enum.IntEnum):
+    IDLE = 0  # on the ground, motors idle or off: no acceleration
+    ACCEL = 1  # external acceleration setpoint (net, gravity compensated)
+    VELOCITY = 2  # track a velocity
+    POSITION = 3  # fly to a point and stop there (hold, takeoff, position setpoints)
+    LAND = 4  # hold x/y, descend at `descent` m/s
+    FALL = 5  # motors off in the air (forced disarm, node failure)
+
+
+class Guidance:
+    """Targets of N vehicles; `accel()` evaluates them all in one batched call."""
+
+    def __init__(self, n: int) -> None:
+        self.kind = np.zeros(n, dtype=np.int64)
+        self.target = np.zeros((n, 3), dtype=np.float64)
+        self.max_speed = np.ones((n, 1), dtype=np.float64)
+        self.max_accel = np.ones((n, 1), dtype=np.float64)
+        self.descent = np.zeros(n, dtype=np.float64)
+
+    def set(self, i: int, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
+        self.kind[i] = kind
+        if target is not None:
+            self.target[i] = target
+
+    def accel(self, pos: torch.Tensor, vel: torch.Tensor, fall_accel: float) -> torch.Tensor:
+        """(N, 3) acceleration commands for the current states."""
+        kind = torch.from_numpy(self.kind)
+        target = torch.from_numpy(self.target)
+        ms = torch.from_numpy(self.max_speed)
+        ma = torch.from_numpy(self.max_accel)
+        present = set(np.unique(self.kind).tolist())
+        out = torch.zeros_like(pos)
+        if Kind.ACCEL in present:
+            out = torch.where((kind == Kind.ACCEL).unsqueeze(-1), clip_norm(target, ma), out)
+        if Kind.VELOCITY in present:
+            a = velocity_tracking_accel(vel, clip_norm(target, ms), ma, TIME_CONST_S)
+            out = torch.where((kind == Kind.VELOCITY).unsqueeze(-1), a, out)
+        if Kind.POSITION in present:
+            a = goto_accel(pos, vel, target, ms, ma, TIME_CONST_S)
+            out = torch.where((kind == Kind.POSITION).unsqueeze(-1), a, out)
+        if Kind.LAND in present:
+            v_xy = clip_norm((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
+            v_des = torch.cat([v_xy, torch.from_numpy(self.descent).unsqueeze(-1)], dim=-1)
+            a = velocity_tracking_accel(vel, v_des, ma, TIME_CONST_S)
+            out = torch.where((kind == Kind.LAND).unsqueeze(-1), a, out)
+        if Kind.FALL in present:
+            down = torch.zeros_like(pos)
+            down[:, 2] = fall_accel
+            out = torch.where((kind == Kind.FALL).unsqueeze(-1), down, out)
+        return out

@@ -1,0 +1,344 @@
+"""Incoming MAVLink: validate, dispatch, answer. Bad input is counted, never raised.
+
+Each handler gets the vehicle, the decoded message and the sender's address. Replies
+(COMMAND_ACK, PARAM_VALUE, ...) go to the sender; streams go to every peer. Commands
+follow PX4/ArduPilot semantics that MAVSDK and pymavlink rely on: every COMMAND_LONG gets
+exactly one COMMAND_ACK matched on the command id, unknown commands get UNSUPPORTED, and
+unset parameters arrive as NaN and are tolerated where the command allows it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+from plmarl_sitl.deploy.mavlink.codec import Message, dialect, param_id_str
+from plmarl_sitl.sitl.autopilot import telemetry
+from plmarl_sitl.sitl.autopilot.guidance import Kind
+from plmarl_sitl.sitl.autopilot.vehicle import (
+    ACCEPTED,
+    DENIED,
+    FORCE_MAGIC,
+    MASK_ACC,
+    MASK_FORCE_SET,
+    MASK_POS,
+    MASK_VEL,
+    Vehicle,
+)
+
+d = dialect
+UNSUPPORTED = d.MAV_RESULT_UNSUPPORTED
+Addr = tuple[str, int]
+
+# Sanity bounds on setpoint fields: beyond these a value is garbage, not a wish to clip.
+MAX_ABS = {Kind.POSITION: 1e6, Kind.VELOCITY: 1e3, Kind.ACCEL: 1e3}
+
+
+def on_datagram(v: Vehicle, data: bytes, addr: Addr) -> None:
+    """Entry point from the UDP protocol."""
+    if v.killed:
+        return
+    v.counters.datagrams += 1
+    decoded = v.codec.decode_datagram(data)
+    if decoded.fault is not None:
+        v.drop(decoded.fault, f"{len(data)} bytes from {addr[0]}:{addr[1]}")
+    for msg in decoded.messages:
+        v.counters.messages += 1
+        v.remember_peer(addr)
+        handler = HANDLERS.get(msg.get_msgId())
+        if handler is not None:
+            handler(v, msg, addr)
+
+
+def _for_me(v: Vehicle, msg: Message) -> bool:
+    ts = getattr(msg, "target_system", 0)
+    tc = getattr(msg, "target_component", 0)
+    return ts in (0, v.sysid) and tc in (0, d.MAV_COMP_ID_AUTOPILOT1)
+
+
+def _ack(v: Vehicle, msg: Message, addr: Addr, command: int, result: int) -> None:
+    v.send(
+        v.codec.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()),
+        addr,
+    )
+
+
+# ---------------------------------------------------------------------------- setpoints
+
+
+def _setpoint(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if not _for_me(v, msg):
+        return
+    mask = msg.type_mask
+    if msg.coordinate_frame != d.MAV_FRAME_LOCAL_NED:
+        v.drop("bad_value", f"setpoint frame {msg.coordinate_frame} (only LOCAL_NED)")
+        return
+    if mask & MASK_FORCE_SET:
+        v.drop("bad_value", "setpoint with FORCE_SET")
+        return
+    groups = (
+        (MASK_POS, Kind.POSITION, (msg.x, msg.y, msg.z)),
+        (MASK_VEL, Kind.VELOCITY, (msg.vx, msg.vy, msg.vz)),
+        (MASK_ACC, Kind.ACCEL, (msg.afx, msg.afy, msg.afz)),
+    )
+    for bits, kind, vec in groups:
+        used = mask & bits
+        if used == bits:
+            continue  # group ignored
+        if used != 0:
+            v.drop("bad_value", f"partial type_mask 0x{mask:04x}")
+            return
+        lim = MAX_ABS[kind]
+        if not all(math.isfinite(c) and abs(c) <= lim for c in vec):
+            v.drop("bad_value", f"{kind.name.lower()} setpoint {vec}")
+            return
+        v.accept_setpoint(kind, (float(vec[0]), float(vec[1]), float(vec[2])), mask)
+        return
+    v.drop("bad_value", f"type_mask 0x{mask:04x} ignores everything")
+
+
+# ---------------------------------------------------------------------------- commands
+
+CommandFn = Callable[[Vehicle, list[float], Message, Addr], int]
+
+
+def _finite(*xs: float) -> bool:
+    return all(math.isfinite(x) for x in xs)
+
+
+def _cmd_arm(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if not _finite(p[0]) or p[0] not in (0.0, 1.0):
+        v.drop("bad_value", f"arm param1 {p[0]}")
+        return DENIED
+    force = p[1] == FORCE_MAGIC
+    return v.arm(force) if p[0] == 1.0 else v.disarm(force)
+
+
+def _cmd_set_mode(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if not _finite(p[0], p[1]):
+        v.drop("bad_value", f"DO_SET_MODE params {p[:3]}")
+        return DENIED
+    if not int(p[0]) & d.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+        return DENIED
+    spec = v.personality.mode_by_custom(v.personality.custom_mode_from_set_mode(p[1], p[2]))
+    return DENIED if spec is None else v.set_mode(spec)
+
+
+def _cmd_takeoff(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    alt = p[6]
+    if math.isnan(alt):
+        rel = None
+    elif not math.isfinite(alt):
+        v.drop("bad_value", f"takeoff altitude {alt}")
+        return DENIED
+    elif v.personality.takeoff_alt_is_amsl:
+        rel = alt - v.home_geodetic[2]
+    else:
+        rel = alt if alt > 0 else None
+    return v.takeoff(rel)
+
+
+def _cmd_land(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    return v.land()
+
+
+def _cmd_set_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if not _finite(p[0], p[1]):
+        v.drop("bad_value", f"SET_MESSAGE_INTERVAL params {p[:2]}")
+        return DENIED
+    msgid, interval_us = int(p[0]), p[1]
+    if msgid not in telemetry.BUILDERS or msgid == d.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+        return UNSUPPORTED
+    if interval_us < 0:
+        hz = 0.0
+    elif interval_us == 0:
+        hz = v.host.default_rate(msgid)
+    elif interval_us < 1000:  # > 1 kHz of sim time is not a telemetry rate
+        return DENIED
+    else:
+        hz = 1e6 / interval_us
+    v.host.scheduler.set_rate(v.index, msgid, hz, v.host.now)
+    return ACCEPTED
+
+
+def _cmd_get_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if not _finite(p[0]):
+        return DENIED
+    msgid = int(p[0])
+    hz = v.host.scheduler.rate(v.index, msgid)
+    interval = int(1e6 / hz) if hz > 0 else (-1 if msgid in telemetry.BUILDERS else 0)
+    v.send(v.codec.mav.message_interval_encode(msgid, interval), addr)
+    return ACCEPTED
+
+
+def _send_once(v: Vehicle, msgid: int, addr: Addr) -> int:
+    builder = telemetry.BUILDERS.get(msgid)
+    if builder is None:
+        return UNSUPPORTED
+    m = builder(v)
+    if m is None:
+        return DENIED
+    v.send(m, addr)
+    return ACCEPTED
+
+
+def _cmd_request_message(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if not _finite(p[0]):
+        v.drop("bad_value", f"REQUEST_MESSAGE id {p[0]}")
+        return DENIED
+    return _send_once(v, int(p[0]), addr)
+
+
+def _cmd_autopilot_capabilities(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    return _send_once(v, d.MAVLINK_MSG_ID_AUTOPILOT_VERSION, addr)
+
+
+def _cmd_get_home(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    return _send_once(v, d.MAVLINK_MSG_ID_HOME_POSITION, addr)
+
+
+COMMANDS: dict[int, CommandFn] = {
+    d.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
+    d.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
+    d.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
+    d.MAV_CMD_NAV_LAND: _cmd_land,
+    d.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_message_interval,
+    d.MAV_CMD_GET_MESSAGE_INTERVAL: _cmd_get_message_interval,
+    d.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
+    d.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: _cmd_autopilot_capabilities,
+    d.MAV_CMD_GET_HOME_POSITION: _cmd_get_home,
+}
+
+
+def _command(v: Vehicle, msg: Message, addr: Addr, params: list[float]) -> None:
+    if not _for_me(v, msg):
+        return
+    fn = COMMANDS.get(msg.command)
+    result = UNSUPPORTED if fn is None else fn(v, params, msg, addr)
+    _ack(v, msg, addr, msg.command, result)
+
+
+def _command_long(v: Vehicle, msg: Message, addr: Addr) -> None:
+    p = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7]
+    _command(v, msg, addr, p)
+
+
+def _command_int(v: Vehicle, msg: Message, addr: Addr) -> None:
+    p = [msg.param1, msg.param2, msg.param3, msg.param4, msg.x * 1e-7, msg.y * 1e-7, msg.z]
+    _command(v, msg, addr, p)
+
+
+def _set_mode_msg(v: Vehicle, msg: Message, addr: Addr) -> None:
+    """Legacy SET_MODE (MAVProxy, old GCSs): ArduPilot answers it with a COMMAND_ACK too."""
+    if msg.target_system not in (0, v.sysid):
+        return
+    spec = v.personality.mode_by_custom(msg.custom_mode)
+    result = DENIED if spec is None else v.set_mode(spec)
+    _ack(v, msg, addr, d.MAVLINK_MSG_ID_SET_MODE, result)
+
+
+# ---------------------------------------------------------------------------- params
+
+
+def _param_value(v: Vehicle, index: int, addr: Addr | None) -> None:
+    name, value, ptype = v.params.wire(index)
+    v.send(v.codec.mav.param_value_encode(name.encode(), value, ptype, len(v.params.specs), index), addr)
+
+
+def _param_request_list(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if _for_me(v, msg):
+        for i in range(len(v.params.specs)):
+            _param_value(v, i, addr)
+
+
+def _param_request_read(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if not _for_me(v, msg):
+        return
+    if msg.param_index >= 0:
+        index = msg.param_index if msg.param_index < len(v.params.specs) else None
+    else:
+        index = v.params.index_of(param_id_str(msg.param_id))
+    if index is not None:
+        _param_value(v, index, addr)
+
+
+def _param_set(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if not _for_me(v, msg):
+        return
+    name = param_id_str(msg.param_id)
+    index = v.params.index_of(name)
+    if index is None:
+        return  # PX4 and ArduPilot stay silent on unknown names
+    refused = v.params.set_from_wire(name, msg.param_value)
+    if refused is not None:
+        v.drop("bad_value", f"PARAM_SET {name}={msg.param_value}: {refused}")
+    else:
+        v.params_changed()
+    _param_value(v, index, None)  # broadcast the (new or unchanged) value, as PX4 does
+
+
+# ---------------------------------------------------------------------------- misc
+
+
+def _mission_request_list(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if _for_me(v, msg):
+        v.send(v.codec.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(), 0, msg.mission_type), addr)
+
+
+def _mission_clear_all(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if _for_me(v, msg):
+        v.send(
+            v.codec.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), d.MAV_MISSION_ACCEPTED, msg.mission_type),
+            addr,
+        )
+
+
+def _mission_count(v: Vehicle, msg: Message, addr: Addr) -> None:
+    """Mission upload: this emulator flies setpoints only, so it refuses politely."""
+    if _for_me(v, msg):
+        v.send(
+            v.codec.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(), d.MAV_MISSION_UNSUPPORTED, msg.mission_type),
+            addr,
+        )
+
+
+def _timesync(v: Vehicle, msg: Message, addr: Addr) -> None:
+    if msg.tc1 == 0:  # a request: answer with our clock (sim time, ns)
+        v.send(v.codec.mav.timesync_encode(int(v.host.now * 1e9), msg.ts1), addr)
+
+
+_FTP_NAK, _FTP_OPEN_RO = 129, 4
+_FTP_ERR_FAIL, _FTP_ERR_NOT_FOUND = 1, 10
+
+
+def _ftp(v: Vehicle, msg: Message, addr: Addr) -> None:
+    """MAVFTP: there are no files. A prompt NAK lets MAVProxy fall back to PARAM_REQUEST_LIST
+    at once instead of after its FTP timeout."""
+    if msg.target_system not in (0, v.sysid) or len(msg.payload) < 12:
+        return
+    pl = bytes(msg.payload)
+    seq, session, opcode = pl[0] | pl[1] << 8, pl[2], pl[3]
+    err = _FTP_ERR_NOT_FOUND if opcode == _FTP_OPEN_RO else _FTP_ERR_FAIL
+    reply = bytes([(seq + 1) & 0xFF, (seq + 1) >> 8 & 0xFF, session, _FTP_NAK, 1, opcode, 0, 0, 0, 0, 0, 0, err])
+    v.send(
+        v.codec.mav.file_transfer_protocol_encode(0, msg.get_srcSystem(), msg.get_srcComponent(), list(reply.ljust(251, b"\0"))),
+        addr,
+    )
+
+
+Handler = Callable[[Vehicle, Message, Addr], None]
+
+HANDLERS: dict[int, Handler] = {
+    d.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED: _setpoint,
+    d.MAVLINK_MSG_ID_COMMAND_LONG: _command_long,
+    d.MAVLINK_MSG_ID_COMMAND_INT: _command_int,
+    d.MAVLINK_MSG_ID_SET_MODE: _set_mode_msg,
+    d.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: _param_request_list,
+    d.MAVLINK_MSG_ID_PARAM_REQUEST_READ: _param_request_read,
+    d.MAVLINK_MSG_ID_PARAM_SET: _param_set,
+    d.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: _mission_request_list,
+    d.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: _mission_clear_all,
+    d.MAVLINK_MSG_ID_MISSION_COUNT: _mission_count,
+    d.MAVLINK_MSG_ID_TIMESYNC: _timesync,
+    d.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: _ftp,
+}

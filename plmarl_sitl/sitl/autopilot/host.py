@@ -1,0 +1,266 @@
+"""AutopilotHost: N emulated autopilots in one asyncio process, stepped by whoever owns the clock.
+
+The SITL world process owns simulated time: it calls `advance(dt_s)` and every vehicle's
+physics, failsafes and telemetry move by exactly that much sim time. The standalone runner
+(`runner.run_realtime`) is just one such owner that follows wall time × speedup. Time since
+boot (time_boot_ms, SYSTEM_TIME, TIMESYNC) is sim time, so a sped-up run looks like a
+normal vehicle to clients that time-stamp by the vehicle clock.
+
+All vehicles are stepped in one batched call of the shared point-mass dynamics
+(`plmarl_sitl.model.vehicle.step_point_mass`), float64, shape (N, 3).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import socket
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from plmarl_sitl.config import VehicleModel, load_vehicle
+from plmarl_sitl.deploy.mavlink.personality import Personality, personality
+from plmarl_sitl.mission import Origin
+from plmarl_sitl.model.vehicle import Limits, step_point_mass
+from plmarl_sitl.sitl.autopilot import handlers, telemetry
+from plmarl_sitl.sitl.autopilot.counters import InputCounters
+from plmarl_sitl.sitl.autopilot.guidance import Guidance
+from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
+
+log = logging.getLogger("plmarl.autopilot")
+
+MAX_SYSID = 250  # PX4's MAV_SYS_ID range; 255 is by convention a ground station
+
+
+RECEIVE_BUFFER_BYTES = 1 << 20
+
+
+def _grow_receive_buffer(transport: asyncio.BaseTransport) -> None:
+    """Ask for a 1 MiB socket receive buffer (the kernel caps it at net.core.rmem_max).
+
+    The default (~200 KiB, a few hundred small datagrams) overflows when a sped-up run
+    gets 400 setpoints/s per vehicle and the loop is busy stepping physics for a few ms.
+    """
+    sock = transport.get_extra_info("socket")
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER_BYTES)
+    except OSError as exc:
+        log.debug("cannot enlarge UDP receive buffer: %s", exc)
+
+
+class _VehicleProtocol(asyncio.DatagramProtocol):
+    """One UDP port per vehicle, as PX4 SITL gives each instance 14540 + i."""
+
+    def __init__(self, vehicle: Vehicle) -> None:
+        self.vehicle = vehicle
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.vehicle.transport = transport  # type: ignore[assignment]
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self.vehicle.record(data)
+        handlers.on_datagram(self.vehicle, data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP "port unreachable" after a client went away: normal for UDP telemetry.
+        log.debug("vehicle %d: socket error %s", self.vehicle.sysid, exc)
+
+
+class AutopilotHost:
+    """Hosts `count` vehicles; vehicle i has sysid i + 1 (or `sysids[i]`) and listens on base_port + i.
+
+    `home_offsets_ned[i]` is where vehicle i's home (and local NED origin) sits in the
+    mission frame, whose geodetic origin is `origin`. `streams` overrides the default
+    telemetry rates (message name or id -> Hz of sim time; 0 disables).
+    """
+
+    def __init__(
+        self,
+        count: int,
+        *,
+        personality_name: str = "px4",
+        vehicle: VehicleModel | str | Path = "quadrotor",
+        origin: Origin | None = None,
+        home_offsets_ned: Sequence[tuple[float, float, float]] | None = None,
+        base_port: int = 14540,
+        bind_host: str = "127.0.0.1",
+        signing_key: bytes | None = None,
+        gcs: tuple[str, int] | None = None,
+        physics_hz: float = 50.0,
+        streams: Mapping[str | int, float] | None = None,
+        sysids: Sequence[int] | None = None,
+    ) -> None:
+        if count < 1:
+            raise ValueError("count must be >= 1")
+        sysids = list(sysids) if sysids is not None else list(range(1, count + 1))
+        if len(sysids) != count or not all(1 <= s <= MAX_SYSID for s in sysids):
+            raise ValueError(
+                f"need {count} system ids in 1..{MAX_SYSID} (MAVLink has 8-bit ids: more than {MAX_SYSID} "
+                "vehicles need repeated ids, each on its own port)"
+            )
+        if physics_hz < 50.0:
+            raise ValueError("physics_hz must be >= 50 (the contract is >= 50 Hz of sim time)")
+        self.personality: Personality = personality(personality_name)
+        self.model = vehicle if isinstance(vehicle, VehicleModel) else load_vehicle(vehicle)
+        self.limits = Limits.ground_to_ceiling(self.model)
+        self.origin = origin or Origin()
+        offsets = list(home_offsets_ned or [(0.0, 0.0, 0.0)] * count)
+        if len(offsets) != count:
+            raise ValueError(f"home_offsets_ned has {len(offsets)} entries for {count} vehicles")
+        self.home_offsets = torch.tensor(offsets, dtype=torch.float64).reshape(count, 3)
+        self.base_port = base_port
+        self.bind_host = bind_host
+        self.gcs = gcs
+        self.physics_dt = 1.0 / physics_hz
+        self.now = 0.0  # sim seconds since boot
+        self._unix_at_boot = time.time()
+        self.guidance = Guidance(count)
+        self.pos = torch.zeros(count, 3, dtype=torch.float64)
+        self.vel = torch.zeros(count, 3, dtype=torch.float64)
+        self.acc = torch.zeros(count, 3, dtype=torch.float64)
+        self._refresh_views()
+        self._watch: dict[int, Vehicle] = {}
+        self.sp_deadline = np.full(count, np.inf)  # sim time each vehicle's setpoint stream times out
+        self.scheduler = telemetry.Scheduler()
+        self._rates = dict(telemetry.DEFAULT_RATES)
+        for k, hz in (streams or {}).items():
+            self._rates[telemetry.message_id(k)] = float(hz)
+        self.vehicles = [
+            Vehicle(self, i, sysids[i], self.personality, self.model, tuple(offsets[i]), signing_key) for i in range(count)
+        ]
+        for v in self.vehicles:
+            for msgid, hz in self._rates.items():
+                self.scheduler.set_rate(v.index, msgid, hz, 0.0)
+        self._transports: list[asyncio.DatagramTransport] = []
+        self._logged_drops: dict[int, int] = {}
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        """Bind one UDP socket per vehicle (127.0.0.1:base_port + i by default)."""
+        loop = asyncio.get_running_loop()
+        try:
+            for v in self.vehicles:
+                t, _ = await loop.create_datagram_endpoint(
+                    lambda v=v: _VehicleProtocol(v), local_addr=(self.bind_host, self.base_port + v.index)
+                )
+                self._transports.append(t)  # type: ignore[arg-type]
+                _grow_receive_buffer(t)
+        except OSError:
+            self.close()
+            raise
+
+    def record_tlogs(self, directory: str | Path) -> list[Path]:
+        """Record each vehicle's MAVLink traffic (both ways) to DIR/vehicle<i>.tlog."""
+        paths = []
+        Path(directory).mkdir(parents=True, exist_ok=True)
+        for i, v in enumerate(self.vehicles):
+            paths.append(Path(directory) / f"vehicle{i}.tlog")
+            v.tlog = open(paths[-1], "wb")  # noqa: SIM115 - closed in close()
+        return paths
+
+    def close(self) -> None:
+        for t in self._transports:
+            t.close()
+        self._transports.clear()
+        for v in self.vehicles:
+            v.transport = None
+            if v.tlog is not None:
+                v.tlog.close()
+                v.tlog = None
+
+    async def __aenter__(self) -> AutopilotHost:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ world-process API
+    @property
+    def count(self) -> int:
+        return len(self.vehicles)
+
+    @property
+    def ports(self) -> list[int]:
+        return [self.base_port + i for i in range(self.count)]
+
+    def vehicle(self, i: int) -> Vehicle:
+        return self.vehicles[i]
+
+    def true_states(self) -> torch.Tensor:
+        """(N, 6) float64 copy of [pos, vel] NED, each in its vehicle's local (home) frame.
+
+        A normal tensor (the state itself lives in inference mode), safe to keep or use in autograd.
+        """
+        return torch.cat([self.pos, self.vel], dim=-1).clone()
+
+    def mission_positions(self) -> torch.Tensor:
+        """(N, 3) positions in the mission frame (local position + home offset)."""
+        return (self.pos + self.home_offsets).clone()
+
+    def kill(self, i: int) -> None:
+        """Node failure: vehicle i stops answering and sending, and falls if airborne."""
+        self.vehicles[i].kill()
+
+    def counters(self) -> list[InputCounters]:
+        return [v.counters for v in self.vehicles]
+
+    def log_counters(self) -> None:
+        """One warning line per vehicle whose dropped-input counters moved since the last call."""
+        for v in self.vehicles:
+            dropped = v.counters.dropped
+            if dropped != self._logged_drops.get(v.index, 0):
+                self._logged_drops[v.index] = dropped
+                log.warning("vehicle %d: %d datagrams, dropped %s", v.sysid, v.counters.datagrams, v.counters.summary())
+
+    def unix_time_s(self) -> float:
+        return self._unix_at_boot + self.now
+
+    def default_rate(self, msgid: int) -> float:
+        return self._rates.get(msgid, 0.0)
+
+    def watch(self, v: Vehicle) -> None:
+        """Run v's state machine every substep (until it says it is idle)."""
+        self._watch[v.index] = v
+
+    # ------------------------------------------------------------------ the clock
+    def advance(self, dt_s: float) -> None:
+        """Move every vehicle forward by `dt_s` seconds of sim time (substeps <= physics_dt)."""
+        if not dt_s > 0 or not math.isfinite(dt_s):
+            return
+        n = max(1, math.ceil(dt_s / self.physics_dt - 1e-9))
+        h = dt_s / n
+        for _ in range(n):
+            self._substep(h)
+
+    @torch.inference_mode()  # no autograd bookkeeping: ~15 % off the physics call
+    def _substep(self, h: float) -> None:
+        self.acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel)
+        self.pos, self.vel = step_point_mass(self.pos, self.vel, self.acc, h, self.limits)
+        self.now += h
+        self._refresh_views()
+        if self._watch:
+            for i, v in list(self._watch.items()):
+                if not v.update(self.now):
+                    del self._watch[i]
+        if self.sp_deadline.min() < self.now:
+            for i in np.flatnonzero(self.sp_deadline < self.now).tolist():
+                self.vehicles[i].check_setpoint_loss(self.now)
+        due: dict[int, list[int]] = {}
+        for vi, msgid in self.scheduler.pop_due(self.now):
+            due.setdefault(vi, []).append(msgid)
+        for vi, ids in due.items():  # one datagram per vehicle and substep
+            v = self.vehicles[vi]
+            if v.peers or self.gcs is not None:
+                v.send_bundle([telemetry.BUILDERS[msgid](v) for msgid in ids])
+
+    def _refresh_views(self) -> None:
+        # Zero-copy numpy views for the per-vehicle Python code (telemetry, state machines).
+        self.pos_np = self.pos.numpy()
+        self.vel_np = self.vel.numpy()
+        self.acc_np = self.acc.numpy()

@@ -1,0 +1,247 @@
+"""Telemetry messages and their schedule.
+
+Builders turn a vehicle's state into the messages PX4/ArduPilot stream. Rates are in sim
+time (a 10 Hz stream at --speedup 20 sends 200 messages per wall second), so a client that
+timestamps by time_boot_ms sees a normal vehicle. One heap per host orders all due
+messages of all vehicles; SET_MESSAGE_INTERVAL bumps a per-(vehicle, message) generation
+so stale heap entries are skipped instead of searched for.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from plmarl_sitl.deploy.mavlink.codec import Message, dialect
+
+if TYPE_CHECKING:
+    from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
+
+d = dialect
+G = 9.80665
+_EARTH_RADIUS_M = 6_378_137.0
+
+# Sensors a healthy multirotor reports; MAVSDK derives health from these bits
+# (GPS present+healthy -> local/global position OK; PREARM_CHECK -> armable).
+SENSORS = (
+    d.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | d.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | d.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | d.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | d.MAV_SYS_STATUS_SENSOR_GPS
+    | d.MAV_SYS_STATUS_AHRS
+    | d.MAV_SYS_STATUS_PREARM_CHECK
+)
+
+# Default stream rates (Hz of sim time), close to PX4's onboard/UDP profile.
+DEFAULT_RATES: dict[int, float] = {
+    d.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    d.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    d.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    d.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    d.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    d.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    d.MAVLINK_MSG_ID_ATTITUDE: 10.0,
+    d.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 10.0,
+    d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 10.0,
+    d.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: 10.0,
+    d.MAVLINK_MSG_ID_VFR_HUD: 0.0,
+    d.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 0.0,
+}
+
+
+def geodetic(lat0: float, lon0: float, alt0: float, north: float, east: float, up: float) -> tuple[float, float, float]:
+    """Flat-earth offset of a geodetic point (good to centimetres over a few km)."""
+    lat = lat0 + math.degrees(north / _EARTH_RADIUS_M)
+    lon = lon0 + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(lat0))))
+    return lat, lon, alt0 + up
+
+
+def _ms(v: Vehicle) -> int:
+    return int(v.host.now * 1000) & 0xFFFFFFFF
+
+
+def heartbeat(v: Vehicle) -> Message:
+    base = d.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    if v.armed:
+        base |= d.MAV_MODE_FLAG_SAFETY_ARMED
+    status = d.MAV_STATE_ACTIVE if v.armed else d.MAV_STATE_STANDBY
+    return v.codec.mav.heartbeat_encode(
+        d.MAV_TYPE_QUADROTOR, v.personality.autopilot, base, v.custom_mode, status, 3
+    )
+
+
+def sys_status(v: Vehicle) -> Message:
+    return v.codec.mav.sys_status_encode(SENSORS, SENSORS, SENSORS, 250, 16200, -1, 100, 0, 0, 0, 0, 0, 0)
+
+
+def system_time(v: Vehicle) -> Message:
+    return v.codec.mav.system_time_encode(int(v.host.unix_time_s() * 1e6), _ms(v))
+
+
+def gps_raw_int(v: Vehicle) -> Message:
+    lat, lon, alt = v.geodetic()
+    vn, ve, _ = v.velocity()
+    return v.codec.mav.gps_raw_int_encode(
+        int(v.host.unix_time_s() * 1e6), d.GPS_FIX_TYPE_3D_FIX, int(lat * 1e7), int(lon * 1e7),
+        int(alt * 1000), 80, 120, int(math.hypot(vn, ve) * 100), 65535, 12,
+    )
+
+
+def extended_sys_state(v: Vehicle) -> Message:
+    return v.codec.mav.extended_sys_state_encode(d.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
+
+
+def home_position(v: Vehicle) -> Message:
+    lat, lon, alt = v.home_geodetic
+    return v.codec.mav.home_position_encode(
+        int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+        int(v.host.unix_time_s() * 1e6),
+    )
+
+
+def gps_global_origin(v: Vehicle) -> Message:
+    lat, lon, alt = v.home_geodetic
+    return v.codec.mav.gps_global_origin_encode(int(lat * 1e7), int(lon * 1e7), int(alt * 1000))
+
+
+def attitude(v: Vehicle) -> Message:
+    an, ae, _ = v.last_accel()
+    yaw = v.yaw
+    fwd = math.cos(yaw) * an + math.sin(yaw) * ae
+    right = -math.sin(yaw) * an + math.cos(yaw) * ae
+    return v.codec.mav.attitude_encode(_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0)
+
+
+def local_position_ned(v: Vehicle) -> Message:
+    x, y, z = v.nav_position()
+    vx, vy, vz = v.velocity()
+    return v.codec.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
+
+
+def global_position_int(v: Vehicle) -> Message:
+    lat, lon, alt = v.geodetic()
+    _, _, z = v.nav_position()
+    vx, vy, vz = v.velocity()
+    hdg = int(math.degrees(v.yaw) % 360 * 100)
+    return v.codec.mav.global_position_int_encode(
+        _ms(v), int(lat * 1e7), int(lon * 1e7), int(alt * 1000), int(-z * 1000),
+        int(vx * 100), int(vy * 100), int(vz * 100), hdg,
+    )
+
+
+def position_target_local_ned(v: Vehicle) -> Message | None:
+    target = v.active_target()
+    if target is None:
+        return None
+    mask, (a, b, c) = target
+    vec = [0.0] * 9
+    group = 0 if mask & 0x7 == 0 else 1 if mask & 0x38 == 0 else 2
+    vec[3 * group : 3 * group + 3] = (a, b, c)
+    return v.codec.mav.position_target_local_ned_encode(_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0)
+
+
+def vfr_hud(v: Vehicle) -> Message:
+    vx, vy, vz = v.velocity()
+    _, _, alt = v.geodetic()
+    speed = math.hypot(vx, vy)
+    hdg = int(math.degrees(v.yaw) % 360)
+    return v.codec.mav.vfr_hud_encode(speed, speed, hdg, 50 if v.armed else 0, alt, -vz)
+
+
+def autopilot_version(v: Vehicle) -> Message:
+    caps = (
+        d.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+        | d.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+        | d.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+        | d.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    )
+    if v.personality.param_bytewise:
+        caps |= d.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    else:
+        caps |= d.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+    sw = (1 << 24) | (15 << 16) | (0 << 8) | 255  # 1.15.0 release
+    uid2 = list(v.sysid.to_bytes(2, "little")) + [0] * 16
+    return v.codec.mav.autopilot_version_encode(
+        caps, sw, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0x26AC, 0x0011, v.sysid, uid2
+    )
+
+
+BUILDERS: dict[int, Callable[[Vehicle], Message | None]] = {
+    d.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
+    d.MAVLINK_MSG_ID_SYS_STATUS: sys_status,
+    d.MAVLINK_MSG_ID_SYSTEM_TIME: system_time,
+    d.MAVLINK_MSG_ID_GPS_RAW_INT: gps_raw_int,
+    d.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: extended_sys_state,
+    d.MAVLINK_MSG_ID_HOME_POSITION: home_position,
+    d.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: gps_global_origin,
+    d.MAVLINK_MSG_ID_ATTITUDE: attitude,
+    d.MAVLINK_MSG_ID_LOCAL_POSITION_NED: local_position_ned,
+    d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: global_position_int,
+    d.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: position_target_local_ned,
+    d.MAVLINK_MSG_ID_VFR_HUD: vfr_hud,
+    d.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+}
+
+
+def message_id(name_or_id: str | int) -> int:
+    """Message id from a name ('LOCAL_POSITION_NED') or id; KeyError if unknown."""
+    if isinstance(name_or_id, int):
+        return name_or_id
+    return getattr(d, f"MAVLINK_MSG_ID_{name_or_id.upper()}")
+
+
+# Streams start on a per-vehicle grid (see Scheduler.set_rate): 0.1 s, the period of the
+# 10 Hz streams, split into 5 phases, one per 50 Hz physics substep.
+STREAM_GRID_S = 0.1
+STREAM_PHASES = 5
+
+
+class Scheduler:
+    """Heap of (due sim time, vehicle, message) over all vehicles of a host."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, int, int, int]] = []
+        self._tie = itertools.count()
+        self._gen: dict[tuple[int, int], int] = {}
+        self._interval: dict[tuple[int, int], float] = {}
+
+    def set_rate(self, vehicle: int, msgid: int, hz: float, now: float) -> None:
+        """Stream `msgid` of `vehicle` at `hz` (0 stops it), starting at the vehicle's next
+        grid point: each vehicle's streams share one phase on a STREAM_GRID_S grid, so
+        its 1 Hz messages fall on its 10 Hz ones and leave in the same datagram (as PX4
+        bundles), and the phase differs between vehicles, so N vehicles' telemetry (and
+        their agents' work) does not all land in the same instant."""
+        key = (vehicle, msgid)
+        gen = self._gen.get(key, 0) + 1
+        self._gen[key] = gen
+        if hz <= 0:
+            self._interval.pop(key, None)
+            return
+        self._interval[key] = 1.0 / hz
+        phase = (vehicle % STREAM_PHASES) * STREAM_GRID_S / STREAM_PHASES
+        first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
+        heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
+
+    def rate(self, vehicle: int, msgid: int) -> float:
+        iv = self._interval.get((vehicle, msgid))
+        return 1.0 / iv if iv else 0.0
+
+    def pop_due(self, now: float) -> list[tuple[int, int]]:
+        """(vehicle, msgid) pairs due at `now`, each rescheduled one interval later."""
+        out = []
+        heap = self._heap
+        while heap and heap[0][0] <= now + 1e-9:
+            due, _, vi, mid, gen = heapq.heappop(heap)
+            if self._gen.get((vi, mid)) != gen:
+                continue
+            iv = self._interval[(vi, mid)]
+            nxt = due + iv
+            if nxt < now - iv:  # far behind (e.g. a huge advance): do not burst
+                nxt = now + iv
+            heapq.heappush(heap, (nxt, next(self._tie), vi, mid, gen))
+            out.append((vi, mid))
+        return out

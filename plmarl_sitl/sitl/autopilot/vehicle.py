@@ -1,0 +1,487 @@
+"""One emulated autopilot: mode/arming state machine, setpoints and failsafes.
+
+The vehicle never integrates its own motion: the host steps all vehicles' physics in one
+batched call and this class only decides *what each vehicle is trying to do* (the guidance
+kind and target) and reacts to what happened (takeoff reached, touchdown, setpoint loss).
+Message parsing and replies live in `handlers.py`; telemetry builders in `telemetry.py`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import struct
+import time
+from collections import OrderedDict
+from typing import TYPE_CHECKING, BinaryIO
+
+from plmarl_sitl.config import VehicleModel
+from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
+from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
+from plmarl_sitl.sitl.autopilot.counters import InputCounters
+from plmarl_sitl.sitl.autopilot.guidance import Kind
+from plmarl_sitl.sitl.autopilot.params import ParamStore
+from plmarl_sitl.sitl.autopilot.telemetry import geodetic
+
+if TYPE_CHECKING:
+    import asyncio
+
+    from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+
+log = logging.getLogger("plmarl.autopilot")
+d = dialect
+
+ACCEPTED = d.MAV_RESULT_ACCEPTED
+DENIED = d.MAV_RESULT_DENIED
+TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
+FORCE_MAGIC = 21196  # param2 of COMPONENT_ARM_DISARM that forces (PX4 and ArduPilot)
+
+ON_GROUND_ALT_M = 0.05
+LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
+TAKEOFF_DONE_M = 0.3
+MAX_PEERS = 8
+# Messages a signed vehicle still accepts unsigned: presence only, nothing that acts.
+ALLOW_UNSIGNED = (d.MAVLINK_MSG_ID_HEARTBEAT, d.MAVLINK_MSG_ID_RADIO_STATUS)
+
+# type_mask bits of SET_POSITION_TARGET_LOCAL_NED (POSITION_TARGET_TYPEMASK).
+MASK_POS, MASK_VEL, MASK_ACC = 0x007, 0x038, 0x1C0
+MASK_FORCE_SET = 0x200
+ECHO_MASK = {Kind.POSITION: 0xDF8, Kind.VELOCITY: 0xDC7, Kind.ACCEL: 0xC3F, Kind.LAND: 0xDC7}
+
+
+class Vehicle:
+    """State of vehicle `index` of a host (sysid = index + 1 unless configured)."""
+
+    def __init__(
+        self,
+        host: AutopilotHost,
+        index: int,
+        sysid: int,
+        personality: Personality,
+        model: VehicleModel,
+        home_offset_ned: tuple[float, float, float],
+        signing_key: bytes | None,
+    ) -> None:
+        self.host = host
+        self.index = index
+        self.personality = personality
+        self.model = model
+        self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, ALLOW_UNSIGNED)
+        self.params = ParamStore(model, personality, sysid)
+        self.counters = InputCounters()
+        self.home_offset_ned = home_offset_ned
+        o = host.origin
+        self.home_geodetic = geodetic(o.lat_deg, o.lon_deg, o.alt_m, home_offset_ned[0], home_offset_ned[1], 0.0)
+        self.transport: asyncio.DatagramTransport | None = None
+        self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
+        self.killed = False
+        self.gnss_noise_std_m = 0.0
+        self._noise_rng = random.Random(sysid)
+        self.tlog: BinaryIO | None = None  # every message sent and received, as a .tlog
+        self._armed = False
+        self._mode_spec: ModeSpec = personality.mode(personality.boot_mode)
+        self._yaw = 0.0
+        # Last external setpoint: (guidance kind, vector, type_mask) and when it arrived.
+        self.setpoint: tuple[Kind, tuple[float, float, float], int] | None = None
+        self.setpoint_time = -math.inf
+        self.setpoint_timed_out = False  # ArduPilot: braked after GUID_TIMEOUT until the next one
+        self.taking_off = False
+        self._takeoff_alt = 0.0
+        self._apply_limits()
+
+    # ------------------------------------------------------------------ identity / state
+    @property
+    def sysid(self) -> int:
+        return self.codec.sysid
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @armed.setter
+    def armed(self, value: bool) -> None:
+        if value != self._armed:
+            self._armed = value
+            self._refresh_deadline()
+            self._announce_state()
+
+    @property
+    def mode_spec(self) -> ModeSpec:
+        return self._mode_spec
+
+    @mode_spec.setter
+    def mode_spec(self, spec: ModeSpec) -> None:
+        if spec != self._mode_spec:
+            self._mode_spec = spec
+            self._refresh_deadline()
+            self._announce_state()
+
+    def _refresh_deadline(self) -> None:
+        """Publish when this vehicle's setpoint stream times out (inf: no timeout armed).
+
+        The host compares all deadlines with the clock in one numpy call per substep, so
+        vehicles that are simply flying setpoints cost nothing per substep.
+        """
+        dl = math.inf
+        if (
+            self._mode_spec.behaviour == Behaviour.OFFBOARD
+            and self._armed
+            and self.setpoint is not None
+            and not self.setpoint_timed_out
+            and not self.killed
+        ):
+            dl = self.setpoint_time + self.params["offboard_timeout_s"]
+        self.host.sp_deadline[self.index] = dl
+
+    def _announce_state(self) -> None:
+        """Send a HEARTBEAT right away on a mode or arming change.
+
+        Clients learn the mode only from heartbeats (1 Hz); without this a failsafe would
+        look up to a second late to MAVSDK, which judges offboard loss to within 0.5 s.
+        """
+        from plmarl_sitl.sitl.autopilot.telemetry import heartbeat
+
+        self.send(heartbeat(self))
+
+    @property
+    def mode(self) -> str:
+        return self.mode_spec.name
+
+    @property
+    def custom_mode(self) -> int:
+        return self.mode_spec.custom_mode
+
+    @property
+    def behaviour(self) -> Behaviour:
+        return self.mode_spec.behaviour
+
+    def position(self) -> tuple[float, float, float]:
+        p = self.host.pos_np[self.index]
+        return float(p[0]), float(p[1]), float(p[2])
+
+    def velocity(self) -> tuple[float, float, float]:
+        v = self.host.vel_np[self.index]
+        return float(v[0]), float(v[1]), float(v[2])
+
+    def last_accel(self) -> tuple[float, float, float]:
+        a = self.host.acc_np[self.index]
+        return float(a[0]), float(a[1]), float(a[2])
+
+    def altitude(self) -> float:
+        return -float(self.host.pos_np[self.index, 2])
+
+    def nav_position(self) -> tuple[float, float, float]:
+        """The position the navigation filter reports: truth plus GNSS noise (if set by a
+        gnss_noise mission event), redrawn per message like a real receiver's jitter."""
+        x, y, z = self.position()
+        std = self.gnss_noise_std_m
+        if std > 0:
+            x, y, z = (c + self._noise_rng.gauss(0.0, std) for c in (x, y, z))
+        return x, y, z
+
+    def geodetic(self) -> tuple[float, float, float]:
+        x, y, z = self.nav_position()
+        lat, lon, alt = self.home_geodetic
+        return geodetic(lat, lon, alt, x, y, -z)
+
+    @property
+    def yaw(self) -> float:
+        """Heading: a multirotor flying a point-mass path faces where it goes."""
+        vx, vy, _ = self.velocity()
+        if vx * vx + vy * vy > 1.0:
+            self._yaw = math.atan2(vy, vx)
+        return self._yaw
+
+    @property
+    def landed_state(self) -> int:
+        if self.taking_off:
+            return d.MAV_LANDED_STATE_TAKEOFF
+        if int(self.host.guidance.kind[self.index]) == Kind.LAND:
+            return d.MAV_LANDED_STATE_LANDING
+        return d.MAV_LANDED_STATE_ON_GROUND if self.on_ground() else d.MAV_LANDED_STATE_IN_AIR
+
+    def on_ground(self) -> bool:
+        vx, vy, vz = self.velocity()
+        return self.altitude() <= ON_GROUND_ALT_M and abs(vz) < 0.2 and math.hypot(vx, vy) < 0.5
+
+    # ------------------------------------------------------------------ output
+    def send(self, msg: Message | None, addr: tuple[str, int] | None = None) -> None:
+        """Send to `addr`, or to every peer and the ground station (telemetry)."""
+        t = self.transport
+        if msg is None or t is None or self.killed or t.is_closing():
+            return
+        buf = self.codec.encode(msg)
+        self.record(buf)
+        if addr is not None:
+            t.sendto(buf, addr)
+        else:
+            self._broadcast(t, buf)
+
+    def send_bundle(self, msgs: list[Message | None]) -> None:
+        """Telemetry due together, to every peer and the ground station in one datagram
+        (MAVLink over UDP allows several frames per datagram; PX4 sends them so)."""
+        t = self.transport
+        if t is None or self.killed or t.is_closing():
+            return
+        frames = [self.codec.encode(m) for m in msgs if m is not None]
+        for f in frames:
+            self.record(f)
+        if frames:
+            self._broadcast(t, b"".join(frames))
+
+    def _broadcast(self, t: asyncio.DatagramTransport, buf: bytes) -> None:
+        """One datagram to every peer and to the ground station."""
+        for peer in self.peers:
+            t.sendto(buf, peer)
+        gcs = self.host.gcs
+        if gcs is not None and gcs not in self.peers:
+            t.sendto(buf, gcs)
+
+    def record(self, raw: bytes) -> None:
+        """Append one MAVLink frame to the .tlog: 8-byte big-endian unix time in us, then
+        the frame (the format pymavlink and MAVExplorer read)."""
+        if self.tlog is not None and raw[:1] in (b"\xfd", b"\xfe"):
+            self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + raw)
+
+    def statustext(self, text: str, severity: int = d.MAV_SEVERITY_INFO) -> None:
+        self.send(self.codec.mav.statustext_encode(severity, text[:50].encode()))
+
+    def remember_peer(self, addr: tuple[str, int]) -> None:
+        peers = self.peers
+        if addr in peers:
+            peers.move_to_end(addr)
+            return
+        peers[addr] = None
+        if len(peers) > MAX_PEERS:
+            peers.popitem(last=False)
+
+    def drop(self, fault: str, detail: str = "") -> None:
+        """Count a dropped input; the first of each kind is logged and announced."""
+        if self.counters.add(fault):
+            log.warning("vehicle %d: dropped %s input%s (first occurrence)", self.sysid, fault, f": {detail}" if detail else "")
+            self.statustext(f"Dropped {fault} input", d.MAV_SEVERITY_WARNING)
+
+    # ------------------------------------------------------------------ guidance
+    def _apply_limits(self) -> None:
+        g = self.host.guidance
+        i = self.index
+        g.max_speed[i, 0] = self.params["max_speed_mps"]
+        g.max_accel[i, 0] = self.params["max_accel_mps2"]
+
+    def params_changed(self) -> None:
+        self._apply_limits()
+        self._refresh_deadline()
+        if self.taking_off:
+            self.host.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
+
+    def _guide(self, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
+        self.host.guidance.set(self.index, kind, target)
+        self._apply_limits()
+        if kind in (Kind.LAND, Kind.FALL) or self.taking_off:
+            self.host.watch(self)
+
+    def _hold_here(self) -> None:
+        """Brake at half the acceleration limit and hold where the vehicle stops."""
+        if self.on_ground() and not self.taking_off:
+            self._guide(Kind.IDLE)
+            return
+        x, y, z = self.position()
+        vx, vy, vz = self.velocity()
+        speed = math.sqrt(vx * vx + vy * vy + vz * vz)
+        k = speed / self.params["max_accel_mps2"]  # stopping distance v^2 / a, along v
+        self._guide(Kind.POSITION, (x + vx * k, y + vy * k, min(z + vz * k, 0.0)))
+
+    def active_target(self) -> tuple[int, tuple[float, float, float]] | None:
+        """(type_mask, vector) of what the vehicle is tracking, for POSITION_TARGET_LOCAL_NED."""
+        g = self.host.guidance
+        kind = Kind(int(g.kind[self.index]))
+        mask = ECHO_MASK.get(kind)
+        if mask is None:
+            return None
+        t = g.target[self.index]
+        if kind == Kind.LAND:
+            return mask, (0.0, 0.0, float(g.descent[self.index]))
+        return mask, (float(t[0]), float(t[1]), float(t[2]))
+
+    def _apply_setpoint(self) -> None:
+        assert self.setpoint is not None
+        kind, vec, _ = self.setpoint
+        self.taking_off = False
+        self._guide(kind, vec)
+
+    def _offboard_in_control(self) -> bool:
+        """Whether external setpoints drive the vehicle right now."""
+        if self.behaviour != Behaviour.OFFBOARD or not self.armed:
+            return False
+        # ArduPilot ignores GUIDED setpoints on the ground: it needs a takeoff first.
+        return self.personality.name == "px4" or not (self.on_ground() and not self.taking_off)
+
+    # ------------------------------------------------------------------ actions
+    def set_mode(self, spec: ModeSpec) -> int:
+        if spec.behaviour == Behaviour.TAKEOFF:
+            return self.takeoff(None)
+        if spec.behaviour == Behaviour.OFFBOARD and self.personality.failsafe == Failsafe.LEAVE_TO_HOLD:
+            # PX4 refuses OFFBOARD unless setpoints are already streaming.
+            if self.host.now - self.setpoint_time > self.params["offboard_timeout_s"]:
+                return TEMP_REJECTED
+        self.mode_spec = spec
+        self.taking_off = False
+        self.setpoint_timed_out = False
+        b = spec.behaviour
+        if b == Behaviour.LAND:
+            self._start_land()
+        elif b == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
+            self._apply_setpoint()
+        elif self.armed:
+            self._hold_here()
+        self._refresh_deadline()
+        return ACCEPTED
+
+    def arm(self, force: bool) -> int:
+        if self.armed:
+            return ACCEPTED
+        if not force and not self.on_ground():
+            return DENIED
+        if not force and self.behaviour == Behaviour.LAND:
+            return DENIED
+        self.armed = True
+        if self.behaviour == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
+            self._apply_setpoint()
+        else:
+            self._hold_here()
+        self.statustext("Armed")
+        return ACCEPTED
+
+    def disarm(self, force: bool) -> int:
+        if not self.armed:
+            return ACCEPTED
+        if not force and not self.on_ground():
+            return DENIED
+        self.armed = False
+        self.taking_off = False
+        self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
+        self.statustext("Disarmed")
+        return ACCEPTED
+
+    def takeoff(self, alt_rel_m: float | None) -> int:
+        """Climb to `alt_rel_m` above home (None: the takeoff-altitude parameter)."""
+        p = self.personality
+        if not self.armed or not self.on_ground():
+            return DENIED
+        if p.takeoff_needs_offboard_mode and self.behaviour != Behaviour.OFFBOARD:
+            return DENIED
+        alt = self.params["takeoff_alt_m"] if alt_rel_m is None else alt_rel_m
+        if not 0.5 <= alt <= self.model.max_alt_m:
+            self.drop("bad_value", f"takeoff altitude {alt:g} m")
+            return DENIED
+        if p.takeoff_mode is not None:
+            self.mode_spec = p.mode(p.takeoff_mode)
+        x, y, _ = self.position()
+        self.taking_off = True
+        self._takeoff_alt = alt
+        self._guide(Kind.POSITION, (x, y, -alt))
+        self.host.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
+        return ACCEPTED
+
+    def land(self) -> int:
+        if not self.armed:
+            return DENIED
+        self.mode_spec = self.personality.mode(self.personality.land_mode)
+        self.taking_off = False
+        self._start_land()
+        return ACCEPTED
+
+    def _start_land(self) -> None:
+        if not self.armed or self.on_ground():
+            self._guide(Kind.IDLE)
+            return
+        x, y, _ = self.position()
+        self._guide(Kind.LAND, (x, y, 0.0))
+
+    def accept_setpoint(self, kind: Kind, vec: tuple[float, float, float], type_mask: int) -> None:
+        self.setpoint = (kind, vec, type_mask)
+        self.setpoint_time = self.host.now
+        self.setpoint_timed_out = False
+        if self._offboard_in_control():
+            self._apply_setpoint()
+        self._refresh_deadline()
+
+    def kill(self) -> None:
+        """Node failure: the vehicle goes silent and, if flying, falls."""
+        self.killed = True
+        self.armed = False
+        self.taking_off = False
+        self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
+
+    # ------------------------------------------------------------------ per substep
+    def update(self, now: float) -> bool:
+        """Takeoff/landing/falling progress after a physics substep. False: stop watching me.
+
+        Setpoint loss is not checked here but through `_refresh_deadline`.
+        """
+        g = self.host.guidance
+        kind = int(g.kind[self.index])
+        if kind == Kind.FALL or kind == Kind.LAND:
+            alt = self.altitude()
+            if kind == Kind.LAND:
+                fast = self.params["max_climb_mps"]
+                g.descent[self.index] = fast if alt > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
+            # A fall ends where the airframe hits the ground, at whatever speed (on_ground
+            # also asks for a slow drift, which only a controlled landing has).
+            if self.on_ground() or kind == Kind.FALL and alt <= ON_GROUND_ALT_M:
+                self._touchdown()
+                return False
+            return True
+        if self.taking_off:
+            if abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3:
+                self._takeoff_done()
+                return False
+            return True
+        return False
+
+    def _touchdown(self) -> None:
+        was_armed = self.armed
+        self.armed = False  # PX4 and ArduPilot both disarm after landing
+        self.host.guidance.set(self.index, Kind.IDLE)
+        # Ground contact stops the airframe: the floor only removes vertical velocity, and
+        # a wreck (or a landing drifting under 0.5 m/s) slid on for ever.
+        self.host.vel_np[self.index] = 0.0  # a view of the host's velocity tensor
+        if was_armed:
+            self.statustext("Landed, disarmed")
+
+    def _takeoff_done(self) -> None:
+        self.taking_off = False
+        p = self.personality
+        if p.takeoff_mode is not None and self.mode == p.takeoff_mode:
+            self.mode_spec = p.mode(p.hold_mode)
+        self._apply_limits()
+        if self.behaviour == Behaviour.OFFBOARD and self.setpoint is not None and not self._setpoint_stale():
+            self._apply_setpoint()
+        self.statustext("Takeoff complete")
+
+    def _setpoint_stale(self) -> bool:
+        return self.host.now - self.setpoint_time > self.params["offboard_timeout_s"]
+
+    def check_setpoint_loss(self, now: float) -> None:
+        """Called by the host once this vehicle's setpoint deadline has passed."""
+        self._check_setpoint_loss(now)
+        self._refresh_deadline()
+
+    def _check_setpoint_loss(self, now: float) -> None:
+        if self.setpoint_timed_out or not self._setpoint_stale():
+            return
+        assert self.setpoint is not None
+        if self.personality.failsafe == Failsafe.LEAVE_TO_HOLD:
+            self.mode_spec = self.personality.mode(self.personality.hold_mode)
+            self._hold_here()
+            self.statustext("Offboard lost: position hold", d.MAV_SEVERITY_WARNING)
+            log.info("vehicle %d: offboard setpoints lost at t=%.2f s, holding", self.sysid, now)
+        elif self.setpoint[0] != Kind.POSITION:
+            # ArduPilot keeps GUIDED; a velocity/accel target times out and it brakes.
+            self.setpoint_timed_out = True
+            self._hold_here()
+            self.statustext("Guided timeout: braking", d.MAV_SEVERITY_WARNING)
+            log.info("vehicle %d: guided setpoints timed out at t=%.2f s, braking", self.sysid, now)
+        else:
+            self.setpoint_timed_out = True

@@ -1,0 +1,101 @@
+"""Agent processes forked from one interpreter that has already imported torch.
+
+`import torch` costs ~1.2 s of CPU per process. Twenty agents exec'd at once on two cores
+spend ~15 s of wall time importing the same modules before any vehicle flies. A swarm
+launcher therefore starts one multiprocessing *forkserver* that preloads the agent's
+imports once, and forks each agent from it (copy-on-write, ~20 ms each). Each child is
+still one asyncio process per UAV running `plmarl agent` with the same arguments; only
+the interpreter start-up is shared. A companion computer runs `plmarl agent` itself.
+
+Lifetime: the forkserver exits when the launcher dies (even by SIGKILL: its pipe to the
+launcher closes), and each child asks the kernel for SIGTERM when the forkserver dies,
+so no agent outlives the launcher.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import multiprocessing
+import os
+import signal
+import sys
+from multiprocessing.context import ForkServerContext
+
+from plmarl_sitl.proc import agent_child_setup, set_process_name
+
+# What the forkserver imports once; a forked agent finds these already in sys.modules.
+PRELOAD = ["plmarl_sitl.sitl.forked_child"]
+
+_context: ForkServerContext | None = None
+
+
+def context() -> ForkServerContext:
+    global _context
+    if _context is None:
+        ctx = multiprocessing.get_context("forkserver")
+        ctx.set_forkserver_preload(PRELOAD)
+        _context = ctx
+    return _context
+
+
+def warm_up() -> None:
+    """Start the forkserver now: it imports torch in its own process, on another core,
+    while the caller starts the broker and the world."""
+    import multiprocessing.forkserver
+
+    context()
+    multiprocessing.forkserver.ensure_running()
+
+
+def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> None:
+    """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
+    `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice`
+    is added to its niceness."""
+    agent_child_setup(nice)
+    set_process_name(name)  # the command line is the forkserver's
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    sys.stderr.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    os.environ.update(env)
+    from plmarl_sitl.cli import main
+
+    sys.exit(main(["agent", *argv]))
+
+
+class ForkedProcess:
+    """The part of `asyncio.subprocess.Process` the fleet uses, for a forked agent."""
+
+    def __init__(self, proc: multiprocessing.process.BaseProcess) -> None:
+        self._proc = proc
+        self.pid = proc.pid
+
+    @property
+    def returncode(self) -> int | None:
+        """Exit code, or -signal when a signal killed it (as asyncio reports it)."""
+        return self._proc.exitcode
+
+    async def wait(self) -> int:
+        while self._proc.exitcode is None:
+            await asyncio.sleep(0.05)
+        return self._proc.exitcode
+
+    def send_signal(self, sig: int) -> None:
+        if self._proc.exitcode is None:
+            os.kill(self.pid, sig)  # type: ignore[arg-type]
+
+    def terminate(self) -> None:
+        self.send_signal(signal.SIGTERM)
+
+    def kill(self) -> None:
+        self.send_signal(signal.SIGKILL)
+
+
+async def fork_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> ForkedProcess:
+    """Fork `plmarl agent ARGV` from the preloaded forkserver (started on first use; its
+    imports run in a thread so the caller's event loop keeps serving the vehicles)."""
+    proc = context().Process(target=run_agent, args=(argv, log_path, env, name, nice), name=name)
+    await asyncio.get_running_loop().run_in_executor(None, proc.start)
+    return ForkedProcess(proc)

@@ -1,0 +1,361 @@
+"""`plmarl swarm up`: a whole SITL swarm from one command.
+
+This process starts the broker (amqtt in a child process, unless an external one is
+given; behind a `BrokerGate` when the mission has a broker outage) and hosts the SITL
+world (`SitlWorld`: autopilots, users, link emulator) and the mission script; it forks
+one `plmarl agent` per UAV (`swarm.forked`) and watches them. The world
+starts mission time once every vehicle flies under its agent; events fire on that clock.
+Everything is recorded in the run directory:
+
+    mission.yaml      the resolved mission (extends applied, seed filled in)
+    metrics.jsonl     one row per mission second: t, coverage, lambda2, messages, uavs
+    events.jsonl      every event as it fired
+    summary.json      coverage mean/min, duration, speedup, events, node-failure recovery
+    tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer)
+    agents/agentI.log     each agent's log (and its P-AoI trace)
+    launcher.log      world, bus and launcher log
+
+Shutdown (mission end, Ctrl-C, SIGTERM or a failed component) stops the agents (SIGTERM,
+then SIGKILL), the world and the broker, so no process is left behind.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime as _dt
+import json
+import logging
+import signal
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import yaml
+
+from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.deploy.mqtt.transport import MqttBus
+from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+from plmarl_sitl.errors import PlmarlError, UserError
+from plmarl_sitl.mission import Event, Mission, load_mission
+from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
+from plmarl_sitl.sitl.live import headless_line, render
+from plmarl_sitl.sitl.monitor import SwarmMonitor
+from plmarl_sitl.sitl.network.broker import AmqttProcess, free_udp_ports
+from plmarl_sitl.sitl.network.broker_gate import BrokerGate
+from plmarl_sitl.sitl.summary import summarize, timeliness
+from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
+
+log = logging.getLogger("plmarl.swarm")
+
+DEFAULT_POLICY = REPO_ROOT / "policies" / "pl-marl"
+
+
+class ComponentFailed(PlmarlError):
+    """A part of the running swarm died or could not start; `reason` is one line."""
+
+    def __init__(self, reason: str) -> None:
+        super().__init__(reason)
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class UpOptions:
+    mission_path: Path
+    speedup: float = 1.0
+    duration_s: int | None = None  # mission seconds; None: the mission's episode length
+    broker: str = "embedded"
+    headless: bool = False
+    out: Path | None = None
+    seed: int | None = None
+    policy: Path = DEFAULT_POLICY
+    personality: str = "px4"
+    swarm: str = "sitl"
+    start_timeout_s: float = 120.0  # wall seconds for every vehicle to get airborne
+
+
+def resolve_mission(opts: UpOptions) -> Mission:
+    mission = load_mission(opts.mission_path)
+    if opts.seed is not None:
+        mission = replace(mission, seed=opts.seed)
+    return mission
+
+
+def default_out_dir() -> Path:
+    return Path("runs") / _dt.datetime.now().strftime("%Y-%m-%dT%H-%M-%S")
+
+
+def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
+    """The links a link_blackout cuts: all of them, or every link touching `uavs`."""
+    if not ev.uavs:
+        return None
+    return sorted({(min(u, j), max(u, j)) for u in ev.uavs for j in range(n) if j != u})
+
+
+class MissionScript:
+    """Fires the mission's events on the mission clock and ends the timed ones."""
+
+    def __init__(
+        self, mission: Mission, world: SitlWorld, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]
+    ) -> None:
+        self.world, self.fleet, self.gate, self.record = world, fleet, gate, record
+        self.pending = sorted(
+            [Event(type="node_failure", at_s=f.at_s, uav=f.uav) for f in mission.failures] + list(mission.events),
+            key=lambda e: e.at_s,
+        )
+        self.endings: list[tuple[float, Event]] = []
+        self.killed: set[int] = set()
+        self.n = world.n
+
+    def tick(self, t: float) -> None:
+        while self.pending and self.pending[0].at_s <= t:
+            self._fire(self.pending.pop(0), t)
+        for end, ev in [x for x in self.endings if x[0] <= t]:
+            self.endings.remove((end, ev))
+            self._end(ev, t)
+
+    def _fire(self, ev: Event, t: float) -> None:
+        entry = {"t": t, "type": ev.type, **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
+        if ev.type == "node_failure":
+            assert ev.uav is not None
+            self.killed.add(ev.uav)
+            self.world.kill(ev.uav)
+            if ev.uav in self.fleet.procs:
+                self.fleet.kill(ev.uav)
+        elif ev.type == "link_blackout":
+            assert ev.duration_s is not None
+            self.world.cut_links(blackout_pairs(ev, self.n), ev.duration_s)
+        elif ev.type == "broker_outage":
+            assert self.gate is not None  # swarm_up puts a gate in front of the broker for this event
+            self.gate.outage(True)
+            self.endings.append((ev.end_s(), ev))
+        elif ev.type == "tup_change":
+            assert ev.tup_s is not None
+            self.world.set_tup(ev.tup_s)
+        elif ev.type == "gnss_noise":
+            for u in ev.uavs or range(self.n):
+                self.world.host.vehicles[u].gnss_noise_std_m = float(ev.std_m or 0.0)
+            if ev.duration_s is not None:
+                self.endings.append((ev.end_s(), ev))
+        log.warning("event at t=%.0f s: %s", t, entry)
+        self.record(entry)
+
+    def _end(self, ev: Event, t: float) -> None:
+        if ev.type == "broker_outage":
+            assert self.gate is not None
+            self.gate.outage(False)
+        elif ev.type == "gnss_noise":
+            for u in ev.uavs or range(self.n):
+                self.world.host.vehicles[u].gnss_noise_std_m = 0.0
+        self.record({"t": t, "type": f"{ev.type}_end"})
+
+
+async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
+    if spec == "embedded":
+        broker = AmqttProcess()
+        try:
+            await asyncio.to_thread(broker.start)
+        except (RuntimeError, TimeoutError) as exc:
+            raise ComponentFailed(f"the embedded amqtt broker did not start: {exc}") from exc
+        return broker, broker.host, broker.port
+    host, port = parse_broker_url(spec)  # UserError on a malformed URL
+    try:
+        async with asyncio.timeout(3):
+            _, w = await asyncio.open_connection(host, port)
+            w.close()
+    except (OSError, TimeoutError) as exc:
+        raise ComponentFailed(f"cannot reach the broker at {spec} ({exc.__class__.__name__})") from exc
+    return None, host, port
+
+
+def _setup_logging(out: Path) -> logging.Handler:
+    handler = logging.FileHandler(out / "launcher.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    for name in ("amqtt", "transitions", "aiomqtt"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+    return handler
+
+
+async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - rich Console
+    """Run a mission end to end; returns the summary. Raises ComponentFailed/UserError."""
+    from rich.console import Console
+    from rich.live import Live
+
+    console = console or Console()
+    mission = resolve_mission(opts)
+    if opts.broker != "embedded":
+        parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
+    if not (opts.policy / "card.yaml").exists():
+        raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
+    out = opts.out or default_out_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    handler = _setup_logging(out)
+    mission_file = out / "mission.yaml"
+    mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
+    duration = opts.duration_s or mission.timing.episode_s
+    n = mission.n_uavs
+    metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
+    events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
+    events: list[dict] = []
+    rows: list[dict] = []
+    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup)
+
+    def record_event(entry: dict) -> None:
+        events.append(entry)
+        events_f.write(json.dumps(entry) + "\n")
+        events_f.flush()
+        monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
+
+    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs, {duration} s at {opts.speedup:g}x, "
+                  f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+    fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
+    fleet.warm_up()  # the agents' imports load on the other core meanwhile
+    broker, up_host, up_port = await _start_broker(opts.broker)
+    # Every byte through the gate costs this process's event loop two hops, which at
+    # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
+    gate = BrokerGate(up_host, up_port) if any(e.type == "broker_outage" for e in mission.events) else None
+    bus_url = f"mqtt://{up_host}:{up_port}"
+    world: SitlWorld | None = None
+    script: MissionScript | None = None
+    last_headless = [-10.0]
+
+    def on_metrics(m: dict) -> None:
+        monitor.on_metrics(m)
+        if m.get("t") is None:
+            return
+        assert script is not None
+        script.tick(float(m["t"]))
+        row = monitor.metrics_row()
+        if row is not None:
+            rows.append(row)
+            metrics_f.write(json.dumps(row) + "\n")
+            metrics_f.flush()
+        if opts.headless and m["t"] >= last_headless[0] + 10:
+            last_headless[0] = float(m["t"])
+            console.print(headless_line(monitor.view()), highlight=False)
+
+    try:
+        if gate is not None:
+            await gate.start()
+            bus_url = gate.url
+        base_port = free_udp_ports(n)
+        world = SitlWorld(
+            WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, speedup=opts.speedup,
+                        base_port=base_port, seed=mission.seed, episode_s=duration),
+            on_metrics=on_metrics,
+        )
+        script = MissionScript(mission, world, fleet, gate, record_event)
+        world.host.record_tlogs(out / "tlogs")
+        await world.start()
+        observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
+                           monitor.on_bus, name="launcher-bus")
+        for i in range(n):
+            await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", bus_url, mission=mission_file,
+                              policy=opts.policy, swarm=opts.swarm, extra=["--autopilot", opts.personality])
+        async with asyncio.TaskGroup() as tg:
+            world_task = tg.create_task(world.run(keep_sockets=True), name="world")
+            bus_task = tg.create_task(observer.run(), name="launcher-bus")
+            watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout_s), name="watchdog")
+            view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
+            await world_task
+            for t in (bus_task, watch, view):
+                if t is not None:
+                    t.cancel()
+    except* ComponentFailed as group:
+        raise group.exceptions[0] from None
+    finally:
+        # Agents first, while the vehicles still answer: each commands hold and exits.
+        await fleet.stop()
+        if world is not None:
+            world.stop()
+            world.host.close()
+        if gate is not None:
+            await gate.close()
+        if broker is not None:
+            await asyncio.to_thread(broker.stop)
+        metrics_f.close()
+        events_f.close()
+        logging.getLogger().removeHandler(handler)
+        handler.close()
+    if not rows:
+        raise ComponentFailed(f"the mission never started (see {out / 'launcher.log'})")
+    summary = summarize(rows, events, opts.speedup)
+    summary["timeliness"] = timeliness([ap.trace() for ap in fleet.procs.values()], world.t0 if world else None)
+    summary["run_dir"] = str(out)
+    summary["seed"] = mission.seed
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+async def _watch(fleet: AgentFleet, script: MissionScript, world: SitlWorld, start_timeout_s: float) -> None:
+    """Fail fast, with a one-line reason, when an agent dies unasked or nothing takes off."""
+    loop = asyncio.get_running_loop()
+    t_start = loop.time()
+    while True:
+        await asyncio.sleep(0.5)
+        for i, ap in fleet.procs.items():
+            rc = ap.proc.returncode
+            if rc is not None and i not in script.killed:
+                tail = [ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"]
+                raise ComponentFailed(f"agent {i} exited with code {rc}: {tail[0][-160:]} (log: {ap.log_path})")
+        if world.t0 is None and loop.time() - t_start > start_timeout_s:
+            waiting = "; ".join(world.not_ready()) or "?"
+            raise ComponentFailed(f"vehicles not airborne after {start_timeout_s:.0f} s: {waiting}")
+
+
+async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Task) -> None:  # noqa: ANN001
+    with live_cls(render(monitor.view()), console=console, refresh_per_second=4, transient=False) as live:
+        while not world_task.done():
+            live.update(render(monitor.view()))
+            await asyncio.sleep(0.25)
+        live.update(render(monitor.view()))
+
+
+def run_up(opts: UpOptions) -> dict:
+    """Run `swarm_up` in a fresh event loop; SIGINT (Ctrl-C) and SIGTERM stop it cleanly."""
+
+    async def main() -> dict:
+        task = asyncio.current_task()
+        loop = asyncio.get_running_loop()
+        assert task is not None
+        # SIGINT too, and explicitly: a launcher started in the background of a script
+        # inherits an ignored SIGINT, while its agents install their own handler and stop
+        # on Ctrl-C; the launcher would then report them as failed instead of stopping.
+        with contextlib.suppress(NotImplementedError):
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, task.cancel)
+        return await swarm_up(opts)
+
+    try:
+        return asyncio.run(main())
+    except asyncio.CancelledError:
+        raise KeyboardInterrupt from None
+
+
+def status(broker: str, swarm: str, drop_after_missed: int = 2) -> None:
+    """`plmarl swarm status`: attach the live view to a running swarm over MQTT."""
+    from rich.console import Console
+    from rich.live import Live
+
+    async def main() -> None:
+        parse_broker_url(broker)  # UserError on a malformed URL
+        monitor = SwarmMonitor(swarm, 15, drop_after_missed)
+        t = monitor.topics
+        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus, name="status-bus")
+        console = Console()
+        async with asyncio.TaskGroup() as tg:
+            tg.create_task(bus.run())
+            with Live(render(monitor.view()), console=console, refresh_per_second=4) as live:
+                while True:
+                    live.update(render(monitor.view()))
+                    await asyncio.sleep(0.25)
+
+    asyncio.run(main())
+
+
+if __name__ == "__main__":  # pragma: no cover - debugging aid
+    print(json.dumps(run_up(UpOptions(Path(sys.argv[1]), speedup=10, headless=True))))

@@ -1,0 +1,204 @@
+"""Brokers for tests, the world process and the launcher: embedded amqtt or a mosquitto child.
+
+amqtt 0.12's `Broker(config_dict)` takes `listeners` and a `plugins` mapping; only the
+anonymous-auth plugin is loaded (the default set adds $SYS publishing and packet logging,
+which cost CPU for nothing here).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+from plmarl_sitl.proc import die_with_parent
+
+MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def free_udp_ports(count: int, host: str = "127.0.0.1", tries: int = 200) -> int:
+    """A base port with `count` consecutive free UDP ports (for AutopilotHost)."""
+    for _ in range(tries):
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            s.bind((host, 0))
+            base = int(s.getsockname()[1])
+        if base + count > 65535:
+            continue
+        socks = []
+        try:
+            for p in range(base, base + count):
+                u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                socks.append(u)
+                u.bind((host, p))
+            return base
+        except OSError:
+            continue
+        finally:
+            for u in socks:
+                u.close()
+    raise OSError(f"no {count} consecutive free UDP ports")
+
+
+class EmbeddedBroker:
+    """amqtt broker in this process's event loop: `async with EmbeddedBroker() as b: b.url`."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.host = host
+        self.port = port or free_port(host)
+        self._broker = None
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    async def start(self) -> None:
+        from amqtt.broker import Broker  # imported late: amqtt is slow to import
+
+        for name in ("amqtt", "transitions"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+        self._broker = Broker(
+            {
+                "listeners": {"default": {"type": "tcp", "bind": f"{self.host}:{self.port}", "max_connections": 0}},
+                "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+            }
+        )
+        await self._broker.start()
+
+    async def stop(self) -> None:
+        if self._broker is not None:
+            with contextlib.suppress(Exception):  # amqtt can raise on shutdown of a half-dead session
+                async with asyncio.timeout(5):
+                    await self._broker.shutdown()
+            self._broker = None
+
+    async def __aenter__(self) -> EmbeddedBroker:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+
+class _BrokerChild:
+    """A broker in a child process on a free loopback port; subclasses say which command."""
+
+    what = "broker"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.host = host
+        self.port = port or free_port(host)
+        self.proc: subprocess.Popen[bytes] | None = None
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"mqtt://{self.host}:{self.port}"
+
+    def command(self, workdir: Path) -> list[str]:
+        """The child's command line; `workdir` is a scratch directory for config files."""
+        raise NotImplementedError
+
+    def start(self, timeout_s: float = 5.0) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix=f"plmarl-{self.what}-")
+        workdir = Path(self._dir.name)
+        # stderr to a file, not a pipe: nobody reads a pipe once the broker runs, and a
+        # chatty broker (amqtt logs every dropped client) would block on a full one.
+        err_path = workdir / "stderr.log"
+        with open(err_path, "wb") as err:
+            # Never outlive the launcher or test that started us, even a SIGKILLed one.
+            self.proc = subprocess.Popen(self.command(workdir), stdout=subprocess.DEVNULL, stderr=err,
+                                         preexec_fn=die_with_parent)
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                tail = err_path.read_text(errors="replace").strip()[-500:]
+                code = self.proc.returncode
+                self.stop()
+                raise RuntimeError(f"{self.what} exited with {code}: {tail}")
+            with contextlib.suppress(OSError), socket.create_connection((self.host, self.port), timeout=0.2):
+                return
+            time.sleep(0.05)
+        self.stop()
+        raise TimeoutError(f"{self.what} did not listen on {self.port} within {timeout_s} s")
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(3)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(3)
+        self.proc = None
+        if self._dir is not None:
+            self._dir.cleanup()
+            self._dir = None
+
+    def __enter__(self) -> _BrokerChild:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class MosquittoBroker(_BrokerChild):
+    """A mosquitto child process on a free port (anonymous, localhost only)."""
+
+    what = "mosquitto"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, binary: str = MOSQUITTO) -> None:
+        super().__init__(host, port)
+        self.binary = binary
+
+    def command(self, workdir: Path) -> list[str]:
+        conf = workdir / "mosquitto.conf"
+        conf.write_text(f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\nlog_dest stderr\nlog_type error\n"
+                        # Nagle's algorithm on the broker's side holds small deliveries for the
+                        # subscriber's delayed ACK (40 ms): a signalling hop must not wait.
+                        "set_tcp_nodelay true\n")
+        return [self.binary, "-c", str(conf)]
+
+
+class AmqttProcess(_BrokerChild):
+    """The embedded amqtt broker in a child process (`bus.amqtt_main`): a swarm launcher's
+    default, so that the broker does not compete with the SITL world for one event loop."""
+
+    what = "amqtt"
+
+    def command(self, workdir: Path) -> list[str]:
+        return [sys.executable, "-m", "plmarl_sitl.sitl.network.amqtt_child", "--host", self.host, "--port", str(self.port)]
+
+
+@contextlib.asynccontextmanager
+async def local_broker(kind: str = "auto") -> AsyncIterator[EmbeddedBroker | MosquittoBroker]:
+    """A broker on a free loopback port for the block: "mosquitto", "amqtt" (in-process),
+    or "auto" (mosquitto when installed, the closer match to a deployment; else amqtt)."""
+    if kind == "auto":
+        kind = "mosquitto" if Path(MOSQUITTO).exists() else "amqtt"
+    if kind == "mosquitto":
+        mosq = MosquittoBroker()
+        mosq.start()
+        try:
+            yield mosq
+        finally:
+            mosq.stop()
+    elif kind == "amqtt":
+        async with EmbeddedBroker() as emb:
+            yield emb
+    else:
+        raise ValueError(f"unknown broker kind {kind!r}")

@@ -1,0 +1,401 @@
+"""The SITL world process: autopilots, ground users, link emulator and metrics on one clock.
+
+`SitlWorld` hosts the autopilot emulator's vehicles in-process (`AutopilotHost`) and owns
+simulated time: wall time x speedup, advanced in chunks that land exactly on every whole
+second, where the twin's per-second work happens with the twin's code:
+
+* ground users step once per mission second (`world.users.step_users`, same generator
+  seeding as `CoverageEnv(mission, 1, seed)`, so the same seed gives the same users);
+* coverage C(t) (`world.coverage.covered_users`) and lambda_2 are computed on the true
+  mission-frame positions (vehicle local NED + home offset; homes are the twin's launch
+  positions at ground level);
+* each vehicle's sensed users (within R_s of its true position) go to `sense/<id>`;
+* `metrics` carries coverage, lambda_2 and per-UAV truth (JSON).
+
+Signalling is relayed as it arrives: a state on `tx/<j>` goes to `rx/<i>` for every i that
+hears j now (`bus.linkemu.LinkEmulator`: R_comm and SINR >= Gamma, cuts, loss), after an
+optional latency in sim time.
+
+Mission time starts when every vehicle is flying under its agent (armed, in the offboard
+mode, at takeoff altitude): the world then announces `t0` (a whole boot second, a margin
+ahead) on the retained `start` topic. Agents count mission seconds from t0 on their own
+vehicle clock, so the twin's t = 0 (the launch line at takeoff altitude) is the same
+instant on both sides. Events for the launcher: `kill`, `cut_links`, `set_tup`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import torch
+
+from plmarl_sitl.deploy.mavlink.personality import Behaviour
+from plmarl_sitl.deploy.mqtt.schema import (
+    INSTANT_WAIT_MIN_S,
+    INSTANT_WAIT_WALL_S,
+    Malformed,
+    Topics,
+    decode_state,
+    encode_json,
+    encode_sense,
+)
+from plmarl_sitl.deploy.mqtt.transport import MqttBus
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.channel import CoverageRadius
+from plmarl_sitl.model.coverage import covered_users
+from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
+from plmarl_sitl.model.users import UserState, init_users, step_users
+from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+from plmarl_sitl.sitl.network.link_emulator import LinkEmulator
+from plmarl_sitl.twin.env import launch_positions
+
+if TYPE_CHECKING:
+    from plmarl_sitl.sitl.agents import AgentFleet
+
+log = logging.getLogger("plmarl.world")
+
+CHUNK_S = 0.08  # sim seconds per host.advance between yields (4 substeps at 50 Hz)
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    mission: Mission
+    broker_url: str
+    swarm: str = "sitl"
+    personality: str = "px4"
+    speedup: float = 1.0
+    base_port: int = 14540
+    seed: int | None = None  # users' seed; None: mission.seed
+    loss: float = 0.0  # per-delivery loss probability
+    latency_s: float = 0.0  # sim seconds between a tx and its deliveries
+    tick_hz: float = 50.0
+    start_margin_s: float = 2.0  # t0 is at least this far ahead of the announcement (sim s) ...
+    start_margin_wall_s: float = 0.5  # ... and at least this much wall time (x speedup) ahead
+    start_timeout_s: float = 300.0  # sim s: start anyway with whoever is ready
+    episode_s: int | None = None  # stop after this many mission seconds (None: run until stopped)
+    n_uavs: int | None = None  # override mission.n_uavs (tests)
+    publish_sense: bool = True  # False: no sensing publisher (a vehicle without the sensor)
+
+
+@dataclass
+class WorldSummary:
+    t0_boot_s: float | None = None
+    coverage: list[float] = field(default_factory=list)  # C(t) for mission seconds 1, 2, ...
+    lambda2: list[float] = field(default_factory=list)
+    wall_s: float = 0.0
+    sim_s: float = 0.0
+    links: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def mean_coverage(self) -> float:
+        return sum(self.coverage) / len(self.coverage) if self.coverage else float("nan")
+
+
+class SitlWorld:
+    def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None) -> None:
+        self.cfg = cfg
+        m = cfg.mission
+        self.mission = m
+        self.n = cfg.n_uavs or m.n_uavs
+        if self.n != m.n_uavs:
+            import dataclasses
+
+            self.mission = m = dataclasses.replace(m, n_uavs=self.n)
+        self.on_metrics = on_metrics
+        self.topics = Topics(cfg.swarm)
+        vm = m.vehicle_model()
+        self.vehicle_model = vm
+        self.takeoff_alt = min(max(vm.takeoff_alt_m, vm.min_alt_m), vm.max_alt_m)  # the twin's start altitude
+        homes = launch_positions(m, 0.0)
+        homes[:, 2] = 0.0
+        self.host = AutopilotHost(
+            self.n,
+            personality_name=cfg.personality,
+            vehicle=m.vehicle,
+            origin=m.origin,
+            home_offsets_ned=[tuple(map(float, h)) for h in homes],
+            base_port=cfg.base_port,
+        )
+        self.radius = CoverageRadius(m.channel, m.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
+        seed = m.seed if cfg.seed is None else cfg.seed
+        self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
+        self.users: UserState = init_users(m, 1, self.gen, torch.float32)
+        self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
+        self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
+        # A retained start (and T_up) of a previous run must not reach this run's agents.
+        self.bus.publish(self.topics.start, b"", sticky=True)
+        self.bus.publish(self.topics.ctl, b"", sticky=True)
+        self.summary = WorldSummary()
+        self.t0: float | None = None  # boot second of mission t = 0
+        self.mission_t: int | None = None  # last whole mission second processed
+        self.tup_s = m.signalling.tup_s
+        self._pending: list[tuple[float, int, str, bytes]] = []  # (due sim s, tiebreak, topic, payload)
+        self._tiebreak = itertools.count()
+        self._instants: dict[float, set[int]] = {}  # open signalling instants: who has signalled
+        # Deliveries of each open instant, per receiver: sent as one rx message when the
+        # instant closes (N messages per instant instead of N (N - 1) through the broker).
+        self._batches: dict[float, dict[int, list[bytes]]] = {}
+        self._closed_upto = -math.inf  # instants up to here are closed: late updates go out alone
+        self._stop = asyncio.Event()
+        self._next_second = 1.0  # boot seconds before t0, mission seconds after
+        self.started_wall: float | None = None
+
+    # ------------------------------------------------------------------ events API
+    def kill(self, i: int) -> None:
+        """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""
+        self.host.kill(i)
+        log.warning("event: vehicle %d killed at boot %.1f s", i, self.host.now)
+
+    def cut_links(self, pairs: list[tuple[int, int]] | None, duration_s: float) -> None:
+        """Cut some links (None: all) for `duration_s` sim seconds."""
+        self.links.cut(pairs, self.host.now + duration_s)
+        log.warning("event: links %s cut for %.1f s", "all" if pairs is None else pairs, duration_s)
+
+    def set_tup(self, tup_s: int) -> None:
+        """Tell the agents to signal every `tup_s` seconds from now on (ctl topic)."""
+        self.tup_s = int(tup_s)
+        self.bus.publish(self.topics.ctl, encode_json({"tup_s": self.tup_s}), sticky=True)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    async def shutdown(self, fleet: AgentFleet | None = None) -> None:
+        """Stop the clock, close the vehicles' sockets and stop `fleet`'s agents (whatever
+        state the run is in; safe to call twice)."""
+        self.stop()
+        self.host.close()
+        if fleet is not None:
+            await fleet.stop()
+
+    # ------------------------------------------------------------------ state
+    def alive(self) -> torch.Tensor:
+        return torch.tensor([not v.killed for v in self.host.vehicles])
+
+    def positions(self) -> torch.Tensor:
+        """(N, 3) float32 mission-frame positions (what the twin's coverage code takes)."""
+        return self.host.mission_positions().to(torch.float32)
+
+    # ------------------------------------------------------------------ bus
+    def _on_message(self, topic: str, payload: bytes) -> None:
+        sender = self.topics.id_of(topic)
+        try:
+            msg = decode_state(payload)
+        except Malformed:
+            self.links.counters.malformed += 1
+            return
+        if sender is None or msg.sender != sender or not 0 <= sender < self.n:
+            self.links.counters.malformed += 1
+            return
+        pos = self.host.mission_positions()
+        alive = self.alive()
+        receivers = self.links.receivers(sender, pos, alive, self.host.now)  # decided at arrival
+        if msg.t_s <= self._closed_upto:  # late for its instant: deliver it on its own
+            for i in receivers:
+                self._send_after_latency(self.topics.rx(i), payload)
+            return
+        batch = self._batches.setdefault(msg.t_s, {})
+        for i in receivers:
+            batch.setdefault(i, []).append(payload)
+        heard = self._instants.setdefault(msg.t_s, set())
+        heard.add(sender)
+        if heard >= {i for i in range(self.n) if bool(alive[i])}:
+            self._close_instant(msg.t_s)
+
+    def _send_after_latency(self, topic: str, payload: bytes) -> None:
+        if self.cfg.latency_s > 0:
+            heapq.heappush(self._pending, (self.host.now + self.cfg.latency_s, next(self._tiebreak), topic, payload))
+        else:
+            self.bus.publish(topic, payload)
+
+    def _close_instant(self, t_s: float) -> None:
+        """Deliver instant t_s's updates, one rx message per receiver, then tell the agents
+        that it has delivered all it will (through the same latency queue), so none waits
+        out its timeout for a neighbour that is out of range. Without this marker (real
+        radios) agents wait the timeout."""
+        self._instants.pop(t_s, None)
+        self._closed_upto = max(self._closed_upto, t_s)
+        for i, payloads in sorted(self._batches.pop(t_s, {}).items()):
+            self._send_after_latency(self.topics.rx(i), b"".join(payloads))
+        self._send_after_latency(self.topics.closed, encode_json({"t_s": t_s}))
+
+    def _close_overdue(self) -> None:
+        """Close every open instant some updates are still missing from after half the
+        agents' own wait bound (a vehicle whose agent died signals no more): the others'
+        updates must reach them before they give up waiting."""
+        if not self._instants or self.t0 is None:
+            return
+        now_t = self.host.now - self.t0
+        wait = max(INSTANT_WAIT_MIN_S, 0.5 * INSTANT_WAIT_WALL_S * self.cfg.speedup)
+        for t_s in [t for t in self._instants if now_t >= t + wait]:
+            self._close_instant(t_s)
+
+    def _deliver_due(self) -> None:
+        while self._pending and self._pending[0][0] <= self.host.now:
+            _, _, topic, payload = heapq.heappop(self._pending)
+            self.bus.publish(topic, payload)
+
+    # ------------------------------------------------------------------ per-second work
+    def not_ready(self) -> list[str]:
+        """Why the mission cannot start yet: one entry per vehicle not flying under its agent."""
+        out = []
+        for v in self.host.vehicles:
+            if v.killed:
+                continue
+            ok = v.armed and v.behaviour == Behaviour.OFFBOARD and not getattr(v, "taking_off", False)
+            if not ok or v.altitude() < self.takeoff_alt - 1.0:
+                out.append(f"{v.index} ({v.mode}, {'armed' if v.armed else 'disarmed'}, {v.altitude():.1f} m)")
+        return out
+
+    def _ready(self) -> bool:
+        return not self.not_ready()
+
+    def _maybe_start(self) -> None:
+        if self.t0 is not None:
+            return
+        if int(self.host.now) % 30 == 0:
+            log.info("waiting for vehicles: %s", ", ".join(self.not_ready()) or "none")
+        if self._ready() or self.host.now >= self.cfg.start_timeout_s:
+            if not self._ready():
+                log.warning("start timeout: starting the mission with the vehicles that are ready")
+            margin = max(self.cfg.start_margin_s, self.cfg.start_margin_wall_s * self.cfg.speedup)
+            self.t0 = float(math.ceil(self.host.now + margin))
+            self.summary.t0_boot_s = self.t0
+            self._next_second = self.t0
+            self.bus.publish(self.topics.start, encode_json({"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}), sticky=True)
+            log.info("mission starts at boot %.0f s (now %.2f s)", self.t0, self.host.now)
+
+    def _second(self) -> None:
+        """Work at a whole second: mission second k = now - t0 (or a boot second before t0)."""
+        m = self.mission
+        k: int | None = None
+        if self.t0 is not None and self.host.now >= self.t0 - 1e-6:
+            k = int(round(self.host.now - self.t0))
+            if k >= 1:
+                self.users = step_users(self.users, m, m.timing.dt_s, self.gen)
+            self.mission_t = k
+        pos = self.positions()
+        alive = self.alive()
+        users = self.users.xy[0]  # (U, 2)
+        cov = float(covered_users(users, pos, alive, self.radius(-pos[:, 2])).float().mean())
+        rx, sinr = link_mask(pos, alive, m.channel, m.radii.comm_m)
+        lam2 = float(algebraic_connectivity(weighted_adjacency(rx, sinr), alive))
+        if k is not None and k >= 1:
+            self.summary.coverage.append(cov)
+            self.summary.lambda2.append(lam2)
+        if k is not None and self.cfg.publish_sense:
+            t_ms = k * 1000
+            r2 = m.radii.sensing_m**2
+            for i in range(self.n):
+                if not bool(alive[i]):
+                    continue
+                d = users - pos[i, :2]
+                inside = users[(d * d).sum(-1) <= r2]
+                self.bus.publish(self.topics.sense(i), encode_sense(i, t_ms, inside.tolist()))
+        states = self.host.true_states()
+        offs = self.host.home_offsets
+        uav = []
+        for i, v in enumerate(self.host.vehicles):
+            p = (states[i, :3] + offs[i]).tolist()
+            uav.append(
+                {
+                    "id": i,
+                    "pos": [round(x, 2) for x in p],
+                    "vel": [round(x, 3) for x in states[i, 3:].tolist()],
+                    "alt": round(-p[2], 2),
+                    "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
+                    "mode": v.mode,
+                    "armed": v.armed,
+                    "alive": not v.killed,
+                }
+            )
+        metrics = {
+            "t": k,
+            "boot_s": round(self.host.now, 3),
+            "t0_boot_s": self.t0,
+            "coverage": cov,
+            "lambda2": lam2,
+            "links_up": int(rx.sum()),
+            "uav": uav,
+            "link_counters": self.links.counters.as_dict(),
+            "tup_s": self.tup_s,
+        }
+        self.bus.publish(self.topics.metrics, encode_json(metrics))
+        if self.on_metrics is not None:
+            self.on_metrics(metrics)
+        if k is not None and self.cfg.episode_s is not None and k >= self.cfg.episode_s:
+            self._stop.set()
+
+    # ------------------------------------------------------------------ clock
+    def _advance(self, sim_s: float) -> float:
+        """Advance up to `sim_s` (stopping at the next whole second); returns what is left."""
+        step = min(sim_s, CHUNK_S, self._next_second - self.host.now)
+        if step > 1e-9:
+            self.host.advance(step)
+            sim_s -= step
+        if self.host.now >= self._next_second - 1e-9:
+            self._second()
+            self._next_second += 1.0
+            self._maybe_start()
+        return sim_s
+
+    async def _clock(self) -> None:
+        period = 1.0 / self.cfg.tick_hz
+        last = time.perf_counter()
+        next_tick = last + period
+        while not self._stop.is_set():
+            delay = next_tick - time.perf_counter()
+            await asyncio.sleep(max(0.0, delay))
+            now = time.perf_counter()
+            todo = min(now - last, 5 * period) * self.cfg.speedup  # bounded catch-up, as the runner
+            last = now
+            while todo > 1e-9 and not self._stop.is_set():
+                todo = self._advance(todo)
+                self._close_overdue()
+                self._deliver_due()
+                await asyncio.sleep(0)  # let datagrams and MQTT messages in between chunks
+            next_tick = max(next_tick + period, now - period)
+
+    # ------------------------------------------------------------------ lifecycle
+    async def _flush(self, timeout_s: float) -> None:
+        """Let the last metrics go out before the bus closes."""
+        try:
+            async with asyncio.timeout(timeout_s):
+                while self.bus._queue.qsize() and self.bus.connected.is_set():
+                    await asyncio.sleep(0.01)
+        except TimeoutError:
+            log.debug("bus flush timed out with %d messages queued", self.bus._queue.qsize())
+
+    async def start(self) -> None:
+        """Bind the vehicles' UDP ports (agents may connect from now on)."""
+        await self.host.start()
+
+    async def run(self, keep_sockets: bool = False) -> WorldSummary:
+        """Run until `stop()`, the episode ends, or cancellation; then close the vehicles'
+        sockets, unless `keep_sockets`: a launcher that still has agents to stop keeps the
+        autopilots answering so each agent can command its hold mode (`host.close()` later)."""
+        if not self.host._transports:
+            await self.start()
+        t_wall = time.perf_counter()
+        sim0 = self.host.now
+        self.started_wall = t_wall
+        try:
+            async with asyncio.TaskGroup() as tg:
+                bus = tg.create_task(self.bus.run(), name="world-bus")
+                await self._clock()
+                await self._flush(1.0)
+                bus.cancel()
+        finally:
+            if not keep_sockets:
+                self.host.close()
+            self.summary.wall_s = time.perf_counter() - t_wall
+            self.summary.sim_s = self.host.now - sim0
+            self.summary.links = self.links.counters.as_dict()
+        return self.summary

@@ -1,0 +1,269 @@
+"""The digital twin: a batch of synchronous coverage episodes on torch tensors.
+
+Timing follows the paper: physics, users, signalling and coverage advance in steps of
+`timing.dt_s` (1 s); `step()` is one *decision* and holds the commanded accelerations for
+`timing.decision_every_s` physics steps (tau = 3); an episode is `timing.episode_s`
+physics steps. All environments share the clock, so `t` is a plain int.
+
+What an agent observes (`Observation`) is exactly what a deployed agent has: its own
+true state, what it last received from each neighbour at a signalling instant (with the
+P-AoI), and the users its own sensor sees within R_s. The centralised critic gets
+`global_state()`. Learners turn held states into beliefs themselves (plmarl_sitl.learning.nn).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.channel import CoverageRadius
+from plmarl_sitl.model.coverage import SENSING_FEATURES, covered_users, sensing_features
+from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
+from plmarl_sitl.model.reward import RewardTerms, combine, reward_terms
+from plmarl_sitl.model.signalling import Holdings, is_signalling_instant, signalling_update
+from plmarl_sitl.model.users import UserState, init_users, step_users
+from plmarl_sitl.model.vehicle import Limits, step_point_mass
+
+
+@dataclass(frozen=True)
+class Observation:
+    """Per-agent local observations, physical units (metres, m/s, seconds)."""
+
+    t: int
+    ego: torch.Tensor  # (B, N, 6) own true [pos NED, vel NED]
+    alive: torch.Tensor  # (B, N) bool
+    nbr_state: torch.Tensor  # (B, N, N, 6) [i, j]: last state i received from j
+    nbr_aoi: torch.Tensor  # (B, N, N) P-AoI of that state, seconds (>= 1)
+    nbr_mask: torch.Tensor  # (B, N, N) bool: j in N_i (heard recently enough, alive i)
+    nbr_t_rx: torch.Tensor  # (B, N, N) time the held state was received
+    sense: torch.Tensor  # (B, N, SENSING_FEATURES) local user sensing
+    fail_flag: torch.Tensor  # (B, N) bool: agent i has dropped a neighbour (its f)
+
+
+@dataclass(frozen=True)
+class StepInfo:
+    coverage: torch.Tensor  # (B, k) C(t) after each physics step of the decision
+    min_separation: torch.Tensor  # (B,) smallest live-pair distance seen, metres
+    lambda2: torch.Tensor | None  # (B, k) when track_lambda2
+    failed: torch.Tensor  # (B,) bool: global failure state f
+
+
+def launch_positions(mission: Mission, alt_m: float) -> torch.Tensor:
+    """(N, 3) NED start positions: a line across the launch point at `alt_m`."""
+    n = mission.n_uavs
+    la = mission.launch
+    offs = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * la.spacing_m
+    north = torch.full((n,), la.north_m, dtype=torch.float64)
+    return torch.stack([north, la.east_m + offs, torch.full((n,), -alt_m, dtype=torch.float64)], -1)
+
+
+class CoverageEnv:
+    def __init__(
+        self,
+        mission: Mission,
+        num_envs: int,
+        seed: int,
+        *,
+        dtype: torch.dtype = torch.float32,
+        device: str = "cpu",
+        failure_prob: float = 0.0,
+        failure_at_s: float = 100.0,
+        track_lambda2: bool = False,
+    ) -> None:
+        self.mission = mission
+        self.num_envs = num_envs
+        self.n = mission.n_uavs
+        self.dtype, self.device = dtype, device
+        self.failure_prob, self.failure_at_s = failure_prob, failure_at_s
+        self.track_lambda2 = track_lambda2
+        self.gen = torch.Generator().manual_seed(seed)
+        vm = mission.vehicle_model()
+        self.vehicle = vm
+        self.limits = Limits.band(vm)
+        self.radius = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
+        self.t = 0
+        self.reset()
+
+    # ---------------------------------------------------------------- state access
+    @property
+    def horizon(self) -> int:
+        return int(round(self.mission.timing.episode_s / self.mission.timing.dt_s))
+
+    @property
+    def done(self) -> bool:
+        return self.t >= self.horizon
+
+    def true_state(self) -> torch.Tensor:
+        return torch.cat([self.pos, self.vel], -1)
+
+    # ---------------------------------------------------------------- reset
+    def reset(self) -> Observation:
+        m, b, n = self.mission, self.num_envs, self.n
+        start = launch_positions(m, min(max(self.vehicle.takeoff_alt_m, self.limits.alt_min), self.limits.alt_max))
+        self.pos = start.to(self.dtype).unsqueeze(0).repeat(b, 1, 1).to(self.device)
+        self.vel = torch.zeros_like(self.pos)
+        self.alive = torch.ones(b, n, dtype=torch.bool, device=self.device)
+        self.users: UserState = init_users(m, b, self.gen, self.dtype, self.device)
+        fail_at = torch.full((b, n), float("inf"), dtype=torch.float64)
+        for f in m.node_failures():
+            fail_at[:, f.uav] = torch.minimum(fail_at[:, f.uav], torch.tensor(f.at_s, dtype=torch.float64))
+        if self.failure_prob > 0:
+            hit = torch.rand(b, generator=self.gen) < self.failure_prob
+            who = torch.randint(0, n, (b,), generator=self.gen)
+            rows = torch.nonzero(hit).flatten()
+            fail_at[rows, who[rows]] = torch.minimum(fail_at[rows, who[rows]], torch.tensor(self.failure_at_s, dtype=torch.float64))
+        self.fail_at = fail_at.to(self.device)
+        self.holdings = Holdings.empty((b,), n, self.dtype, self.device)
+        self.t = 0
+        self._apply_failures()
+        self._signal()
+        self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
+        return self.observe()
+
+    # ---------------------------------------------------------------- dynamics
+    def _apply_failures(self) -> None:
+        dead = self.fail_at <= self.t
+        if bool((dead & self.alive).any()):
+            self.alive = self.alive & ~dead
+            self.vel = torch.where(self.alive.unsqueeze(-1), self.vel, torch.zeros_like(self.vel))
+
+    def tup_at(self, t: float) -> int:
+        """The signalling interval in force at t (the last tup_change event wins)."""
+        tup = self.mission.signalling.tup_s
+        for ev in self.mission.events_of("tup_change"):
+            if ev.at_s <= t and ev.tup_s is not None:
+                tup = ev.tup_s
+        return tup
+
+    def _signal(self) -> None:
+        m = self.mission
+        if not is_signalling_instant(self.t, self.tup_at(self.t)):
+            return
+        rx, _ = link_mask(self.pos, self.alive, m.channel, m.radii.comm_m)
+        for ev in m.events:
+            if not ev.active(self.t):
+                continue
+            if ev.type == "broker_outage":
+                rx = torch.zeros_like(rx)
+            elif ev.type == "link_blackout":
+                cut = self._selected(ev.uavs)
+                rx = rx & ~(cut.unsqueeze(-1) | cut.unsqueeze(-2))
+        sent = torch.cat([self._gnss(self.pos), self.vel], -1)
+        self.holdings = signalling_update(self.holdings, float(self.t), rx, sent, m.signalling.drop_after_missed)
+
+    def _selected(self, uavs: tuple[int, ...]) -> torch.Tensor:
+        """(N,) bool mask of the listed UAVs; all of them when the list is empty."""
+        mask = torch.zeros(self.n, dtype=torch.bool, device=self.device)
+        mask[list(uavs) if uavs else slice(None)] = True
+        return mask
+
+    def _gnss(self, pos: torch.Tensor) -> torch.Tensor:
+        """Positions as the UAVs' own navigation reports them (gnss_noise events)."""
+        for ev in self.mission.events_of("gnss_noise"):
+            if ev.active(self.t) and ev.std_m:
+                noise = ev.std_m * torch.randn(pos.shape, generator=self.gen, dtype=pos.dtype).to(pos.device)
+                pos = pos + noise * self._selected(ev.uavs).view(1, -1, 1)
+        return pos
+
+    def physics_step(self, accel: torch.Tensor) -> tuple[torch.Tensor, RewardTerms]:
+        """One dt of everything; returns (reward (B,), its terms incl. coverage (B,))."""
+        m = self.mission
+        dt = m.timing.dt_s
+        live = self.alive.unsqueeze(-1)
+        accel = torch.where(live, accel.to(self.dtype), torch.zeros_like(self.pos))
+        pos, vel = step_point_mass(self.pos, self.vel, accel, dt, self.limits)
+        self.pos = torch.where(live, pos, self.pos)
+        self.vel = torch.where(live, vel, torch.zeros_like(vel))
+        self.users = step_users(self.users, m, dt, self.gen)
+        self.t += 1
+        self._apply_failures()
+        self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
+        coverage = self.covered.to(self.dtype).mean(-1)
+        terms = reward_terms(coverage, self.pos, self.vel, self.alive, self.users.xy, m)
+        self._signal()
+        return combine(terms, self.failed, m), terms
+
+    @property
+    def failed(self) -> torch.Tensor:
+        return ~self.alive.all(-1)
+
+    def step(self, accel: torch.Tensor) -> tuple[Observation, torch.Tensor, StepInfo]:
+        """Hold `accel` (B, N, 3) m/s^2 NED for one decision interval.
+
+        Returns the next observation, the mean per-second reward over the interval and
+        per-step diagnostics. Dead agents' actions are ignored.
+        """
+        if self.done:
+            raise RuntimeError("episode is over: call reset()")
+        k = min(self.mission.timing.decision_every_s, self.horizon - self.t)
+        rewards, covs, lams = [], [], []
+        min_sep = torch.full((self.num_envs,), float("inf"), dtype=self.dtype, device=self.device)
+        for _ in range(k):
+            r, terms = self.physics_step(accel)
+            rewards.append(r)
+            covs.append(terms.coverage)
+            min_sep = torch.minimum(min_sep, terms.min_separation)
+            if self.track_lambda2:
+                lams.append(self.lambda2())
+        info = StepInfo(
+            coverage=torch.stack(covs, -1),
+            min_separation=min_sep,
+            lambda2=torch.stack(lams, -1) if lams else None,
+            failed=self.failed,
+        )
+        return self.observe(), torch.stack(rewards, -1).mean(-1), info
+
+    def lambda2(self) -> torch.Tensor:
+        rx, sinr = link_mask(self.pos, self.alive, self.mission.channel, self.mission.radii.comm_m)
+        return algebraic_connectivity(weighted_adjacency(rx, sinr), self.alive).to(self.dtype)
+
+    # ---------------------------------------------------------------- observations
+    def observe(self) -> Observation:
+        m = self.mission
+        h = self.holdings
+        alive_rx = self.alive.unsqueeze(-1)
+        mask = h.neighbour_mask(m.signalling.drop_after_missed) & alive_rx
+        sense = sensing_features(self.pos, self.users.xy, m.radii.sensing_m, m.users.cluster_size)
+        sense = torch.where(alive_rx, sense, torch.zeros_like(sense))
+        return Observation(
+            t=self.t,
+            ego=torch.cat([self._gnss(self.pos), self.vel], -1),
+            alive=self.alive,
+            nbr_state=h.state,
+            nbr_aoi=h.aoi(float(self.t)),
+            nbr_mask=mask,
+            nbr_t_rx=h.t_rx,
+            sense=sense,
+            fail_flag=h.lost & self.alive,
+        )
+
+    def global_state(self) -> torch.Tensor:
+        """(B, 7N + 3C + 3) for the centralised critic, every entry roughly in [-1, 1]:
+        per UAV [north, east, alt, v (3), alive], per user cluster [centroid north/east,
+        covered share], then [C(t), t / T, f]."""
+        m, vm = self.mission, self.vehicle
+        scale_p = torch.tensor([m.area.north_m, m.area.east_m, -vm.max_alt_m], dtype=self.dtype, device=self.device)
+        uav = torch.cat([self.pos / scale_p, self.vel / vm.max_speed_mps, self.alive.to(self.dtype).unsqueeze(-1)], -1)
+        c, size = m.users.n_clusters, m.users.cluster_size
+        upos = self.users.pos.view(self.num_envs, 2, c, size).mean(-1).transpose(1, 2)
+        upos = upos / torch.tensor([m.area.north_m, m.area.east_m], dtype=self.dtype, device=self.device)
+        ucov = self.covered.view(self.num_envs, c, size).to(self.dtype).mean(-1, keepdim=True)
+        tail = torch.stack(
+            [self.covered.to(self.dtype).mean(-1), torch.full_like(self.covered[:, 0], self.t / self.horizon, dtype=self.dtype), self.failed.to(self.dtype)],
+            -1,
+        )
+        return torch.cat([uav.flatten(1), torch.cat([upos, ucov], -1).flatten(1), tail], -1)
+
+    def global_state_dim(self) -> int:
+        return 7 * self.n + 3 * self.mission.users.n_clusters + 3
+
+    def replace_mission(self, **changes: object) -> None:
+        """For sweeps and curricula: change mission fields (e.g. signalling) for the next
+        reset. Fields fixed at construction (n_uavs, vehicle, channel) must not change."""
+        self.mission = dataclasses.replace(self.mission, **changes)
+
+
+__all__ = ["CoverageEnv", "Observation", "StepInfo", "SENSING_FEATURES", "launch_positions"]

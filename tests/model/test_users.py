@@ -1,0 +1,59 @@
+"""Ground users: speed bound, boundary reflection, cluster layouts."""
+
+import dataclasses
+
+import pytest
+import torch
+
+from plmarl_sitl.mission import Area, Users, load_mission
+from plmarl_sitl.model.users import MOBILITY_KINDS, cluster_centres, init_users, step_users
+
+MISSION = load_mission("missions/paper_urban.yaml")
+
+
+@pytest.mark.parametrize("mobility", [*MOBILITY_KINDS, "mixed"])
+def test_speed_bound_and_area_hold(mobility):
+    m = dataclasses.replace(MISSION, users=dataclasses.replace(MISSION.users, mobility=mobility))
+    gen = torch.Generator().manual_seed(1)
+    s = init_users(m, 8, gen)
+    for _ in range(300):
+        prev = s.pos.clone()
+        s = step_users(s, m, 1.0, gen)
+        step = torch.linalg.vector_norm(s.pos - prev, dim=1)
+        # Reflection can only shorten the displacement (float32 positions near 1 km: ulp 6e-5 m).
+        assert float(step.max()) <= m.users.max_speed_mps + 2e-4
+        assert float(torch.linalg.vector_norm(s.vel, dim=1).max()) <= m.users.max_speed_mps * (1 + 1e-6)
+        assert float(s.pos.min()) >= 0.0
+        assert float(s.pos[:, 0].max()) <= m.area.north_m and float(s.pos[:, 1].max()) <= m.area.east_m
+
+
+def test_users_reflect_off_the_edge():
+    # Tiny area: users constantly hit the walls.
+    users = dataclasses.replace(MISSION.users, layout="lattice", cluster_centers=(), cluster_spacing_m=10.0, cluster_std_m=20.0, gm_alpha=1.0)
+    m = dataclasses.replace(MISSION, area=Area(north_m=100.0, east_m=100.0), users=users)
+    gen = torch.Generator().manual_seed(2)
+    s = init_users(m, 4, gen)
+    for _ in range(500):
+        s = step_users(s, m, 1.0, gen)
+        assert 0.0 <= float(s.pos.min()) and float(s.pos.max()) <= 100.0
+
+
+def test_fixed_layout_uses_the_mission_centres():
+    c = cluster_centres(MISSION, 3, torch.Generator().manual_seed(0))
+    assert c.shape == (3, 4, 2)
+    assert torch.allclose(c[0], torch.tensor(MISSION.users.cluster_centers, dtype=c.dtype))
+
+
+def test_random_layout_is_connected_and_spread():
+    users = Users(layout="random")  # defaults: 240 users in 4 clusters
+    m = dataclasses.replace(MISSION, users=users)
+    c = cluster_centres(m, 20, torch.Generator().manual_seed(0))
+    d = torch.cdist(c, c)
+    eye = torch.eye(4, dtype=torch.bool)
+    assert float(d[:, ~eye].min()) >= 2 * m.radii.sensing_m - 1e-6
+    # Connected under 0.8 R_comm: every centre has a chain to the others.
+    adj = (d <= 0.8 * m.radii.comm_m + 1e-6) & ~eye
+    reach = adj.clone() | eye
+    for _ in range(4):
+        reach = reach | (reach.double() @ reach.double() > 0)
+    assert bool(reach.all())

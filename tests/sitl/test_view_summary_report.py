@@ -1,0 +1,144 @@
+"""Live view (on a capture console), run summary and report plots."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+from rich.console import Console
+
+from plmarl_sitl.sitl.live import SwarmView, UavView, headless_line, render, sparkline
+from plmarl_sitl.sitl.summary import failure_recovery, summarize, timeliness
+
+
+def _view(**over):
+    uavs = (
+        UavView(id=0, mode="OFFBOARD", armed=True, pos_ned=(330.0, 300.0, -80.0), speed=3.2, neighbours=2, aoi_max=12.0, last_action=(0.5, -1.0, 0.0), link="ok"),
+        UavView(id=1, alive=False, mode="HOLD", armed=False, pos_ned=(600.0, 330.0, -80.0), speed=0.0, link="lost"),
+    )
+    kw = dict(swarm="demo", t=101.0, coverage=0.812, coverage_history=(0.1, 0.5, 0.8, 0.9, 0.81), lambda2=2.97,
+              messages_per_min=16.0, events_fired=("node_failure@100",), speedup=10.0, uavs=uavs)
+    kw.update(over)
+    return SwarmView(**kw)
+
+
+def test_render_shows_every_field():
+    console = Console(record=True, width=140)
+    console.print(render(_view()))
+    text = console.export_text()
+    for needle in ["demo", "101.0", "0.812", "2.97", "16 msg/min", "node_failure@100", "OFFBOARD", "yes", "330", "80",
+                   "3.2", "12", "+0.5 -1.0 +0.0", "ok", "dead"]:
+        assert needle in text, needle
+    assert sparkline((0.1, 0.5, 0.8, 0.9, 0.81)) in text
+
+
+def test_render_fits_an_80_column_terminal():
+    console = Console(record=True, width=80)
+    console.print(render(_view()))
+    lines = console.export_text().splitlines()
+    assert max(len(x) for x in lines) <= 80
+    assert not any("…" in x for x in lines), "\n".join(lines)  # nothing truncated
+    assert any("OFFBOARD" in x and "+0.5 -1.0 +0.0" in x for x in lines)  # no truncation, no wrapping
+
+
+def test_render_copes_with_unknowns():
+    console = Console(record=True, width=140)
+    console.print(render(_view(lambda2=math.nan, uavs=(UavView(id=3),), events_fired=())))
+    text = console.export_text()
+    assert "none yet" in text and "3" in text and "-" in text
+
+
+def test_sparkline_scale():
+    assert sparkline([0.0, 1.0]) == "▁█" and sparkline([float("nan"), 0.5]) == " ▅" and len(sparkline([0.5] * 99, width=40)) == 40
+
+
+def test_headless_line():
+    line = headless_line(_view())
+    assert line.startswith("t= 101.0s coverage=0.812") and "alive=1/2" in line and "events=node_failure@100" in line
+
+
+def test_failure_recovery_on_a_built_curve():
+    t = np.arange(0, 200, dtype=float)
+    c = np.full_like(t, 0.9)
+    c[100:110] = np.linspace(0.6, 0.8, 10)  # trough 0.6, climbs to a new plateau of 0.8
+    c[110:] = 0.8
+    r = failure_recovery(t, c, 100.0)
+    assert r["trough"] == 0.6 and math.isclose(r["plateau"], 0.8)
+    assert r["restabilize_s"] == 9.0  # c[109] = 0.8 is the first value that stays in the band
+    never = c.copy()
+    never[-1] = 0.5
+    assert failure_recovery(t, never, 100.0)["restabilize_s"] is None
+
+
+def _rows(n=60):
+    rows = []
+    for k in range(n):
+        cov = 0.9 if k < 30 else 0.7
+        rows.append({"t": float(k), "coverage": cov, "lambda2": 3.0, "messages": 4, "uavs": [
+            {"id": i, "alive": not (i == 1 and k >= 30), "pos_ned": [100.0 + k + 50 * i, 200.0, -80.0], "vel_ned": [1.0, 0.0, 0.0], "aoi_max": float(k % 15 + 1)}
+            for i in range(3)]})
+    return rows
+
+
+def test_summarize_and_report_cli(tmp_path):
+    rows = _rows()
+    events = [{"t": 30.0, "type": "node_failure", "uav": 1}]
+    summary = summarize(rows, events, speedup=10.0)
+    assert math.isclose(summary["coverage_mean"], 0.8) and summary["coverage_min"] == 0.7 and summary["duration_s"] == 59.0
+    assert summary["node_failures"][0]["trough"] == 0.7 and summary["node_failures"][0]["restabilize_s"] == 0.0
+    (tmp_path / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
+    (tmp_path / "events.jsonl").write_text(json.dumps(events[0]) + "\n")
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path), "--json"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["coverage_min"] == 0.7
+    for png in ("coverage.png", "aoi.png", "trajectories.png"):
+        data = (tmp_path / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+
+
+def test_report_bad_input_is_one_line(tmp_path):
+    (tmp_path / "metrics.jsonl").write_text('{"t": 0, "coverage": 0.5, "uavs": []}\n{not json\n')
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "metrics.jsonl:2: not valid JSON" in r.stderr and "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path / "nope")], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "no such run directory" in r.stderr
+    (tmp_path / "metrics.jsonl").write_text('{"t": 0, "coverage": 0.5, "uavs": []}\n')
+    (tmp_path / "summary.json").write_text("{oops")
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "summary.json: not valid JSON" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_timeliness_counts_decisions_only():
+    traces = [
+        [{"t": 0, "boot_s": 30.5, "decided": True, "sense_t": None}, {"t": 1, "boot_s": 31.0, "decided": False, "sense_t": 0.0},
+         {"t": 3, "boot_s": 33.1, "decided": True, "sense_t": 3.0}],
+        [{"t": 3, "boot_s": 33.3, "decided": True, "sense_t": 1.0}, {"t": 6, "boot_s": 36.1, "decided": True, "sense_t": 6.0}],
+    ]
+    out = timeliness(traces, 30.0)
+    assert out["decisions"] == 4
+    assert out["decision_delay_s"]["max"] == 0.5 and out["decision_delay_s"]["p50"] == 0.2
+    assert out["sensing_age_s"] == {"p50": 0.0, "p95": 1.8, "max": 2.0}
+    assert timeliness([], None) == {"decisions": 0, "decision_delay_s": None, "sensing_age_s": None}
+
+
+def test_monitor_reads_batched_deliveries_and_counts_bad_payloads():
+    """What the live view shows of N_i comes from the link emulator's rx messages, which
+    carry an instant's updates to one receiver back to back."""
+    from plmarl_sitl.deploy.mqtt.schema import StateMsg, encode_json, encode_state
+    from plmarl_sitl.sitl.monitor import SwarmMonitor
+
+    mon = SwarmMonitor("sitl", tup_s=15, drop_after_missed=2)
+    t = mon.topics
+
+    def state(sender: int) -> bytes:
+        return encode_state(StateMsg(sender, 1, 1, 15_000, (0.0, 0.0, -60.0, 0.0, 0.0, 0.0)))
+
+    mon.on_bus(t.metrics, encode_json({"t": 20, "coverage": 0.5}))
+    mon.on_bus(t.rx(0), state(1) + state(2))
+    mon.on_bus(t.tx(1), state(1))
+    assert mon.neighbours(0) == {1: 5.0, 2: 5.0} and mon.aoi_max(0) == 5.0
+    assert mon.tx_total == 1 and mon.neighbours(1) == {}
+    mon.on_bus(t.rx(1), state(0) + state(2)[:20])  # not whole messages: dropped whole
+    assert mon.malformed == 1 and mon.neighbours(1) == {}
