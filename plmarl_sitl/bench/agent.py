@@ -33,8 +33,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.cmdline import rt_priority_arg
+from plmarl_sitl.machine import machine_info
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -21,8 +21,8 @@ import multiprocessing as mp
 import os
 import time
 
-from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.machine import machine_info
 
 DEFAULT_MISSION = "missions/paper_urban.yaml"
 MEASURE_S = 3.0

@@ -18,8 +18,8 @@ import argparse
 import time
 from pathlib import Path
 
-from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.machine import machine_info
 
 DEFAULT_N = "4,8,12,16,20"
 

@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.machine import machine_info
 
 MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
 

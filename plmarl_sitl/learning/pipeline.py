@@ -16,7 +16,6 @@ from pathlib import Path
 
 import torch
 
-from plmarl_sitl.bench.machine import machine_info
 from plmarl_sitl.learning.nn.belief import BeliefTracker
 from plmarl_sitl.learning.nn.features import FeatureScales
 from plmarl_sitl.learning.nn.io import export_policy
@@ -30,6 +29,7 @@ from plmarl_sitl.learning.train.predictor import (
     position_errors,
     train_predictor,
 )
+from plmarl_sitl.machine import machine_info
 from plmarl_sitl.mission import load_mission
 
 
