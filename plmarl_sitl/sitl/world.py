@@ -368,10 +368,10 @@ class SitlWorld:
         """Let the last metrics go out before the bus closes."""
         try:
             async with asyncio.timeout(timeout_s):
-                while self.bus._queue.qsize() and self.bus.connected.is_set():
+                while self.bus.queued and self.bus.connected.is_set():
                     await asyncio.sleep(0.01)
         except TimeoutError:
-            log.debug("bus flush timed out with %d messages queued", self.bus._queue.qsize())
+            log.debug("bus flush timed out with %d messages queued", self.bus.queued)
 
     async def start(self) -> None:
         """Bind the vehicles' UDP ports (agents may connect from now on)."""
@@ -381,7 +381,7 @@ class SitlWorld:
         """Run until `stop()`, the episode ends, or cancellation; then close the vehicles'
         sockets, unless `keep_sockets`: a launcher that still has agents to stop keeps the
         autopilots answering so each agent can command its hold mode (`host.close()` later)."""
-        if not self.host._transports:
+        if not self.host.started:
             await self.start()
         t_wall = time.perf_counter()
         sim0 = self.host.now

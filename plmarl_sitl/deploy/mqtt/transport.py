@@ -123,6 +123,11 @@ class MqttBus:
         self._rng = random.Random()
         self._was_connected = False
 
+    @property
+    def queued(self) -> int:
+        """Messages published but not yet handed to the broker connection."""
+        return self._queue.qsize()
+
     # ------------------------------------------------------------------ publishing
     def publish(self, topic: str, payload: bytes, *, retain: bool = False, sticky: bool = False) -> bool:
         """Queue a QoS 0 message; False (and counted) if it was dropped."""

@@ -140,6 +140,11 @@ class AutopilotHost:
         self._logged_drops: dict[int, int] = {}
 
     # ------------------------------------------------------------------ lifecycle
+    @property
+    def started(self) -> bool:
+        """True while the vehicles' sockets are bound (between `start` and `close`)."""
+        return bool(self._transports)
+
     async def start(self) -> None:
         """Bind one UDP socket per vehicle (127.0.0.1:base_port + i by default)."""
         loop = asyncio.get_running_loop()
