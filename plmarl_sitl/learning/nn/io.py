@@ -6,7 +6,7 @@ A policy directory holds:
                 inside: `forward(t, held_state, held_t_rx, buf, seen_t_rx)` and
                 `init_state(held_state)`;
 * policy.pt     the scripted `DeployedPolicy`: `forward(ego, beliefs, mask, sense,
-                fail_flag) -> accel`, feature normalisation included;
+                fail_flag, demand) -> accel`, input features included (input version 2);
 * card.yaml     method, config, seed, git commit, training wall time, evaluation
                 numbers, the I/O contract constants and each file's sha256.
 
@@ -29,10 +29,11 @@ import yaml
 from torch import nn
 
 from plmarl_sitl.errors import PolicyFileError
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, INPUT_VERSION, STATE_DIM
 from plmarl_sitl.model.coverage import SENSING_FEATURES
+from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
 
-CARD_VERSION = 1
+CARD_VERSION = 2  # 2: policy input version 2 (relative inputs, demand map; issue 12)
 FILES = ("predictor.pt", "policy.pt", "card.yaml")
 
 
@@ -51,7 +52,8 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
 
 
 TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
-POLICY_ATTRS = ["area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm"]
+SCALES = ["alt_max", "v_max", "a_max", "r_comm", "claim_m", "demand_unit"]
+POLICY_ATTRS = SCALES + ["input_version"]
 
 
 def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
@@ -70,9 +72,9 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.deploy import fuse_tracker
 
-    tracker, policy = fuse_tracker(tracker), fuse_policy(policy)  # unchanged if not fusable (GRU, hold, scripted)
+    tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
     with quiet_torchscript():
         torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
         torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
@@ -82,9 +84,11 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
         "state_dim": STATE_DIM,
         "sense_dim": SENSING_FEATURES,
         "ego_features": EGO_FEATURES,
+        "input_version": INPUT_VERSION,
+        "demand_cell_fields": DEMAND_CELL_FIELDS,
         "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
         "dt_s": float(tracker.dt),  # type: ignore[arg-type]
-        "scales": {k: float(getattr(policy, k)) for k in ("area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm")},
+        "scales": {k: float(getattr(policy, k)) for k in SCALES},
     }
     card["sha256"] = {f: sha256(out / f) for f in ("predictor.pt", "policy.pt")}
     (out / "card.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
@@ -169,7 +173,8 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
             buf, seen = tracker.init_state(held)
             belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
             policy(
-                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)
+                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False),
+                torch.zeros(1, DEMAND_CELL_FIELDS),
             )
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc

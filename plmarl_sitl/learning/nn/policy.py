@@ -19,7 +19,14 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, REL_FEATURES, build_policy_input, state_norm
+from plmarl_sitl.learning.nn.features import (
+    EGO_FEATURES,
+    INPUT_VERSION,
+    NBR_FEATURES,
+    REL_FEATURES,
+    build_policy_input,
+    ring_edges_sq,
+)
 
 
 def _ortho(layer: nn.Linear, gain: float = 2**0.5) -> nn.Linear:
@@ -110,17 +117,18 @@ class DeployedPolicy(nn.Module):
     """What `policy.pt` is: raw physical inputs -> deterministic acceleration (m/s^2, NED).
 
     forward(ego (..., 6), beliefs (..., M, 6), mask (..., M) bool, sense (..., S),
-    fail_flag (...) bool) -> accel (..., 3). Normalisation constants are attributes, so
-    the file carries them (see docs/POLICY_IO.md).
+    fail_flag (...) bool, demand (..., K, 3)) -> accel (..., 3). The feature constants are
+    attributes, so the file carries them (see docs/POLICY_IO.md, input version 2).
     """
 
-    def __init__(self, actor: Actor, area_n: float, area_e: float, alt_max: float, v_max: float, a_max: float, r_comm: float) -> None:
+    def __init__(self, actor: Actor, alt_max: float, v_max: float, a_max: float, r_comm: float, claim_m: float,
+                 demand_unit: float) -> None:
         super().__init__()
         self.actor = actor
-        self.area_n, self.area_e, self.alt_max = float(area_n), float(area_e), float(alt_max)
-        self.v_max, self.a_max, self.r_comm = float(v_max), float(a_max), float(r_comm)
-        self.register_buffer("norm", state_norm(self.area_n, self.area_e, self.alt_max, self.v_max))
-        self.inv_r_comm = 1.0 / self.r_comm
+        self.alt_max, self.v_max, self.a_max, self.r_comm = float(alt_max), float(v_max), float(a_max), float(r_comm)
+        self.claim_m, self.demand_unit = float(claim_m), float(demand_unit)
+        self.input_version = INPUT_VERSION
+        self.register_buffer("edges_sq", ring_edges_sq())
 
     def forward(
         self,
@@ -129,6 +137,8 @@ class DeployedPolicy(nn.Module):
         mask: torch.Tensor,
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
+        demand: torch.Tensor,
     ) -> torch.Tensor:
-        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, self.norm, self.inv_r_comm)
+        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max,
+                                                    self.r_comm, self.claim_m, self.demand_unit, self.edges_sq)
         return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)
