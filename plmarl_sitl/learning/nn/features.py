@@ -86,15 +86,16 @@ def demand_descriptor(
     de = demand[..., 1] - ego_pos[..., 1:2]
     count = demand[..., 2]
     ring = torch.bucketize(dn * dn + de * de, edges_sq.to(dn.dtype))
-    sector = (dn < 0).long() * 4 + (de < 0).long() * 2 + (dn.abs() < de.abs()).long()
-    bins = ring * DEMAND_SECTORS + sector
+    sector = (dn < 0).long() * 4 + (de < 0).long() * 2 + (dn.abs() < de.abs()).long()  # 8 octants = DEMAND_SECTORS
+    n_bins = 8 * (edges_sq.numel() + 1)  # DEMAND_BINS (TorchScript cannot read module constants)
+    bins = ring * 8 + sector
     cn = demand[..., :, None, 0] - nbr_pos[..., None, :, 0]  # (..., K, M)
     ce = demand[..., :, None, 1] - nbr_pos[..., None, :, 1]
     claimed = ((cn * cn + ce * ce <= claim_m * claim_m) & mask.unsqueeze(-2)).any(-1)
     free = torch.where(claimed, torch.zeros_like(count), count)
-    out = torch.zeros(bins.shape[:-1] + (2 * DEMAND_BINS,), dtype=count.dtype, device=count.device)
+    out = torch.zeros(bins.shape[:-1] + (2 * n_bins,), dtype=count.dtype, device=count.device)
     out.scatter_add_(-1, bins, count)
-    out.scatter_add_(-1, bins + DEMAND_BINS, free)
+    out.scatter_add_(-1, bins + n_bins, free)
     return torch.log1p(out / demand_unit)
 
 

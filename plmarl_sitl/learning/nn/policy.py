@@ -15,6 +15,8 @@ A_max * clip(u, -1, 1) per axis, then the physics clips the norm to A_max.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -117,7 +119,8 @@ class DeployedPolicy(nn.Module):
     """What `policy.pt` is: raw physical inputs -> deterministic acceleration (m/s^2, NED).
 
     forward(ego (..., 6), beliefs (..., M, 6), mask (..., M) bool, sense (..., S),
-    fail_flag (...) bool, demand (..., K, 3)) -> accel (..., 3). The feature constants are
+    fail_flag (...) bool, demand (..., K, 3) or None) -> accel (..., 3). `demand` is None
+    before the first map arrives (the descriptor is then zero, as for an empty map). The feature constants are
     attributes, so the file carries them (see docs/POLICY_IO.md, input version 2).
     """
 
@@ -137,8 +140,10 @@ class DeployedPolicy(nn.Module):
         mask: torch.Tensor,
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
-        demand: torch.Tensor,
+        demand: Optional[torch.Tensor] = None,  # noqa: UP045 - TorchScript needs Optional
     ) -> torch.Tensor:
+        if demand is None:  # no map received yet: no demand known beyond the own sensing
+            demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
         ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max,
                                                     self.r_comm, self.claim_m, self.demand_unit, self.edges_sq)
         return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)
