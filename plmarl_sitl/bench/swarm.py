@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.sitl.gap import twin_coverage
+    from plmarl_sitl.bench.gap import twin_coverage
 
     seeds = args.seeds
     rows = []
