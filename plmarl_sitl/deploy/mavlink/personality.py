@@ -56,6 +56,7 @@ class Personality:
     modes: tuple[ModeSpec, ...]
     boot_mode: str
     hold_mode: str  # where PX4 goes after takeoff and on offboard loss
+    stop_mode: str  # what an agent commands to stop and hold position (ArduPilot BRAKE, PX4 its hold mode)
     offboard_mode: str
     land_mode: str
     takeoff_mode: str | None  # None: takeoff happens inside the offboard (GUIDED) mode
@@ -114,6 +115,7 @@ PX4 = Personality(
     ),
     boot_mode="AUTO.LOITER",
     hold_mode="AUTO.LOITER",
+    stop_mode="AUTO.LOITER",
     offboard_mode="OFFBOARD",
     land_mode="AUTO.LAND",
     takeoff_mode="AUTO.TAKEOFF",
@@ -146,6 +148,7 @@ ARDUPILOT = Personality(
     ),
     boot_mode="STABILIZE",
     hold_mode="LOITER",
+    stop_mode="BRAKE",
     offboard_mode="GUIDED",
     land_mode="LAND",
     takeoff_mode=None,
