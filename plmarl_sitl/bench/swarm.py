@@ -3,7 +3,7 @@
 For each N it tries speedups from high to low and keeps the first whose sim-to-SITL
 coverage gap is within `--max-gap` (0.03): |mean C(t) in SITL - mean C(t) in the twin|
 for the same mission, seeds (means over `--seeds`) and policy (the twin run is
-`swarm.gap.twin_coverage`), and that kept up with its speedup: 95% of decisions acted
+`bench.gap.twin_coverage`), and that kept up with its speedup: 95% of decisions acted
 within `--max-delay` vehicle seconds of their mission second (the twin acts at once)
 and on sensing at most `--max-lag` seconds old. An overloaded swarm backs up its bus and acts late; with a
 poor policy that need not move the coverage gap, so the gap alone cannot tell.
