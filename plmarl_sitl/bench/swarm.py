@@ -56,8 +56,8 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int) -> tuple[dic
 def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
-    from plmarl_sitl.mission import load_mission
     from plmarl_sitl.bench.gap import twin_coverage
+    from plmarl_sitl.mission import load_mission
 
     seeds = args.seeds
     rows = []

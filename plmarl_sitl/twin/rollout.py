@@ -1,15 +1,36 @@
-"""Run whole episodes of a controller in the twin and collect per-episode metrics."""
+"""Run whole episodes of a controller in the twin: THE rollout loop (`plmarl sim` and
+`plmarl eval` both use it), and the `Controller` protocol every controller meets."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv, Observation
+
+
+class Controller(Protocol):
+    """Acts for all (B, N) agents of a twin batch: the Oracle, the heuristic, a learnt policy."""
+
+    def reset(self) -> None:
+        """Forget the last episode (called before its first decision)."""
+
+    def act(self, obs: Observation) -> torch.Tensor:
+        """(B, N, 3) acceleration commands, m/s^2, mission frame."""
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Per-episode traces of a batch of episodes, one value per physics second t = 1..T."""
+
+    coverage: torch.Tensor  # (E, T) C(t)
+    lambda2: torch.Tensor  # (E, T) lambda_2(t)
+    min_separation: torch.Tensor  # (E,) smallest live-pair distance seen, metres
 
 
 @dataclass(frozen=True)
@@ -20,44 +41,55 @@ class EpisodeMetrics:
     coverage_trace: np.ndarray  # (E, T) C(t) per second
 
 
+def rollout_batches(
+    mission: Mission,
+    make_controller: Callable[[CoverageEnv], Controller],
+    episodes: int,
+    seed: int,
+    *,
+    batch: int,
+    failure_prob: float = 0.0,
+    on_decision: Callable[[int], None] | None = None,
+) -> list[Rollout]:
+    """`episodes` episodes in batches of at most `batch` parallel environments, one
+    `Rollout` per batch. Batch k uses twin seed `seed + k`, so results depend only on
+    (seed, episodes, batch), and every controller sees the same episodes.
+    `on_decision(n_envs)` is called after every decision (for progress bars)."""
+    out = []
+    with torch.inference_mode():  # no gradients flow through an evaluation rollout
+        for k, lo in enumerate(range(0, episodes, batch)):
+            b = min(batch, episodes - lo)
+            env = CoverageEnv(mission, b, seed + k, track_lambda2=True, failure_prob=failure_prob)
+            ctl = make_controller(env)
+            ctl.reset()
+            obs = env.observe()
+            cs, ls = [], []
+            min_sep = torch.full((b,), float("inf"))
+            while not env.done:
+                obs, _, info = env.step(ctl.act(obs))
+                cs.append(info.coverage)
+                ls.append(info.lambda2)
+                min_sep = torch.minimum(min_sep, info.min_separation)
+                if on_decision:
+                    on_decision(b)
+            out.append(Rollout(torch.cat(cs, -1), torch.cat(ls, -1), min_sep))
+    return out
+
+
 def run_episodes(
     mission: Mission,
-    make_controller: Callable[[CoverageEnv], object],
+    make_controller: Callable[[CoverageEnv], Controller],
     episodes: int,
     seed: int,
     *,
     batch: int = 64,
     on_decision: Callable[[int], None] | None = None,
 ) -> EpisodeMetrics:
-    """Run `episodes` episodes in batches of at most `batch` parallel environments.
-
-    Batch k uses seed `seed + k`, so results depend only on (seed, episodes, batch).
-    `on_decision(n_envs)` is called after every decision (for progress bars).
-    """
-    with torch.inference_mode():  # no gradients flow through an evaluation rollout
-        return _run(mission, make_controller, episodes, seed, batch, on_decision)
-
-
-def _run(mission, make_controller, episodes, seed, batch, on_decision) -> EpisodeMetrics:  # noqa: ANN001
-    cov, lam, sep, traces = [], [], [], []
-    for k, lo in enumerate(range(0, episodes, batch)):
-        b = min(batch, episodes - lo)
-        env = CoverageEnv(mission, b, seed + k, track_lambda2=True)
-        ctl = make_controller(env)
-        obs: Observation = env.observe()
-        ctl.reset()
-        c_steps, l_steps = [], []
-        min_sep = torch.full((b,), float("inf"))
-        while not env.done:
-            obs, _, info = env.step(ctl.act(obs))
-            c_steps.append(info.coverage)
-            l_steps.append(info.lambda2)
-            min_sep = torch.minimum(min_sep, info.min_separation)
-            if on_decision:
-                on_decision(b)
-        trace = torch.cat(c_steps, -1)
-        traces.append(trace.numpy())
-        cov.append(trace.mean(-1).numpy())
-        lam.append(torch.cat(l_steps, -1).mean(-1).numpy())
-        sep.append(min_sep.numpy())
-    return EpisodeMetrics(np.concatenate(cov), np.concatenate(lam), np.concatenate(sep), np.concatenate(traces))
+    """Whole-episode metrics of `episodes` episodes (see `rollout_batches`)."""
+    runs = rollout_batches(mission, make_controller, episodes, seed, batch=batch, on_decision=on_decision)
+    return EpisodeMetrics(
+        np.concatenate([r.coverage.mean(-1).numpy() for r in runs]),
+        np.concatenate([r.lambda2.mean(-1).numpy() for r in runs]),
+        np.concatenate([r.min_separation.numpy() for r in runs]),
+        np.concatenate([r.coverage.numpy() for r in runs]),
+    )

@@ -10,7 +10,6 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from plmarl_sitl.deploy.agent.frames import home_offset_ned
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.mavlink.connect import Endpoint, parse_url
@@ -31,8 +30,8 @@ from plmarl_sitl.deploy.mqtt.schema import (
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
+from plmarl_sitl.model.geodesy import to_geodetic, to_ned_offset
 from plmarl_sitl.model.signalling import Holdings, signalling_update
-from plmarl_sitl.sitl.autopilot.telemetry import geodetic
 
 f32 = st.floats(-1e5, 1e5, width=32)
 
@@ -146,10 +145,10 @@ def test_band_guard() -> None:
     assert math.hypot(*a) <= 5.0 + 1e-9
 
 
-def test_home_offset_inverts_emulator_geodetic() -> None:
+def test_ned_offset_inverts_geodetic() -> None:
     o = Origin(47.397742, 8.545594, 488.0)
-    lat, lon, alt = geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
-    n, e, d = home_offset_ned(o, lat, lon, alt)
+    lat, lon, alt = to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
+    n, e, d = to_ned_offset(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
     assert n == pytest.approx(500.0, abs=1e-6) and e == pytest.approx(430.0, abs=1e-6) and d == pytest.approx(0.0)
 
 

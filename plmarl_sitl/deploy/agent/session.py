@@ -25,10 +25,10 @@ import torch
 from plmarl_sitl.deploy.agent.clock import MissionClock
 from plmarl_sitl.deploy.agent.config import AgentConfig
 from plmarl_sitl.deploy.agent.decision import Decision
-from plmarl_sitl.deploy.agent.frames import home_offset_ned
 from plmarl_sitl.deploy.agent.stats import LoopStats, rss_mb
 from plmarl_sitl.deploy.mavlink.personality import Personality
 from plmarl_sitl.errors import CommandRejected, UserError, VehicleTimeout
+from plmarl_sitl.model.geodesy import to_ned_offset
 
 log = logging.getLogger("plmarl.agent")
 
@@ -144,8 +144,9 @@ class VehicleSession:
                  time.time() - self.t_proc0)
         await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
         home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
-        self.home = torch.tensor(home_offset_ned(cfg.mission.origin, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0),
-                                 dtype=torch.float32)
+        o = cfg.mission.origin
+        offset = to_ned_offset(o.lat_deg, o.lon_deg, o.alt_m, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0)
+        self.home = torch.tensor(offset, dtype=torch.float32)
         await self._telemetry()
         # Start-up ends here: policy loaded, autopilot found, position and home valid.
         # What follows (arming, climbing) is the vehicle's time, not the agent's.

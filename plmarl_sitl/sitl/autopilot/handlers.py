@@ -13,16 +13,12 @@ import math
 from collections.abc import Callable
 
 from plmarl_sitl.deploy.mavlink.codec import Message, dialect, param_id_str
+from plmarl_sitl.deploy.mavlink.wire import FORCE_ARM_MAGIC, MASK_ACC, MASK_FORCE_SET, MASK_POS, MASK_VEL
 from plmarl_sitl.sitl.autopilot import telemetry
 from plmarl_sitl.sitl.autopilot.guidance import Kind
 from plmarl_sitl.sitl.autopilot.vehicle import (
     ACCEPTED,
     DENIED,
-    FORCE_MAGIC,
-    MASK_ACC,
-    MASK_FORCE_SET,
-    MASK_POS,
-    MASK_VEL,
     Vehicle,
 )
 
@@ -110,7 +106,7 @@ def _cmd_arm(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     if not _finite(p[0]) or p[0] not in (0.0, 1.0):
         v.drop("bad_value", f"arm param1 {p[0]}")
         return DENIED
-    force = p[1] == FORCE_MAGIC
+    force = p[1] == FORCE_ARM_MAGIC
     return v.arm(force) if p[0] == 1.0 else v.disarm(force)
 
 

@@ -22,7 +22,6 @@ if TYPE_CHECKING:
 
 d = dialect
 G = 9.80665
-_EARTH_RADIUS_M = 6_378_137.0
 
 # Sensors a healthy multirotor reports; MAVSDK derives health from these bits
 # (GPS present+healthy -> local/global position OK; PREARM_CHECK -> armable).
@@ -51,13 +50,6 @@ DEFAULT_RATES: dict[int, float] = {
     d.MAVLINK_MSG_ID_VFR_HUD: 0.0,
     d.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: 0.0,
 }
-
-
-def geodetic(lat0: float, lon0: float, alt0: float, north: float, east: float, up: float) -> tuple[float, float, float]:
-    """Flat-earth offset of a geodetic point (good to centimetres over a few km)."""
-    lat = lat0 + math.degrees(north / _EARTH_RADIUS_M)
-    lon = lon0 + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(lat0))))
-    return lat, lon, alt0 + up
 
 
 def _ms(v: Vehicle) -> int:

@@ -19,10 +19,11 @@ from typing import TYPE_CHECKING, BinaryIO
 from plmarl_sitl.config import VehicleModel
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
 from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
+from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, POSITION_ONLY, VELOCITY_ONLY
+from plmarl_sitl.model.geodesy import to_geodetic
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.guidance import Kind
 from plmarl_sitl.sitl.autopilot.params import ParamStore
-from plmarl_sitl.sitl.autopilot.telemetry import geodetic
 
 if TYPE_CHECKING:
     import asyncio
@@ -35,7 +36,6 @@ d = dialect
 ACCEPTED = d.MAV_RESULT_ACCEPTED
 DENIED = d.MAV_RESULT_DENIED
 TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
-FORCE_MAGIC = 21196  # param2 of COMPONENT_ARM_DISARM that forces (PX4 and ArduPilot)
 
 ON_GROUND_ALT_M = 0.05
 LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
@@ -44,10 +44,7 @@ MAX_PEERS = 8
 # Messages a signed vehicle still accepts unsigned: presence only, nothing that acts.
 ALLOW_UNSIGNED = (d.MAVLINK_MSG_ID_HEARTBEAT, d.MAVLINK_MSG_ID_RADIO_STATUS)
 
-# type_mask bits of SET_POSITION_TARGET_LOCAL_NED (POSITION_TARGET_TYPEMASK).
-MASK_POS, MASK_VEL, MASK_ACC = 0x007, 0x038, 0x1C0
-MASK_FORCE_SET = 0x200
-ECHO_MASK = {Kind.POSITION: 0xDF8, Kind.VELOCITY: 0xDC7, Kind.ACCEL: 0xC3F, Kind.LAND: 0xDC7}
+ECHO_MASK = {Kind.POSITION: POSITION_ONLY, Kind.VELOCITY: VELOCITY_ONLY, Kind.ACCEL: ACCEL_ONLY, Kind.LAND: VELOCITY_ONLY}
 
 
 class Vehicle:
@@ -72,7 +69,7 @@ class Vehicle:
         self.counters = InputCounters()
         self.home_offset_ned = home_offset_ned
         o = host.origin
-        self.home_geodetic = geodetic(o.lat_deg, o.lon_deg, o.alt_m, home_offset_ned[0], home_offset_ned[1], 0.0)
+        self.home_geodetic = to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, home_offset_ned[0], home_offset_ned[1], 0.0)
         self.transport: asyncio.DatagramTransport | None = None
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.killed = False
@@ -183,7 +180,7 @@ class Vehicle:
     def geodetic(self) -> tuple[float, float, float]:
         x, y, z = self.nav_position()
         lat, lon, alt = self.home_geodetic
-        return geodetic(lat, lon, alt, x, y, -z)
+        return to_geodetic(lat, lon, alt, x, y, -z)
 
     @property
     def yaw(self) -> float:
