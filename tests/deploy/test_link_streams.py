@@ -1,5 +1,6 @@
 """MAVLink links over real transports: subscriptions keep every parsed message, and a
-serial port that goes away ends the link (logged once) instead of a silent busy loop.
+serial port that goes away ends the link (logged once) instead of a silent busy loop,
+and a flying agent whose radio is unplugged exits at once, non-zero, without a traceback.
 
 The vehicle side is a pymavlink encoder writing frames by hand into a UDP socket, a TCP
 connection or the master end of a pseudo-terminal (the link opens the slave end as its
@@ -12,16 +13,23 @@ import asyncio
 import logging
 import os
 import re
+import shutil
 import socket
+import sys
 import threading
 import time
+import tty
+from pathlib import Path
 
 import pytest
 
 from plmarl_sitl.deploy.mavlink.codec import Codec, dialect
 from plmarl_sitl.deploy.mavlink.connect import connect
 from plmarl_sitl.errors import LinkLost, VehicleTimeout
-from plmarl_sitl.sitl.network.broker import free_port
+from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+from plmarl_sitl.sitl.network.broker import MosquittoBroker, free_port, free_udp_ports
+
+from .conftest import MISSION, ROOT
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -174,3 +182,105 @@ def test_an_unplugged_serial_port_ends_the_link(caplog: pytest.LogCaptureFixture
     assert len(lost) == 1 and lost[0].levelno == logging.ERROR
     # pyserial's words for a hung-up line (here: "device reports readiness to read but returned no data")
     assert re.fullmatch(f"serial port {dev}: .+; link closed", lost[0].getMessage())
+
+
+class RadioBridge:
+    """A telemetry radio: the pty's master end <-> the emulated vehicle's UDP port, whole
+    MAVLink 2 frames per datagram. `unplug()` closes the master, as pulling the USB radio."""
+
+    def __init__(self, vehicle_port: int) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.dev = os.ttyname(self.slave)
+        self.vehicle_port = vehicle_port
+        self.pending = b""
+
+    async def start(self) -> None:
+        loop = asyncio.get_running_loop()
+        bridge = self
+
+        class Down(asyncio.DatagramProtocol):
+            def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+                if bridge.master >= 0:
+                    os.write(bridge.master, data)
+
+        self.udp, _ = await loop.create_datagram_endpoint(Down, remote_addr=("127.0.0.1", self.vehicle_port))
+        loop.add_reader(self.master, self._up)
+
+    def _up(self) -> None:
+        self.pending += os.read(self.master, 4096)
+        while len(self.pending) >= 12 and len(self.pending) >= 12 + self.pending[1]:  # unsigned MAVLink 2
+            n = 12 + self.pending[1]
+            self.udp.sendto(self.pending[:n])
+            self.pending = self.pending[n:]
+
+    def unplug(self) -> None:
+        asyncio.get_running_loop().remove_reader(self.master)
+        os.close(self.master)
+        self.master = -1
+
+    def close(self) -> None:
+        if self.master >= 0:
+            self.unplug()
+        self.udp.close()
+        os.close(self.slave)
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+@pytest.mark.timeout(180)
+@pytest.mark.skipif(not shutil.which("mosquitto") and not os.path.exists("/usr/sbin/mosquitto"),
+                    reason="mosquitto not installed")
+def test_the_agent_stops_with_one_line_when_its_radio_is_unplugged(policy_dir: Path) -> None:
+    """A flying agent on a serial radio: the radio goes, the agent exits non-zero at once
+    with the link's line and its own, no traceback."""
+    pytest.importorskip("serial")
+
+    async def main() -> tuple[int | None, str, float, str]:
+        base = free_udp_ports(1)
+        host = AutopilotHost(1, base_port=base)
+        await host.start()
+
+        async def clock() -> None:  # about 2x real time
+            while True:
+                host.advance(0.02)
+                await asyncio.sleep(0.01)
+
+        ticking = asyncio.create_task(clock())
+        radio = RadioBridge(base)
+        await radio.start()
+        with MosquittoBroker() as broker:
+            agent = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "plmarl_sitl.cli", "agent", "--id", "0", "--connect", f"serial://{radio.dev}:57600",
+                "--broker", broker.url, "--bus", "direct", "--start", "now", "--mission", str(MISSION),
+                "--policy", str(policy_dir), "-v", cwd=ROOT, stderr=asyncio.subprocess.PIPE,
+            )
+            assert agent.stderr is not None
+            err: list[str] = []
+            try:
+                async with asyncio.timeout(150):
+                    while "mission clock" not in (line := (await agent.stderr.readline()).decode()):
+                        assert line, "".join(err)  # the agent ended before flying
+                        err.append(line)
+                t0 = time.monotonic()
+                radio.unplug()
+                async with asyncio.timeout(10):
+                    rest = await agent.stderr.read()
+                    await agent.wait()
+                took = time.monotonic() - t0
+            finally:
+                if agent.returncode is None:
+                    agent.kill()
+                    await agent.wait()
+                radio.close()
+                ticking.cancel()
+                host.close()
+        return agent.returncode, rest.decode(), took, radio.dev
+
+    code, err, took, dev = asyncio.run(main())
+    assert code not in (0, None), err
+    assert "Traceback" not in err, err
+    assert took < 5.0  # not a 5 s telemetry timeout: the link ended at once
+    link_lines = [x for x in err.splitlines() if "link closed" in x]
+    assert len(link_lines) == 1 and f"serial port {dev}: " in link_lines[0], err
+    assert any("vehicle lost" in x and "link lost" in x for x in err.splitlines()), err
