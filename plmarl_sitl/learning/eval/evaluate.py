@@ -23,8 +23,7 @@ from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.twin.env import CoverageEnv
-from plmarl_sitl.twin.rollout import Controller, rollout_batches
+from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
 ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic")
@@ -45,7 +44,7 @@ def needed_policies(methods: list[str]) -> set[str]:
     return need
 
 
-def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> Callable[[CoverageEnv], Controller]:
+def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeController:
     if method == "oracle":
         from plmarl_sitl.twin.oracle import OracleController
 
@@ -67,7 +66,7 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> Callable
 
 def run_method(
     mission: Mission,
-    make: Callable[[CoverageEnv], Controller],
+    make: MakeController,
     episodes: int,
     seed: int,
     *,
@@ -76,8 +75,7 @@ def run_method(
     failure_prob: float = 0.0,
     on_decision: Callable[[int], None] | None = None,
 ) -> MethodRun:
-    runs = rollout_batches(mission, make, episodes, seed, batch=batch, failure_prob=failure_prob, on_decision=on_decision)
-    # Each trace holds the value after second t = 1..T; the steady state is t > from_s.
+    runs = rollout(mission, make, episodes, seed, batch=batch, failure_prob=failure_prob, on_decision=on_decision)
     return MethodRun(
         np.concatenate([r.coverage[:, from_s:].mean(-1).numpy() for r in runs]),
         np.concatenate([r.coverage.mean(-1).numpy() for r in runs]),
