@@ -51,7 +51,7 @@ class _Protocol(asyncio.DatagramProtocol):
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         rx_ns = kernel_rx_ns(self.fd) if self.link.stamp_arrivals and self.fd >= 0 else None
-        self.link._on_datagram(data, rx_ns)
+        self.link.feed_datagram(data, rx_ns)
 
     def error_received(self, exc: Exception) -> None:
         pass  # "port unreachable" while the vehicle is not up yet: keep trying
@@ -209,7 +209,8 @@ class VehicleLink:
         return self.target_sysid
 
     # ------------------------------------------------------------------ receiving
-    def _on_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
+    def feed_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
+        """Parse one datagram (or one stream read) the transport received at `rx_ns`."""
         out = self.codec.decode_datagram(data)
         if out.fault is not None:
             self.bad_datagrams += 1

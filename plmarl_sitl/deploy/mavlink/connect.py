@@ -67,22 +67,22 @@ class _InProtocol(_Protocol):
     link: UdpInLink
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.link._peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
+        self.link.peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
         super().datagram_received(data, addr)
 
 
 class UdpInLink(VehicleLink):
     """Listen on BIND:PORT; replies go to the address the vehicle sent from."""
 
-    _peer: tuple[str, int] | None = None
+    peer: tuple[str, int] | None = None  # who spoke last; replies go there
 
     async def _open_transport(self) -> None:
         loop = asyncio.get_running_loop()
         self._transport, _ = await loop.create_datagram_endpoint(lambda: _InProtocol(self), local_addr=self.addr)
 
     def _write(self, data: bytes) -> None:
-        if self._peer is not None and self._transport is not None:
-            self._transport.sendto(data, self._peer)
+        if self.peer is not None and self._transport is not None:
+            self._transport.sendto(data, self.peer)
         # Before the vehicle has spoken there is nobody to answer: the hello is dropped.
 
 
