@@ -147,7 +147,7 @@ def scatter_start(env: CoverageEnv, gen: torch.Generator, margin_m: float = 150.
     east = margin_m + r[..., 1] * (m.area.east_m - 2 * margin_m)
     env.pos = torch.stack([north, east, env.pos[..., 2]], -1).to(env.dtype)
     env.holdings = Holdings.empty((b,), n, env.dtype, env.device)
-    env._signal()
+    env.run_signalling()
     env.covered = covered_users(env.users.xy, env.pos, env.alive, env.radius(-env.pos[..., 2]))
 
 

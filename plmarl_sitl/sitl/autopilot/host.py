@@ -212,6 +212,10 @@ class AutopilotHost:
         """Node failure: vehicle i stops answering and sending, and falls if airborne."""
         self.vehicles[i].kill()
 
+    def set_gnss_noise(self, i: int, std_m: float) -> None:
+        """GNSS noise: vehicle i's reported position gets Gaussian noise of `std_m` per axis (0: none)."""
+        self.vehicles[i].gnss_noise_std_m = float(std_m)
+
     def counters(self) -> list[InputCounters]:
         return [v.counters for v in self.vehicles]
 
