@@ -29,9 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Seeds: every twin here is seeded from the evaluation range (>= 1_000_000_000: batch k of mission v of "
         "run --seed S uses 1_000_000_000 + 10000 S + 100 v + k). Training refuses twin seeds in that range "
         "(plmarl_sitl/learning/train/seeds.py), so no suite episode is a training episode.\n\n"
-        "Each row: coverage (mean C(t) for t > --from-s, mean and 95%% CI over episodes), the mean per-episode "
+        "Each row: coverage (mean C(t) for t > --from-s, mean and 95% CI over episodes), the mean per-episode "
         "fraction of the Oracle on the same episodes, lambda_2, and the two-sided Mann-Whitney U p-value of "
-        "PL-MARL against the row's method; failure families add the transient (trough, time to plateau). "
+        "PL-MARL against the row's method; failure families add the transient (trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
         "The Oracle ignores signalling, so it runs once per family and serves every T_up.",
         epilog="examples:\n  plmarl suite all --episodes 30 --tup 5,15,50 --out runs/suite\n"
         "  plmarl suite random,launch --episodes 10 --json\n  plmarl suite --list",
