@@ -27,6 +27,7 @@ import torch
 from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
 from plmarl_sitl.learning.nn.features import FeatureScales, build_policy_input
 from plmarl_sitl.learning.nn.policy import Actor
+from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv
 from plmarl_sitl.twin.oracle import OracleController
@@ -73,7 +74,7 @@ def imitate_oracle(
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
             m = dataclasses.replace(mission, signalling=dataclasses.replace(mission.signalling, tup_s=tup))
-            env = CoverageEnv(m, n_eps, env_seed, failure_prob=args.failure_prob)
+            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob)
             teacher = OracleController(env)
             beliefs = Beliefs(tracker)
             obs = env.reset()

@@ -36,6 +36,7 @@ from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
 from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, FeatureScales, build_policy_input
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
+from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.twin.env import CoverageEnv
@@ -167,7 +168,7 @@ def train(args: Args, progress=None) -> dict:
     mission = mixed_mobility(base) if args.mixed_mobility else base
     scales = FeatureScales.from_mission(mission)
     norm = scales.norm()
-    env = CoverageEnv(mission, args.num_envs, args.seed, failure_at_s=args.failure_at_s)
+    env = CoverageEnv(mission, args.num_envs, training_twin_seed(args.seed), failure_at_s=args.failure_at_s)
     B, N = args.num_envs, env.n
     T = math.ceil(env.horizon / mission.timing.decision_every_s)  # decisions per episode
     G = env.global_state_dim()
@@ -220,7 +221,8 @@ def train(args: Args, progress=None) -> dict:
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
-        env = CoverageEnv(mission.with_tup(tup), B, args.seed * 100_003 + it, failure_prob=p_fail, failure_at_s=args.failure_at_s)
+        env = CoverageEnv(mission.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
+                          failure_at_s=args.failure_at_s)
 
         # -------------------------------------------------------------- rollout
         obs = env.reset()
