@@ -31,8 +31,8 @@ from plmarl_sitl.deploy.mqtt.schema import (
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
+from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.model.signalling import Holdings, signalling_update
-from plmarl_sitl.sitl.autopilot.telemetry import geodetic
 
 f32 = st.floats(-1e5, 1e5, width=32)
 
@@ -148,7 +148,7 @@ def test_band_guard() -> None:
 
 def test_home_offset_inverts_emulator_geodetic() -> None:
     o = Origin(47.397742, 8.545594, 488.0)
-    lat, lon, alt = geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
+    lat, lon, alt = ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
     n, e, d = home_offset_ned(o, lat, lon, alt)
     assert n == pytest.approx(500.0, abs=1e-6) and e == pytest.approx(430.0, abs=1e-6) and d == pytest.approx(0.0)
 

@@ -18,12 +18,10 @@ from collections.abc import Callable
 
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect, enum_name, param_id_str
 from plmarl_sitl.deploy.mavlink.personality import Personality, personality_for_autopilot
+from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, FORCE_ARM_MAGIC, POSITION_ONLY, VELOCITY_ONLY
 from plmarl_sitl.errors import CommandRejected, VehicleTimeout
 
 d = dialect
-ACCEL_ONLY = 0x0C3F  # as MAVSDK sends acceleration setpoints
-VELOCITY_ONLY = 0x0DC7
-POSITION_ONLY = 0x0DF8
 
 Predicate = Callable[[Message], bool]
 
@@ -219,10 +217,10 @@ class VehicleLink:
         raise VehicleTimeout(self.sysid, f"COMMAND_ACK for command {command}", timeout * retries)
 
     async def arm(self, force: bool = False) -> None:
-        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 21196.0 if force else 0.0)
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, FORCE_ARM_MAGIC if force else 0.0)
 
     async def disarm(self, force: bool = False) -> None:
-        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0 if force else 0.0)
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, FORCE_ARM_MAGIC if force else 0.0)
 
     async def set_mode(self, name: str) -> None:
         """Mode by name in the vehicle's personality ('OFFBOARD', 'AUTO.LOITER', 'GUIDED', ...)."""
