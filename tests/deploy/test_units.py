@@ -30,7 +30,7 @@ from plmarl_sitl.deploy.mqtt.schema import (
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
-from plmarl_sitl.model.geodesy import to_geodetic, to_ned_offset
+from plmarl_sitl.model.geodesy import geodetic_to_ned, ned_to_geodetic
 from plmarl_sitl.model.signalling import Holdings, signalling_update
 
 f32 = st.floats(-1e5, 1e5, width=32)
@@ -147,8 +147,8 @@ def test_band_guard() -> None:
 
 def test_ned_offset_inverts_geodetic() -> None:
     o = Origin(47.397742, 8.545594, 488.0)
-    lat, lon, alt = to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
-    n, e, d = to_ned_offset(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
+    lat, lon, alt = ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
+    n, e, d = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
     assert n == pytest.approx(500.0, abs=1e-6) and e == pytest.approx(430.0, abs=1e-6) and d == pytest.approx(0.0)
 
 

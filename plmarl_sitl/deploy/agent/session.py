@@ -28,7 +28,7 @@ from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.stats import LoopStats, rss_mb
 from plmarl_sitl.deploy.mavlink.personality import Personality
 from plmarl_sitl.errors import CommandRejected, UserError, VehicleTimeout
-from plmarl_sitl.model.geodesy import to_ned_offset
+from plmarl_sitl.model.geodesy import geodetic_to_ned
 
 log = logging.getLogger("plmarl.agent")
 
@@ -145,7 +145,7 @@ class VehicleSession:
         await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
         home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
         o = cfg.mission.origin
-        offset = to_ned_offset(o.lat_deg, o.lon_deg, o.alt_m, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0)
+        offset = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0)
         self.home = torch.tensor(offset, dtype=torch.float32)
         await self._telemetry()
         # Start-up ends here: policy loaded, autopilot found, position and home valid.

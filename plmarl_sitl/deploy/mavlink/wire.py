@@ -1,18 +1,21 @@
-"""MAVLink wire constants that both ends of our links use: the agent's client sends them,
-the autopilot emulator parses them. Written once so the two cannot drift apart."""
+"""MAVLink numbers that are conventions rather than dialect enums, written once.
+
+Both sides use them: the client (`client.py`) to send, the autopilot emulator to read and
+echo. The dialect names the type_mask *bits* of SET_POSITION_TARGET_LOCAL_NED one by one
+(POSITION_TARGET_TYPEMASK); the groups and the masks real clients send are ours to spell.
+"""
 
 from __future__ import annotations
 
-# type_mask bit groups of SET_POSITION_TARGET_LOCAL_NED (POSITION_TARGET_TYPEMASK): a set
-# bit means "ignore this field".
-MASK_POS, MASK_VEL, MASK_ACC = 0x007, 0x038, 0x1C0
-MASK_FORCE_SET = 0x200  # accelerations are forces: refused by PX4 and by us
-
-# Whole type_masks with only one group in use (yaw and yaw rate ignored), as MAVSDK sends
-# them and as PX4/ArduPilot echo them in POSITION_TARGET_LOCAL_NED.
-ACCEL_ONLY = 0x0C3F
-VELOCITY_ONLY = 0x0DC7
+# POSITION_TARGET_TYPEMASK: a set bit means "ignore this field".
+MASK_POS = 0x007  # x, y, z
+MASK_VEL = 0x038  # vx, vy, vz
+MASK_ACC = 0x1C0  # afx, afy, afz
+MASK_FORCE_SET = 0x200  # afx..afz are a force, not an acceleration
+# One group used, yaw and yaw rate ignored: the masks MAVSDK sends (and PX4 echoes).
 POSITION_ONLY = 0x0DF8
+VELOCITY_ONLY = 0x0DC7
+ACCEL_ONLY = 0x0C3F
 
-# param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces arming or disarming (PX4 and ArduPilot).
+# param2 of MAV_CMD_COMPONENT_ARM_DISARM that forces arming/disarming (PX4 and ArduPilot).
 FORCE_ARM_MAGIC = 21196
