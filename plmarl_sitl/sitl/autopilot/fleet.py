@@ -60,7 +60,8 @@ class Fleet:
         return -float(self.pos_np[i, 2])
 
     def on_ground(self, i: int) -> bool:
-        vx, vy, vz = (float(c) for c in self.vel_np[i])
+        v = self.vel_np[i]
+        vx, vy, vz = float(v[0]), float(v[1]), float(v[2])
         return self.altitude(i) <= ON_GROUND_ALT_M and abs(vz) < 0.2 and math.hypot(vx, vy) < 0.5
 
     def guide(self, i: int, kind: Kind, target: tuple[float, float, float] | None = None, *, watch: bool = False) -> None:
