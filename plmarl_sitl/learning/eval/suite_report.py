@@ -123,6 +123,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
             ax.plot(x, y, marker="o", ms=3, label=m, color=c, ls="--" if m == "oracle" else "-")
             ax.fill_between(x, [r["coverage_ci95"][0] for r in rs], [r["coverage_ci95"][1] for r in rs], alpha=0.2, color=c)
         ax.set_title(f"{fam['name']} (N = {'/'.join(map(str, fam['n_uavs']))})", fontsize=9)
+        ax.set_xticks(fam["tup"])
         ax.set_xlabel("T_up (s)")
         ax.set_ylabel("coverage")
         ax.set_ylim(0, 1.02)
