@@ -15,7 +15,7 @@ from plmarl_sitl.cli import main
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.evaluate import controller_factory, run_method
 from plmarl_sitl.learning.eval.suite import FAILURE_AT_S, episodes_per_mission, load_suite, select, twin_seeds
-from plmarl_sitl.learning.eval.transient import failure_transient, plateau_times
+from plmarl_sitl.learning.eval.transient import failure_transient, reach_times, settle_times
 from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
 from plmarl_sitl.learning.nn.io import export_policy
 from plmarl_sitl.learning.train.mappo import Args, train
@@ -103,11 +103,18 @@ def test_transient_trough_and_plateau_on_a_known_trace() -> None:
     assert res["trough_mean"] == pytest.approx(0.5)
     assert res["pre_failure_mean"] == pytest.approx(0.9)
     assert res["oracle_post_level_mean"] == pytest.approx(0.8)
-    # First s with mean(c[100+s .. 109+s]) >= 0.76: 0.5 + 0.01 (s + 4.5) >= 0.76 -> s = 21.5 -> 22.
-    assert res["plateau_s_median"] == 22
-    assert res["plateau_within_target_share"] == 1.0 and res["plateau_never"] == 0
-    never = plateau_times(np.full((1, 200), 0.3), np.array([0.8]), 100)
-    assert np.isnan(never).all()
+    # First s with mean(c[100+s .. 109+s]) >= 0.76: 0.5 + 0.01 (s + 4.5) >= 0.76 -> s = 21.5 -> 22; it stays.
+    assert res["reach_s_median"] == 22 and res["plateau_s_median"] == 22
+    assert res["reach_within_target_share"] == 1.0 and res["plateau_within_target_share"] == 1.0
+    assert res["plateau_never"] == 0
+    # Holds 0.8 for 10 s, dips to 0.5 for t in [110, 140), back to 0.8: reaches at once, settles after the dip.
+    dip = np.where((t >= 110) & (t < 140), 0.5, 0.8)[None, :]
+    level = np.array([0.8])
+    assert reach_times(dip, level, 100)[0] == 0
+    # A window holding k dip seconds has mean 0.8 - 0.03 k >= 0.76 only for k <= 1: from [139, 149) on (s = 39).
+    assert settle_times(dip, level, 100)[0] == 39
+    assert np.isnan(reach_times(np.full((1, 200), 0.3), level, 100)).all()
+    assert np.isnan(settle_times(np.full((1, 200), 0.3), level, 100)).all()
 
 
 # ---------------------------------------------------------------------- end to end

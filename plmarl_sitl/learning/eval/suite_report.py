@@ -52,14 +52,18 @@ def family_table_md(res: dict, family: str) -> str:
 
 
 def transient_table_md(res: dict) -> str:
+    def med(v: float | None) -> str:
+        return "never" if v is None else f"{v:.0f}"
+
     lines = ["| family | T_up (s) | method | pre-failure | trough [95% CI] | post-failure (of Oracle) | Oracle level "
-             "| plateau s (median) | within 30 s | never |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| reach s (median) | reached by 30 s | plateau s (median) | settled by 30 s | never settled |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for t in res["transients"]:
-        med = "never" if t["plateau_s_median"] is None else f"{t['plateau_s_median']:.0f}"
         lines.append(
             f"| {t['family']} | {t['tup']} | {t['method']} | {t['pre_failure_mean']:.3f} | {t['trough_mean']:.3f} "
             f"[{t['trough_ci95'][0]:.3f}, {t['trough_ci95'][1]:.3f}] | {t['post_failure_mean']:.3f} "
-            f"({100 * t['post_failure_fraction_of_oracle_mean']:.0f}%) | {t['oracle_post_level_mean']:.3f} | {med} "
+            f"({100 * t['post_failure_fraction_of_oracle_mean']:.0f}%) | {t['oracle_post_level_mean']:.3f} "
+            f"| {med(t['reach_s_median'])} | {100 * t['reach_within_target_share']:.0f}% | {med(t['plateau_s_median'])} "
             f"| {100 * t['plateau_within_target_share']:.0f}% | {t['plateau_never']} |"
         )
     return "\n".join(lines)
@@ -82,10 +86,12 @@ def results_markdown(res: dict, figures: dict[str, str]) -> str:
                   f"failure probability {fam['failure_prob']}.", "", family_table_md(res, fam["name"]), ""]
     if res["transients"]:
         parts += ["## Failure transient", "",
-                  f"Per episode: trough = min C(t) from the failure on; Oracle level = the Oracle's mean C over the second "
-                  f"half of the post-failure time on the same episode; plateau = first s after the failure from which the "
-                  f"{WINDOW_S}-s mean of C reaches {100 * PLATEAU_FRACTION:.0f}% of that level (median over episodes; "
-                  "'within 30 s' = share of episodes that get there within 30 s).", "", transient_table_md(res), ""]
+                  "Per episode (definitions in plmarl_sitl/learning/eval/transient.py): trough = min C(t) from the "
+                  "failure on; Oracle level = the Oracle's mean C over the second half of the post-failure time on the "
+                  f"same episode; reach = first s after the failure whose {WINDOW_S}-s mean of C is at least "
+                  f"{100 * PLATEAU_FRACTION:.0f}% of that level; plateau = first s from which every later {WINDOW_S}-s "
+                  "mean stays there (settling time). Medians over episodes; 'by 30 s' = share of episodes.", "",
+                  transient_table_md(res), ""]
     for title, rel in figures.items():
         parts += [f"![{title}]({rel})", ""]
     return "\n".join(parts)
@@ -117,6 +123,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
             ax.plot(x, y, marker="o", ms=3, label=m, color=c, ls="--" if m == "oracle" else "-")
             ax.fill_between(x, [r["coverage_ci95"][0] for r in rs], [r["coverage_ci95"][1] for r in rs], alpha=0.2, color=c)
         ax.set_title(f"{fam['name']} (N = {'/'.join(map(str, fam['n_uavs']))})", fontsize=9)
+        ax.set_xticks(fam["tup"])
         ax.set_xlabel("T_up (s)")
         ax.set_ylabel("coverage")
         ax.set_ylim(0, 1.02)
