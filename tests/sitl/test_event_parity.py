@@ -137,3 +137,20 @@ def test_twin_and_sitl_apply_the_same_events_at_the_same_seconds(mission):
     assert len(sitl) == mission.timing.episode_s + 1
     for t, ((dead, delivered, noisy, _), (s_dead, s_delivered, s_noisy)) in enumerate(zip(twin, sitl, strict=True)):
         assert (dead, delivered, noisy) == (s_dead, s_delivered, s_noisy), f"{mission.name} at t = {t}"
+
+
+def test_every_event_kind_takes_effect_in_the_constructed_mission():
+    """The comparison above is not vacuous: each kind changes something in both worlds."""
+    m = CONSTRUCTED[0]
+    twin = _twin_seconds(m)
+    dead, delivered, noisy = zip(*[(d, p, n) for d, p, n, _ in twin], strict=True)
+    everyone = delivered[15]  # the pairs in range on the launch line
+    assert {0, 1, 2, 3} <= {u for pair in everyone for u in pair}
+    assert delivered[30] == {p for p in everyone if 0 not in p}  # uav 0 blacked out
+    assert delivered[60] == set() and delivered[75] == everyone  # all links cut, then back
+    # Broker down, then up (uav 2 failed at 100: less interference, more pairs hear each other).
+    assert delivered[90] == set() and delivered[105] >= {p for p in everyone if 2 not in p}
+    assert not any(2 in p for p in delivered[105])
+    assert delivered[130] and not delivered[135]  # T_up 10 from 120: 130 is an instant, 135 no more
+    assert noisy[40] == {1} and noisy[70] == set() and noisy[170] == {0, 1, 2, 3}
+    assert dead[99] == set() and dead[100] == {2} and dead[150] == {1, 2}
