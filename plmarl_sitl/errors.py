@@ -36,6 +36,17 @@ class VehicleTimeout(PlmarlError):
         super().__init__(f"vehicle {sysid}: no {what} within {timeout_s:g} s")
 
 
+class LinkLost(VehicleTimeout):
+    """The link to a vehicle broke (a serial radio unplugged): nothing more will come, so
+    every wait on it ends at once instead of at its timeout. A VehicleTimeout, so code that
+    handles a silent vehicle handles this one too; `reason` says which link and why."""
+
+    def __init__(self, sysid: int, reason: str) -> None:
+        super().__init__(sysid, "message: link lost", 0.0)
+        self.reason = reason
+        self.args = (f"vehicle {sysid}: link lost ({reason})",)
+
+
 class PolicyFileError(UserError):
     """A policy file (predictor.pt, policy.pt, card.yaml) is missing, corrupt or mismatched."""
 

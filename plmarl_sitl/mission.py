@@ -173,9 +173,6 @@ class Event:
     def end_s(self) -> float:
         return self.at_s + self.duration_s if self.duration_s is not None else float("inf")
 
-    def active(self, t: float) -> bool:
-        return self.at_s <= t < self.end_s()
-
 
 @dataclass(frozen=True)
 class Launch:
@@ -211,7 +208,8 @@ class Mission:
     reward: Reward = Reward()
     launch: Launch = Launch()
     origin: Origin = Origin()
-    # Node failures, shorthand for node_failure events (the twin's and the trainer's form).
+    # Node failures, shorthand for node_failure events (the twin's and the trainer's form;
+    # `model.events.EventSchedule` puts both on one clock).
     failures: tuple[Failure, ...] = ()
     events: tuple[Event, ...] = ()
 
@@ -232,14 +230,6 @@ class Mission:
         for i, (n, e) in enumerate(centres):
             ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m
             _require(ok, f"users.cluster_centers[{i}]", "must lie inside the area")
-
-    def node_failures(self) -> tuple[Failure, ...]:
-        """Every node failure: the `failures` list plus node_failure events."""
-        extra = tuple(Failure(at_s=e.at_s, uav=e.uav) for e in self.events if e.type == "node_failure" and e.uav is not None)
-        return self.failures + extra
-
-    def events_of(self, kind: str) -> tuple[Event, ...]:
-        return tuple(e for e in self.events if e.type == kind)
 
     def vehicle_model(self) -> VehicleModel:
         return load_vehicle(self.vehicle)

@@ -1,4 +1,4 @@
-"""One agent's decision (Agent._second at a decision second, N = 20) timed in isolation,
+"""One agent's decision (`Decision.second` at a decision second, N = 20) timed in isolation,
 back to back and with a sleep before each call: how much of the loop's cost is a cold
 cache after the process slept (docs/RESULTS.md, issue 5, "Loop p99").
 
@@ -15,7 +15,11 @@ import time
 import torch
 
 from plmarl_sitl.cmdline import comma_list
-from plmarl_sitl.deploy.agent.core import Agent, AgentConfig
+from plmarl_sitl.deploy.agent.clock import MissionClock
+from plmarl_sitl.deploy.agent.decision import Decision
+from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
+from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
 
@@ -29,12 +33,15 @@ def main() -> None:
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     mission = dataclasses.replace(load_mission("missions/paper_urban.yaml"), n_uavs=20)
-    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
-                  load_policy("policies/pl-marl", mission))
-    agent.warm_up()
-    agent.sense_history.append((0.0, torch.rand(40, 2) * 100 + 450))
-    agent.ego = torch.tensor([500.0, 500.0, -80.0, 1.0, 0.0, 0.0])
-    agent.t0, agent.next_close = 0.0, 0
+    # Agent 0's decision with what it reads: the mission clock (the agent's default waits),
+    # started at boot time 0, and the neighbour table; no trace; the users are given below.
+    clock = MissionClock(mission.signalling.tup_s, int(mission.timing.decision_every_s), 0.1, INSTANT_WAIT_WALL_S)
+    table = NeighbourTable(20, 0, mission.signalling.drop_after_missed)
+    decision = Decision(mission, 0, load_policy("policies/pl-marl", mission), clock, table, LoopStats(), Trace(None), "")
+    decision.warm_up()
+    decision.sense_history.append((0.0, torch.rand(40, 2) * 100 + 450))
+    decision.ego = torch.tensor([500.0, 500.0, -80.0, 1.0, 0.0, 0.0])
+    clock.set_t0(0.0)
     k = 0
     print(f"seed {args.seed}; N = 20, decision seconds only")
     for sleep_ms in args.sleeps_ms:
@@ -42,10 +49,10 @@ def main() -> None:
         while len(wall) < args.calls:
             if k % 15 == 0:  # every neighbour signals at each instant
                 for j in range(1, 20):
-                    agent.table.on_state(j, float(k), tuple((torch.randn(6) * 50 + torch.tensor([500, 500, -80, 0, 0, 0.0])).tolist()))
+                    table.on_state(j, float(k), tuple((torch.randn(6) * 50 + torch.tensor([500, 500, -80, 0, 0, 0.0])).tolist()))
             time.sleep(sleep_ms / 1e3)
             t, c = time.perf_counter(), time.thread_time()
-            decided = agent._second(k)
+            decided = decision.second(k)
             if decided and k >= 30:
                 wall.append((time.perf_counter() - t) * 1e3)
                 cpu.append((time.thread_time() - c) * 1e3)

@@ -3,7 +3,7 @@
 For each N it tries speedups from high to low and keeps the first whose sim-to-SITL
 coverage gap is within `--max-gap` (0.03): |mean C(t) in SITL - mean C(t) in the twin|
 for the same mission, seeds (means over `--seeds`) and policy (the twin run is
-`swarm.gap.twin_coverage`), and that kept up with its speedup: 95% of decisions acted
+`bench.gap.twin_coverage`), and that kept up with its speedup: 95% of decisions acted
 within `--max-delay` vehicle seconds of their mission second (the twin acts at once)
 and on sensing at most `--max-lag` seconds old. An overloaded swarm backs up its bus and acts late; with a
 poor policy that need not move the coverage gap, so the gap alone cannot tell.
@@ -56,8 +56,8 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int) -> tuple[dic
 def run(args: argparse.Namespace) -> dict:
     from dataclasses import replace
 
+    from plmarl_sitl.bench.gap import twin_coverage
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.sitl.gap import twin_coverage
 
     seeds = args.seeds
     rows = []

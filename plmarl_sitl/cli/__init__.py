@@ -14,7 +14,7 @@ import sys
 from plmarl_sitl.config import ConfigError
 from plmarl_sitl.errors import UserError
 
-SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval", "world", "agent", "report", "swarm"]
+SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval", "suite", "world", "agent", "report", "swarm"]
 
 EPILOG = """\
 examples:

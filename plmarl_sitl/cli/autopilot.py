@@ -13,6 +13,7 @@ import logging
 import signal
 import sys
 
+from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES, personality
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
 
@@ -35,7 +36,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
     p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
     p.add_argument("--bind", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
-    p.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
+    # Not argparse choices: an unknown name is one error line (UserError), like every bad flag.
+    p.add_argument("--personality", default="px4", metavar="NAME",
+                   help=f"autopilot to emulate: {', '.join(PERSONALITIES)} (default px4)")
     p.add_argument("--vehicle", default="quadrotor", help="vehicle model name or YAML path (default quadrotor)")
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT", help="geodetic origin of the mission frame")
     p.add_argument("--spacing", type=float, default=5.0, metavar="M",
@@ -74,6 +77,7 @@ def parse_key(text: str) -> bytes:
 
 
 def run(args: argparse.Namespace) -> int:
+    personality(args.personality)  # an unknown name fails here, before anything starts
     if not 1 <= args.count <= 250:
         raise UserError("--count must be in 1..250 (one MAVLink system id per vehicle)")
     if not args.speedup > 0:

@@ -4,7 +4,7 @@ Used by the integration tests, `plmarl bench agent` and the sim-to-SITL gap run;
 launcher builds on it. Every child gets OPENBLAS/OMP threads = 1 and its own log file.
 A fleet either execs each agent (`python -m plmarl_sitl.cli agent ...`, exactly what a
 user runs) or, with `forked=True`, forks it from a forkserver that has imported torch
-once (`swarm.forked`), which is how a launcher starts 20 agents on 2 cores quickly.
+once (`sitl.forked`), which is how a launcher starts 20 agents on 2 cores quickly.
 """
 
 from __future__ import annotations

@@ -60,9 +60,9 @@ def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, ni
     sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
     sys.stderr.reconfigure(line_buffering=True)  # type: ignore[union-attr]
     os.environ.update(env)
-    from plmarl_sitl.cli import main
+    from plmarl_sitl.deploy.agent.program import main
 
-    sys.exit(main(["agent", *argv]))
+    sys.exit(main(argv))
 
 
 class ForkedProcess:

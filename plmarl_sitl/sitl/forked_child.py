@@ -1,4 +1,4 @@
-"""Imported once by the agents' forkserver (`swarm.forked`): everything `plmarl agent`
+"""Imported once by the agents' forkserver (`sitl.forked`): everything `plmarl agent`
 imports, so that a forked agent starts with them loaded. Nothing here starts a thread:
 forking a process with threads (an OpenMP pool, an event loop) is unsafe."""
 
@@ -11,10 +11,10 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import psutil  # noqa: E402, F401  (the agent reports its RSS with it)
 import torch  # noqa: E402, F401
 
-import plmarl_sitl.cli  # noqa: E402, F401
-import plmarl_sitl.cli.agent  # noqa: E402, F401
 import plmarl_sitl.deploy.agent.core  # noqa: E402, F401
+import plmarl_sitl.deploy.agent.program  # noqa: E402, F401
 import plmarl_sitl.deploy.mavlink.connect  # noqa: E402, F401
+import plmarl_sitl.deploy.mqtt.transport  # noqa: E402, F401
 import plmarl_sitl.learning.nn.io  # noqa: E402, F401
 import plmarl_sitl.mission  # noqa: E402, F401
 import plmarl_sitl.sitl.forked  # noqa: E402, F401

@@ -2,9 +2,11 @@
 
 This process starts the broker (amqtt in a child process, unless an external one is
 given; behind a `BrokerGate` when the mission has a broker outage) and hosts the SITL
-world (`SitlWorld`: autopilots, users, link emulator) and the mission script; it forks
-one `plmarl agent` per UAV (`swarm.forked`) and watches them. The world
-starts mission time once every vehicle flies under its agent; events fire on that clock.
+world (`SitlWorld`: autopilots, users, link emulator); it forks one `plmarl agent` per
+UAV (`sitl.forked`) and watches them. The world starts mission time once every vehicle
+flies under its agent; the mission's events fire on that clock, from one schedule
+(`model.events`): the world applies those in its own process, the launcher those that
+touch the processes it manages (`LauncherEvents`: agent kills, the broker gate).
 Everything is recorded in the run directory:
 
     mission.yaml      the resolved mission (extends applied, seed filled in)
@@ -38,7 +40,8 @@ from plmarl_sitl.config import REPO_ROOT, to_dict
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import PlmarlError, UserError
-from plmarl_sitl.mission import Event, Mission, load_mission
+from plmarl_sitl.mission import Mission, load_mission
+from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.monitor import SwarmMonitor
@@ -86,69 +89,38 @@ def default_out_dir() -> Path:
     return Path("runs") / _dt.datetime.now().strftime("%Y-%m-%dT%H-%M-%S")
 
 
-def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
-    """The links a link_blackout cuts: all of them, or every link touching `uavs`."""
-    if not ev.uavs:
-        return None
-    return sorted({(min(u, j), max(u, j)) for u in ev.uavs for j in range(n) if j != u})
+class LauncherEvents:
+    """The launcher's part of the mission's events, from the schedule the SITL world applies
+    too (the world kills the vehicle, cuts the links, sets GNSS noise and T_up): it kills a
+    failed node's agent process, opens and closes the broker gate for an outage, and records
+    every event as it fires."""
 
+    # The ends worth an entry of their own: the outage's and the noise's are switched at
+    # their end second; a blackout's cut expires inside the link emulator.
+    RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise"})
 
-class MissionScript:
-    """Fires the mission's events on the mission clock and ends the timed ones."""
+    def __init__(self, schedule: EventSchedule, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
+        self.schedule, self.fleet, self.gate, self.record = schedule, fleet, gate, record
+        self.killed: set[int] = set()  # agents stopped on purpose (not a failure to report)
 
-    def __init__(
-        self, mission: Mission, world: SitlWorld, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]
-    ) -> None:
-        self.world, self.fleet, self.gate, self.record = world, fleet, gate, record
-        self.pending = sorted(
-            [Event(type="node_failure", at_s=f.at_s, uav=f.uav) for f in mission.failures] + list(mission.events),
-            key=lambda e: e.at_s,
-        )
-        self.endings: list[tuple[float, Event]] = []
-        self.killed: set[int] = set()
-        self.n = world.n
-
-    def tick(self, t: float) -> None:
-        while self.pending and self.pending[0].at_s <= t:
-            self._fire(self.pending.pop(0), t)
-        for end, ev in [x for x in self.endings if x[0] <= t]:
-            self.endings.remove((end, ev))
-            self._end(ev, t)
-
-    def _fire(self, ev: Event, t: float) -> None:
-        entry = {"t": t, "type": ev.type, **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
-        if ev.type == "node_failure":
-            assert ev.uav is not None
-            self.killed.add(ev.uav)
-            self.world.kill(ev.uav)
-            if ev.uav in self.fleet.procs:
-                self.fleet.kill(ev.uav)
-        elif ev.type == "link_blackout":
-            assert ev.duration_s is not None
-            self.world.cut_links(blackout_pairs(ev, self.n), ev.duration_s)
-        elif ev.type == "broker_outage":
-            assert self.gate is not None  # swarm_up puts a gate in front of the broker for this event
-            self.gate.outage(True)
-            self.endings.append((ev.end_s(), ev))
-        elif ev.type == "tup_change":
-            assert ev.tup_s is not None
-            self.world.set_tup(ev.tup_s)
-        elif ev.type == "gnss_noise":
-            for u in ev.uavs or range(self.n):
-                self.world.host.vehicles[u].gnss_noise_std_m = float(ev.std_m or 0.0)
-            if ev.duration_s is not None:
-                self.endings.append((ev.end_s(), ev))
-        log.warning("event at t=%.0f s: %s", t, entry)
-        self.record(entry)
-
-    def _end(self, ev: Event, t: float) -> None:
-        if ev.type == "broker_outage":
-            assert self.gate is not None
-            self.gate.outage(False)
-        elif ev.type == "gnss_noise":
-            for u in ev.uavs or range(self.n):
-                self.world.host.vehicles[u].gnss_noise_std_m = 0.0
-        self.record({"t": t, "type": f"{ev.type}_end"})
+    def tick(self, second: int) -> None:
+        for change in self.schedule.changes_at(second):
+            ev = change.event
+            if ev.type == "node_failure" and ev.uav is not None:
+                self.killed.add(ev.uav)
+                if ev.uav in self.fleet.procs:
+                    self.fleet.kill(ev.uav)
+            elif ev.type == "broker_outage":
+                assert self.gate is not None  # swarm_up puts a gate in front of the broker for this event
+                self.gate.outage(self.schedule.broker_down(second))  # down while any outage lasts
+            t = float(second)
+            if not change.ends:
+                entry = {"t": t, "type": ev.type,
+                         **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
+                log.warning("event at t=%.0f s: %s", t, entry)
+                self.record(entry)
+            elif ev.type in self.RECORDED_ENDS:
+                self.record({"t": t, "type": f"{ev.type}_end"})
 
 
 async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
@@ -217,10 +189,11 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     broker, up_host, up_port = await _start_broker(opts.broker)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
-    gate = BrokerGate(up_host, up_port) if any(e.type == "broker_outage" for e in mission.events) else None
+    schedule = EventSchedule.of(mission)
+    gate = BrokerGate(up_host, up_port) if schedule.has("broker_outage") else None
     bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
-    script: MissionScript | None = None
+    script: LauncherEvents | None = None
     last_headless = [-10.0]
 
     def on_metrics(m: dict) -> None:
@@ -228,7 +201,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if m.get("t") is None:
             return
         assert script is not None
-        script.tick(float(m["t"]))
+        script.tick(int(m["t"]))
         row = monitor.metrics_row()
         if row is not None:
             rows.append(row)
@@ -245,10 +218,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         base_port = free_udp_ports(n)
         world = SitlWorld(
             WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, speedup=opts.speedup,
-                        base_port=base_port, seed=mission.seed, episode_s=duration),
+                        base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule),
             on_metrics=on_metrics,
         )
-        script = MissionScript(mission, world, fleet, gate, record_event)
+        script = LauncherEvents(schedule, fleet, gate, record_event)
         world.host.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
@@ -291,7 +264,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     return summary
 
 
-async def _watch(fleet: AgentFleet, script: MissionScript, world: SitlWorld, start_timeout_s: float) -> None:
+async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float) -> None:
     """Fail fast, with a one-line reason, when an agent dies unasked or nothing takes off."""
     loop = asyncio.get_running_loop()
     t_start = loop.time()

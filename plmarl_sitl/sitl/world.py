@@ -20,7 +20,13 @@ Mission time starts when every vehicle is flying under its agent (armed, in the 
 mode, at takeoff altitude): the world then announces `t0` (a whole boot second, a margin
 ahead) on the retained `start` topic. Agents count mission seconds from t0 on their own
 vehicle clock, so the twin's t = 0 (the launch line at takeoff altitude) is the same
-instant on both sides. Events for the launcher: `kill`, `cut_links`, `set_tup`.
+instant on both sides.
+
+Mission events come from the mission's one schedule (`model.events.EventSchedule`, the
+twin's too), given as `WorldConfig.events`: at each mission second the world applies the
+changes it owns (node failure: the vehicle; link blackout: the link emulator; GNSS noise:
+the vehicles' navigation; T_up change: the `ctl` topic). The launcher applies the rest
+from the same schedule (a failed node's agent process, the broker gate).
 """
 
 from __future__ import annotations
@@ -48,9 +54,10 @@ from plmarl_sitl.deploy.mqtt.schema import (
     encode_sense,
 )
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
-from plmarl_sitl.mission import Mission
+from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
+from plmarl_sitl.model.events import EventSchedule, end_second
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
@@ -83,6 +90,7 @@ class WorldConfig:
     episode_s: int | None = None  # stop after this many mission seconds (None: run until stopped)
     n_uavs: int | None = None  # override mission.n_uavs (tests)
     publish_sense: bool = True  # False: no sensing publisher (a vehicle without the sensor)
+    events: EventSchedule | None = None  # mission events to apply (the launcher's run); None: none
 
 
 @dataclass
@@ -97,6 +105,13 @@ class WorldSummary:
     @property
     def mean_coverage(self) -> float:
         return sum(self.coverage) / len(self.coverage) if self.coverage else float("nan")
+
+
+def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
+    """The links a link_blackout cuts: all of them, or every link touching `uavs`."""
+    if not ev.uavs:
+        return None
+    return sorted({(min(u, j), max(u, j)) for u in ev.uavs for j in range(n) if j != u})
 
 
 class SitlWorld:
@@ -148,7 +163,26 @@ class SitlWorld:
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
 
-    # ------------------------------------------------------------------ events API
+    # ------------------------------------------------------------------ events
+    def apply_events(self, second: int) -> None:
+        """Apply what the event schedule changes at this mission second, where it is the
+        world's to apply (the launcher acts on the same changes for its processes)."""
+        schedule = self.cfg.events
+        if schedule is None:
+            return
+        for change in schedule.changes_at(second):
+            ev = change.event
+            if ev.type == "node_failure" and ev.uav is not None and not change.ends:
+                self.kill(ev.uav)
+            elif ev.type == "link_blackout" and not change.ends:  # the cut itself expires at the end second
+                self.cut_links(blackout_pairs(ev, self.n), end_second(ev) - second)
+            elif ev.type == "tup_change" and ev.tup_s is not None:
+                self.set_tup(ev.tup_s)
+            elif ev.type == "gnss_noise":
+                std = schedule.gnss_std_m(second)
+                for u in schedule.uavs_of(ev):
+                    self.host.set_gnss_noise(u, std[u])
+
     def kill(self, i: int) -> None:
         """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""
         self.host.kill(i)
@@ -328,6 +362,8 @@ class SitlWorld:
             "tup_s": self.tup_s,
         }
         self.bus.publish(self.topics.metrics, encode_json(metrics))
+        if k is not None:
+            self.apply_events(k)
         if self.on_metrics is not None:
             self.on_metrics(metrics)
         if k is not None and self.cfg.episode_s is not None and k >= self.cfg.episode_s:

@@ -22,6 +22,7 @@ from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import SENSING_FEATURES, covered_users, sensing_features
 from plmarl_sitl.model.demand import cell_centres, demand_cells, demand_map
+from plmarl_sitl.model.events import EventSchedule, failure_times
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.reward import RewardTerms, combine, reward_terms
 from plmarl_sitl.model.signalling import Holdings, is_signalling_instant, signalling_update
@@ -130,19 +131,12 @@ class CoverageEnv:
         self.vel = torch.zeros_like(self.pos)
         self.alive = torch.ones(b, n, dtype=torch.bool, device=self.device)
         self.users: UserState = init_users(m, b, self.gen, self.dtype, self.device)
-        fail_at = torch.full((b, n), float("inf"), dtype=torch.float64)
-        for f in m.node_failures():
-            fail_at[:, f.uav] = torch.minimum(fail_at[:, f.uav], torch.tensor(f.at_s, dtype=torch.float64))
-        if self.failure_prob > 0:
-            hit = torch.rand(b, generator=self.gen) < self.failure_prob
-            who = torch.randint(0, n, (b,), generator=self.gen)
-            rows = torch.nonzero(hit).flatten()
-            fail_at[rows, who[rows]] = torch.minimum(fail_at[rows, who[rows]], torch.tensor(self.failure_at_s, dtype=torch.float64))
-        self.fail_at = fail_at.to(self.device)
+        self.events = EventSchedule.of(m)
+        self.fail_at = failure_times(self.events, b, self.gen, self.failure_prob, self.failure_at_s).to(self.device)
         self.holdings = Holdings.empty((b,), n, self.dtype, self.device)
         self.t = 0
         self._apply_failures()
-        self._signal()
+        self.run_signalling()
         self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
         self.demand_t = None
         return self.observe()
@@ -154,42 +148,35 @@ class CoverageEnv:
             self.alive = self.alive & ~dead
             self.vel = torch.where(self.alive.unsqueeze(-1), self.vel, torch.zeros_like(self.vel))
 
-    def tup_at(self, t: float) -> int:
-        """The signalling interval in force at t (the last tup_change event wins)."""
-        tup = self.mission.signalling.tup_s
-        for ev in self.mission.events_of("tup_change"):
-            if ev.at_s <= t and ev.tup_s is not None:
-                tup = ev.tup_s
-        return tup
-
-    def _signal(self) -> None:
-        m = self.mission
-        if not is_signalling_instant(self.t, self.tup_at(self.t)):
+    def run_signalling(self) -> None:
+        """The signalling instant at the current second, if it is one: every UAV broadcasts
+        its (navigation) state and what each neighbour hears goes into its holdings."""
+        m, t = self.mission, self.t
+        if not is_signalling_instant(t, self.events.tup_at(t)):
             return
         rx, _ = link_mask(self.pos, self.alive, m.channel, m.radii.comm_m)
-        for ev in m.events:
-            if not ev.active(self.t):
-                continue
-            if ev.type == "broker_outage":
-                rx = torch.zeros_like(rx)
-            elif ev.type == "link_blackout":
-                cut = self._selected(ev.uavs)
-                rx = rx & ~(cut.unsqueeze(-1) | cut.unsqueeze(-2))
+        if self.events.broker_down(t):
+            rx = torch.zeros_like(rx)
+        cut = self.events.cut_off(t)
+        if cut:
+            mask = self._selected(tuple(cut))
+            rx = rx & ~(mask.unsqueeze(-1) | mask.unsqueeze(-2))
         sent = torch.cat([self._gnss(self.pos), self.vel], -1)
-        self.holdings = signalling_update(self.holdings, float(self.t), rx, sent, m.signalling.drop_after_missed)
+        self.holdings = signalling_update(self.holdings, float(t), rx, sent, m.signalling.drop_after_missed)
 
     def _selected(self, uavs: tuple[int, ...]) -> torch.Tensor:
-        """(N,) bool mask of the listed UAVs; all of them when the list is empty."""
+        """(N,) bool mask of the listed UAVs."""
         mask = torch.zeros(self.n, dtype=torch.bool, device=self.device)
-        mask[list(uavs) if uavs else slice(None)] = True
+        mask[list(uavs)] = True
         return mask
 
     def _gnss(self, pos: torch.Tensor) -> torch.Tensor:
-        """Positions as the UAVs' own navigation reports them (gnss_noise events)."""
-        for ev in self.mission.events_of("gnss_noise"):
-            if ev.active(self.t) and ev.std_m:
+        """Positions as the UAVs' own navigation reports them (gnss_noise events): one
+        draw per event in force, in schedule order."""
+        for ev in self.events.active("gnss_noise", self.t):
+            if ev.std_m:
                 noise = ev.std_m * torch.randn(pos.shape, generator=self.gen, dtype=pos.dtype).to(pos.device)
-                pos = pos + noise * self._selected(ev.uavs).view(1, -1, 1)
+                pos = pos + noise * self._selected(self.events.uavs_of(ev)).view(1, -1, 1)
         return pos
 
     def physics_step(self, accel: torch.Tensor) -> tuple[torch.Tensor, RewardTerms]:
@@ -207,7 +194,7 @@ class CoverageEnv:
         self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
         coverage = self.covered.to(self.dtype).mean(-1)
         terms = reward_terms(coverage, self.pos, self.vel, self.alive, self.users.xy, m)
-        self._signal()
+        self.run_signalling()
         return combine(terms, self.failed, m), terms
 
     @property

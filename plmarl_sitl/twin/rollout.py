@@ -1,15 +1,81 @@
-"""Run whole episodes of a controller in the twin and collect per-episode metrics."""
+"""Run whole episodes of a controller in the twin: the one rollout loop.
+
+`rollout` steps batches of episodes and keeps per-second traces; `run_episodes` (for
+`plmarl sim`) and the evaluation sweeps (`learning.eval.evaluate`) reduce those traces
+their own way. Every controller, hand-written (oracle, heuristic) or learnt, is a
+`Controller`.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
 
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv, Observation
+
+
+class Controller(Protocol):
+    """Drives the whole swarm of a batch of twin episodes, one decision at a time."""
+
+    def reset(self) -> None:
+        """Forget everything: a new batch of episodes starts."""
+
+    def act(self, obs: Observation) -> torch.Tensor:
+        """(B, N, 3) net acceleration commands for the observation of every UAV."""
+
+
+MakeController = Callable[[CoverageEnv], Controller]
+
+
+@dataclass(frozen=True)
+class BatchTrace:
+    """One batch of episodes, second by second."""
+
+    coverage: torch.Tensor  # (b, T) C(t) after second t = 1..T
+    lambda2: torch.Tensor  # (b, T) lambda_2 after second t
+    min_separation: torch.Tensor  # (b,) smallest live-pair distance over the episode, metres
+
+
+def rollout(
+    mission: Mission,
+    make_controller: MakeController,
+    episodes: int,
+    seed: int,
+    *,
+    batch: int,
+    failure_prob: float = 0.0,
+    on_decision: Callable[[int], None] | None = None,
+) -> list[BatchTrace]:
+    """Run `episodes` episodes in batches of at most `batch` parallel environments.
+
+    Batch k uses twin seed `seed + k`, so results depend only on (seed, episodes, batch),
+    and every controller sees the same episodes. `on_decision(n_envs)` is called after
+    every decision (for progress bars).
+    """
+    out = []
+    with torch.inference_mode():  # no gradients flow through an evaluation rollout
+        for k, lo in enumerate(range(0, episodes, batch)):
+            b = min(batch, episodes - lo)
+            env = CoverageEnv(mission, b, seed + k, track_lambda2=True, failure_prob=failure_prob)
+            ctl = make_controller(env)
+            ctl.reset()
+            obs = env.observe()
+            c_steps, l_steps = [], []
+            min_sep = torch.full((b,), float("inf"))
+            while not env.done:
+                obs, _, info = env.step(ctl.act(obs))
+                c_steps.append(info.coverage)
+                l_steps.append(info.lambda2)
+                min_sep = torch.minimum(min_sep, info.min_separation)
+                if on_decision:
+                    on_decision(b)
+            out.append(BatchTrace(torch.cat(c_steps, -1), torch.cat(l_steps, -1), min_sep))
+    return out
 
 
 @dataclass(frozen=True)
@@ -22,42 +88,18 @@ class EpisodeMetrics:
 
 def run_episodes(
     mission: Mission,
-    make_controller: Callable[[CoverageEnv], object],
+    make_controller: MakeController,
     episodes: int,
     seed: int,
     *,
     batch: int = 64,
     on_decision: Callable[[int], None] | None = None,
 ) -> EpisodeMetrics:
-    """Run `episodes` episodes in batches of at most `batch` parallel environments.
-
-    Batch k uses seed `seed + k`, so results depend only on (seed, episodes, batch).
-    `on_decision(n_envs)` is called after every decision (for progress bars).
-    """
-    with torch.inference_mode():  # no gradients flow through an evaluation rollout
-        return _run(mission, make_controller, episodes, seed, batch, on_decision)
-
-
-def _run(mission, make_controller, episodes, seed, batch, on_decision) -> EpisodeMetrics:  # noqa: ANN001
-    cov, lam, sep, traces = [], [], [], []
-    for k, lo in enumerate(range(0, episodes, batch)):
-        b = min(batch, episodes - lo)
-        env = CoverageEnv(mission, b, seed + k, track_lambda2=True)
-        ctl = make_controller(env)
-        obs: Observation = env.observe()
-        ctl.reset()
-        c_steps, l_steps = [], []
-        min_sep = torch.full((b,), float("inf"))
-        while not env.done:
-            obs, _, info = env.step(ctl.act(obs))
-            c_steps.append(info.coverage)
-            l_steps.append(info.lambda2)
-            min_sep = torch.minimum(min_sep, info.min_separation)
-            if on_decision:
-                on_decision(b)
-        trace = torch.cat(c_steps, -1)
-        traces.append(trace.numpy())
-        cov.append(trace.mean(-1).numpy())
-        lam.append(torch.cat(l_steps, -1).mean(-1).numpy())
-        sep.append(min_sep.numpy())
-    return EpisodeMetrics(np.concatenate(cov), np.concatenate(lam), np.concatenate(sep), np.concatenate(traces))
+    """Whole-episode means of `episodes` episodes (see `rollout`)."""
+    runs = rollout(mission, make_controller, episodes, seed, batch=batch, on_decision=on_decision)
+    return EpisodeMetrics(
+        np.concatenate([r.coverage.mean(-1).numpy() for r in runs]),
+        np.concatenate([r.lambda2.mean(-1).numpy() for r in runs]),
+        np.concatenate([r.min_separation.numpy() for r in runs]),
+        np.concatenate([r.coverage.numpy() for r in runs]),
+    )

@@ -13,7 +13,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.sitl.network.broker import EmbeddedBroker, MosquittoBroker, free_port, free_udp_ports
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.integration]
 
 
 async def _wait(cond, timeout: float = 5.0) -> None:  # noqa: ANN001

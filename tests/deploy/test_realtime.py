@@ -16,7 +16,7 @@ import pytest
 from plmarl_sitl.cli import main
 from plmarl_sitl.proc import realtime_permitted
 
-pytestmark = pytest.mark.timeout(60)
+pytestmark = [pytest.mark.timeout(60), pytest.mark.integration]
 ROOT = Path(__file__).resolve().parents[2]
 # Nothing listens on these: the agent sets its priority, then waits for a heartbeat.
 AGENT = [sys.executable, "-m", "plmarl_sitl.cli", "agent", "--id", "0", "--connect", "udpout://127.0.0.1:9",

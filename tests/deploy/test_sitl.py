@@ -12,7 +12,7 @@ from plmarl_sitl.mission import Launch, Mission
 
 from .conftest import run_sitl
 
-pytestmark = pytest.mark.timeout(150)
+pytestmark = [pytest.mark.timeout(150), pytest.mark.integration, pytest.mark.slow]  # SITL world + agents, 10-60 s each
 
 TUP = 5
 

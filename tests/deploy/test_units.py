@@ -10,7 +10,6 @@ import torch
 from hypothesis import given
 from hypothesis import strategies as st
 
-from plmarl_sitl.deploy.agent.frames import home_offset_ned
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.mavlink.connect import Endpoint, parse_url
@@ -31,8 +30,8 @@ from plmarl_sitl.deploy.mqtt.schema import (
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
+from plmarl_sitl.model.geodesy import geodetic_to_ned, ned_to_geodetic
 from plmarl_sitl.model.signalling import Holdings, signalling_update
-from plmarl_sitl.sitl.autopilot.telemetry import geodetic
 
 f32 = st.floats(-1e5, 1e5, width=32)
 
@@ -146,10 +145,10 @@ def test_band_guard() -> None:
     assert math.hypot(*a) <= 5.0 + 1e-9
 
 
-def test_home_offset_inverts_emulator_geodetic() -> None:
+def test_ned_offset_inverts_geodetic() -> None:
     o = Origin(47.397742, 8.545594, 488.0)
-    lat, lon, alt = geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
-    n, e, d = home_offset_ned(o, lat, lon, alt)
+    lat, lon, alt = ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, 500.0, 430.0, 0.0)
+    n, e, d = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
     assert n == pytest.approx(500.0, abs=1e-6) and e == pytest.approx(430.0, abs=1e-6) and d == pytest.approx(0.0)
 
 
@@ -267,52 +266,3 @@ def test_a_batch_that_is_not_whole_messages_is_malformed() -> None:
         split_states(good + good[:10])
     assert exc.value.reason == "length"
     assert split_states(good[:5]) == [good[:5]]  # short: decode_state names the reason
-
-
-def test_agent_counts_and_drops_bad_control_payloads(policy_dir) -> None:  # noqa: ANN001 - fixture
-    """Malformed `closed`, `start`, `ctl` and sensing payloads are counted by reason and
-    change nothing; a good `closed` moves the agent's closed instant forward only."""
-    import dataclasses
-    import math
-
-    from plmarl_sitl.deploy.agent.core import Agent, AgentConfig
-    from plmarl_sitl.deploy.mqtt.schema import encode_json
-    from plmarl_sitl.learning.nn.io import load_policy
-    from plmarl_sitl.mission import load_mission
-
-    from .conftest import MISSION
-
-    mission = dataclasses.replace(load_mission(MISSION), n_uavs=3)
-    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
-                  load_policy(policy_dir, mission))
-    t = agent.topics
-    for topic, payload in [(t.closed, b"{not json"), (t.closed, encode_json({"t_s": "x"})), (t.closed, b'{"t_s": 3}'),
-                           (t.start, b"\x00\x01"), (t.ctl, encode_json({})), (t.sense(0), b"\x01")]:
-        agent._on_message(topic, payload)
-    assert agent.closed_t == -math.inf and agent.t0 is None and not agent.sense_history
-    assert agent.rx.reasons.get("closed") == 3 and agent.rx.reasons.get("start") == 1 and agent.rx.reasons.get("ctl") == 1
-    assert any(r.startswith("sense_") for r in agent.rx.reasons)
-    agent._on_message(t.closed, encode_json({"t_s": 15}))
-    agent._on_message(t.closed, encode_json({"t_s": 0}))  # an old instant does not move it back
-    assert agent.closed_t == 15.0
-
-
-def test_agent_keeps_the_good_messages_of_a_batch_with_a_bad_one(policy_dir) -> None:  # noqa: ANN001 - fixture
-    import dataclasses
-
-    from plmarl_sitl.deploy.agent.core import Agent, AgentConfig
-    from plmarl_sitl.learning.nn.io import load_policy
-    from plmarl_sitl.mission import load_mission
-
-    from .conftest import MISSION
-
-    mission = dataclasses.replace(load_mission(MISSION), n_uavs=3)
-    agent = Agent(AgentConfig(uav_id=0, connect_url="udpout://127.0.0.1:1", broker_url="mqtt://127.0.0.1:1", mission=mission),
-                  load_policy(policy_dir, mission))
-    good = encode_state(StateMsg(1, 7, 1, 15_000, (40.0, 0.0, -60.0, 0.0, 0.0, 0.0)))
-    bad = b"\x09" + encode_state(StateMsg(2, 7, 1, 15_000, (80.0, 0.0, -60.0, 0.0, 0.0, 0.0)))[1:]  # wrong version
-    agent._on_message(agent.topics.rx(0), good + bad)
-    assert agent.rx.accepted == 1 and agent.rx.reasons.get("version") == 1
-    assert float(agent.table.t_rx[1]) == 15.0 and float(agent.table.t_rx[2]) < 0
-    agent._on_message(agent.topics.rx(0), good + bad[:20])  # not whole messages: dropped whole
-    assert agent.rx.reasons.get("length") == 1 and agent.rx.accepted == 1

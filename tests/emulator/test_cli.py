@@ -64,3 +64,12 @@ def test_cli_rejects_bad_flags_without_traceback() -> None:
         capture_output=True, text=True, timeout=30,
     )
     assert r.returncode == 2 and "signing-key" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_cli_rejects_an_unknown_autopilot_in_one_line() -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--personality", "betaflight"],
+        capture_output=True, text=True, timeout=30,
+    )
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr == "plmarl autopilot: error: unknown autopilot 'betaflight' (known: px4, ardupilot)\n"

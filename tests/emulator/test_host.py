@@ -187,7 +187,7 @@ def test_true_states_home_offsets_and_global_position() -> None:
 def test_kill_silences_and_drops_the_vehicle() -> None:
     host, c = airborne("px4", count=2)
     with torch.inference_mode():  # the host's state is made of inference tensors
-        host.vel[0] = torch.tensor([5.0, -2.0, 0.0], dtype=torch.float64)  # cruising when it fails
+        host.fleet.vel[0] = torch.tensor([5.0, -2.0, 0.0], dtype=torch.float64)  # cruising when it fails
     host.kill(0)
     n, seen = len(c.sent), c.v.counters.datagrams
     c.feed(c.codec.mav.command_long_encode(1, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0))
@@ -210,7 +210,7 @@ def test_param_set_validation() -> None:
     assert c.v.counters.bad_value == 2
     c.feed(c.codec.mav.param_set_encode(1, 1, b"MPC_XY_VEL_MAX", 8.0, 9))
     assert c.v.params["max_speed_mps"] == 8.0
-    assert host.guidance.max_speed[0, 0] == 8.0
+    assert host.fleet.guidance.max_speed[0, 0] == 8.0
     pv = [m for m in c.sent if m.get_type() == "PARAM_VALUE"]
     assert pv[-1].param_value == 8.0
 
@@ -243,7 +243,7 @@ def test_streams_share_a_per_vehicle_phase_and_leave_bundled() -> None:
     import asyncio
     import socket
 
-    from plmarl_sitl.sitl.autopilot.telemetry import STREAM_GRID_S, Scheduler
+    from plmarl_sitl.sitl.autopilot.schedule import STREAM_GRID_S, Scheduler
 
     sched = Scheduler()
     for v in (0, 1):

@@ -17,7 +17,7 @@ import pytest
 
 from plmarl_sitl.sitl.network.broker import MosquittoBroker
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.slow]  # whole SITL swarms, 10-60 s each
 ROOT = Path(__file__).resolve().parents[2]
 
 

@@ -13,17 +13,15 @@ import asyncio
 import fcntl
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect, enum_name, param_id_str
 from plmarl_sitl.deploy.mavlink.personality import Personality, personality_for_autopilot
-from plmarl_sitl.errors import CommandRejected, VehicleTimeout
+from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, FORCE_ARM_MAGIC, POSITION_ONLY, VELOCITY_ONLY
+from plmarl_sitl.errors import CommandRejected, LinkLost, VehicleTimeout
 
 d = dialect
-ACCEL_ONLY = 0x0C3F  # as MAVSDK sends acceleration setpoints
-VELOCITY_ONLY = 0x0DC7
-POSITION_ONLY = 0x0DF8
 
 Predicate = Callable[[Message], bool]
 
@@ -53,10 +51,80 @@ class _Protocol(asyncio.DatagramProtocol):
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
         rx_ns = kernel_rx_ns(self.fd) if self.link.stamp_arrivals and self.fd >= 0 else None
-        self.link._on_datagram(data, rx_ns)
+        self.link.feed_datagram(data, rx_ns)
 
     def error_received(self, exc: Exception) -> None:
         pass  # "port unreachable" while the vehicle is not up yet: keep trying
+
+
+class Subscription:
+    """Every `mtype` message matching `pred` that the link parses from now on, in order.
+
+    Each subscription has its own queue, filled as the link parses: none is missed while
+    the subscriber is busy, even the second of two messages parsed from one datagram or
+    stream read (a one-shot waiter re-armed after the first would miss it). A subscriber
+    more than MAX_QUEUED messages behind loses the oldest (counted in `dropped`). Close it
+    when done (or use `with`)."""
+
+    MAX_QUEUED = 1024
+
+    def __init__(self, link: VehicleLink, mtype: str, pred: Predicate | None) -> None:
+        self.link = link
+        self.mtype = mtype
+        self.pred = pred
+        self.dropped = 0
+        self.queued: deque[Message] = deque()
+        self.ended: LinkLost | None = None
+        self._waiter: asyncio.Future[None] | None = None  # set while `next` waits
+
+    def offer(self, m: Message) -> None:
+        """Queue `m` if it matches (the link calls this for every parsed `mtype` message)."""
+        if self.pred is not None and not self.pred(m):
+            return
+        if len(self.queued) >= self.MAX_QUEUED:
+            self.queued.popleft()
+            self.dropped += 1
+        self.queued.append(m)
+        self._wake()
+
+    def end(self, lost: LinkLost) -> None:
+        """No more messages will come: a waiting and every later `next` raise `lost`."""
+        self.ended = lost
+        self._wake()
+
+    def cancel(self) -> None:
+        """The link was closed: a waiting `next` is cancelled."""
+        if self._waiter is not None:
+            self._waiter.cancel()
+
+    def _wake(self) -> None:
+        if self._waiter is not None and not self._waiter.done():
+            self._waiter.set_result(None)
+
+    async def next(self, timeout: float = 3.0) -> Message:
+        """The oldest queued message, waiting up to `timeout` s for one."""
+        if not self.queued and self.ended is None:
+            self._waiter = asyncio.get_running_loop().create_future()
+            try:
+                async with asyncio.timeout(timeout):
+                    await self._waiter
+            except TimeoutError:
+                raise VehicleTimeout(self.link.target_sysid or 0, self.mtype, timeout) from None
+            finally:
+                self._waiter = None
+        if self.queued:
+            return self.queued.popleft()
+        assert self.ended is not None
+        raise self.ended
+
+    def close(self) -> None:
+        self.link.unsubscribe(self)
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 class VehicleLink:
@@ -80,7 +148,8 @@ class VehicleLink:
         self.counts: Counter[str] = Counter()
         self.bad_datagrams = 0
         self.sent = 0
-        self._waiters: list[tuple[str, Predicate, asyncio.Future[Message]]] = []
+        self._subscriptions: dict[str, list[Subscription]] = {}  # by message type
+        self.lost: LinkLost | None = None  # set once the link broke for good
         self._transport: asyncio.DatagramTransport | None = None
         # Stamp each message with its datagram's kernel arrival time (`m.rx_ns`, UDP
         # links only): one ioctl per datagram, for latency measurements.
@@ -121,9 +190,10 @@ class VehicleLink:
         if self._transport is not None:
             self._transport.close()
             self._transport = None
-        for _, _, fut in self._waiters:
-            fut.cancel()
-        self._waiters.clear()
+        for subs in self._subscriptions.values():
+            for sub in subs:
+                sub.cancel()
+        self._subscriptions.clear()
 
     async def __aenter__(self) -> VehicleLink:
         await self.open()
@@ -139,42 +209,51 @@ class VehicleLink:
         return self.target_sysid
 
     # ------------------------------------------------------------------ receiving
-    def _on_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
+    def feed_datagram(self, data: bytes, rx_ns: int | None = None) -> None:
+        """Parse one datagram (or one stream read) the transport received at `rx_ns`."""
         out = self.codec.decode_datagram(data)
         if out.fault is not None:
             self.bad_datagrams += 1
         for m in out.messages:
             if rx_ns is not None:
                 m.rx_ns = rx_ns
-            t = m.get_type()
-            self.latest[t] = m
-            self.counts[t] += 1
-            if self._waiters:
-                self._wake(t, m)
+            self._deliver(m)
 
-    def _wake(self, mtype: str, m: Message) -> None:
-        keep = []
-        for w in self._waiters:
-            wt, pred, fut = w
-            if fut.done():
-                continue
-            if wt == mtype and pred(m):
-                fut.set_result(m)
-            else:
-                keep.append(w)
-        self._waiters = keep
+    def _deliver(self, m: Message) -> None:
+        """One parsed message: the latest of its type, counted, offered to its subscribers."""
+        t = m.get_type()
+        self.latest[t] = m
+        self.counts[t] += 1
+        for sub in self._subscriptions.get(t, ()):
+            sub.offer(m)
+
+    def _lose(self, reason: str) -> None:
+        """The transport broke for good: every subscriber's wait ends with LinkLost."""
+        if self.lost is not None:
+            return
+        self.lost = LinkLost(self.target_sysid or 0, reason)
+        for subs in self._subscriptions.values():
+            for sub in subs:
+                sub.end(self.lost)
+
+    def subscribe(self, mtype: str, pred: Predicate | None = None) -> Subscription:
+        """Every `mtype` message (matching `pred`) from now on; see `Subscription`."""
+        sub = Subscription(self, mtype, pred)
+        if self.lost is not None:
+            sub.end(self.lost)
+        self._subscriptions.setdefault(mtype, []).append(sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscription) -> None:
+        subs = self._subscriptions.get(sub.mtype, [])
+        if sub in subs:
+            subs.remove(sub)
 
     async def recv(self, mtype: str, timeout: float = 3.0, pred: Predicate | None = None) -> Message:
-        """The next `mtype` message (matching `pred`) from the vehicle."""
-        fut: asyncio.Future[Message] = asyncio.get_running_loop().create_future()
-        self._waiters.append((mtype, pred or (lambda _m: True), fut))
-        try:
-            async with asyncio.timeout(timeout):
-                return await fut
-        except TimeoutError:
-            raise VehicleTimeout(self.target_sysid or 0, mtype, timeout) from None
-        finally:
-            fut.cancel()
+        """The next `mtype` message (matching `pred`) from the vehicle. For a stream of
+        messages use `subscribe`: between two `recv` calls a message can pass unseen."""
+        with self.subscribe(mtype, pred) as sub:
+            return await sub.next(timeout)
 
     # ------------------------------------------------------------------ sending
     def send(self, msg: Message) -> None:
@@ -211,6 +290,8 @@ class VehicleLink:
             self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
             try:
                 ack = await self.recv("COMMAND_ACK", timeout, lambda m: m.command == command)
+            except LinkLost:
+                raise
             except VehicleTimeout:
                 continue
             if ack.result != d.MAV_RESULT_ACCEPTED:
@@ -219,10 +300,10 @@ class VehicleLink:
         raise VehicleTimeout(self.sysid, f"COMMAND_ACK for command {command}", timeout * retries)
 
     async def arm(self, force: bool = False) -> None:
-        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 21196.0 if force else 0.0)
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, float(FORCE_ARM_MAGIC) if force else 0.0)
 
     async def disarm(self, force: bool = False) -> None:
-        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196.0 if force else 0.0)
+        await self.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, float(FORCE_ARM_MAGIC) if force else 0.0)
 
     async def set_mode(self, name: str) -> None:
         """Mode by name in the vehicle's personality ('OFFBOARD', 'AUTO.LOITER', 'GUIDED', ...)."""

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
+import queue
 import threading
 from dataclasses import dataclass
 from urllib.parse import urlsplit
@@ -22,6 +24,8 @@ from urllib.parse import urlsplit
 from plmarl_sitl.deploy.mavlink.client import VehicleLink, _Protocol
 from plmarl_sitl.deploy.mavlink.codec import dialect
 from plmarl_sitl.errors import UserError
+
+log = logging.getLogger("plmarl.mavlink")
 
 
 @dataclass(frozen=True)
@@ -63,22 +67,22 @@ class _InProtocol(_Protocol):
     link: UdpInLink
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.link._peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
+        self.link.peer = addr  # answer whoever spoke last, as MAVSDK's udpin does
         super().datagram_received(data, addr)
 
 
 class UdpInLink(VehicleLink):
     """Listen on BIND:PORT; replies go to the address the vehicle sent from."""
 
-    _peer: tuple[str, int] | None = None
+    peer: tuple[str, int] | None = None  # who spoke last; replies go there
 
     async def _open_transport(self) -> None:
         loop = asyncio.get_running_loop()
         self._transport, _ = await loop.create_datagram_endpoint(lambda: _InProtocol(self), local_addr=self.addr)
 
     def _write(self, data: bytes) -> None:
-        if self._peer is not None and self._transport is not None:
-            self._transport.sendto(data, self._peer)
+        if self.peer is not None and self._transport is not None:
+            self._transport.sendto(data, self.peer)
         # Before the vehicle has spoken there is nobody to answer: the hello is dropped.
 
 
@@ -96,11 +100,7 @@ class _StreamMixin:
             if m.get_msgId() in (dialect.MAVLINK_MSG_ID_BAD_DATA, dialect.MAVLINK_MSG_ID_UNKNOWN):
                 self.bad_datagrams += 1
                 continue
-            t = m.get_type()
-            self.latest[t] = m
-            self.counts[t] += 1
-            if self._waiters:
-                self._wake(t, m)
+            self._deliver(m)
 
 
 class _WriterTransport:
@@ -137,11 +137,13 @@ class TcpLink(_StreamMixin, VehicleLink):
 
 
 class SerialLink(_StreamMixin, VehicleLink):
-    """pyserial in two daemon threads (read, write), so blocking I/O stays off the loop."""
+    """pyserial in two daemon threads (read, write), so blocking I/O stays off the loop.
+
+    A serial error (the radio unplugged, the port gone) is logged once and ends the link:
+    every wait on it raises LinkLost, so the agent stops at once instead of reading a dead
+    port in a busy loop."""
 
     async def _open_transport(self) -> None:
-        import queue
-
         import serial  # pyserial, imported only when a serial URL is used
 
         loop = asyncio.get_running_loop()
@@ -153,29 +155,44 @@ class SerialLink(_StreamMixin, VehicleLink):
         self._out: queue.Queue[bytes | None] = queue.Queue(maxsize=256)
         self._running = True
 
+        def failed(exc: Exception) -> None:
+            if self._running:  # not our own close()
+                loop.call_soon_threadsafe(self._serial_failed, exc)
+
         def reader() -> None:
-            while self._running:
-                with contextlib.suppress(Exception):
+            try:
+                while self._running:
                     data = self._serial.read(self._serial.in_waiting or 1)
                     if data:
                         loop.call_soon_threadsafe(self._on_stream, data)
+            except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException, OSError, TypeError...
+                failed(exc)
 
         def writer() -> None:
-            while (item := self._out.get()) is not None:
-                with contextlib.suppress(Exception):
+            try:
+                while (item := self._out.get()) is not None:
                     self._serial.write(item)
+            except Exception as exc:  # noqa: BLE001 - as the reader
+                failed(exc)
 
         threading.Thread(target=reader, name=f"serial-read-{dev}", daemon=True).start()
         threading.Thread(target=writer, name=f"serial-write-{dev}", daemon=True).start()
         self._transport = _WriterTransport(self._close_serial)  # type: ignore[assignment]
 
+    def _serial_failed(self, exc: Exception) -> None:
+        if self.lost is not None:
+            return  # the other thread failed first
+        log.error("serial port %s: %s; link closed", self.addr[0], exc)
+        self._lose(f"serial port {self.addr[0]}: {exc}")
+        self._close_serial()
+
     def _write(self, data: bytes) -> None:
-        with contextlib.suppress(Exception):  # a full queue drops the frame (a slow radio)
+        with contextlib.suppress(queue.Full):  # a full queue drops the frame (a slow radio, or a lost link)
             self._out.put_nowait(data)
 
     def _close_serial(self) -> None:
         self._running = False
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(queue.Full):
             self._out.put_nowait(None)
-        with contextlib.suppress(Exception):
+        with contextlib.suppress(Exception):  # closing a port that is already gone
             self._serial.close()

@@ -11,7 +11,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from plmarl_sitl.deploy.mavlink.codec import dialect
+from plmarl_sitl.deploy.mavlink.codec import dialect, enum_name
+from plmarl_sitl.errors import UserError
 
 
 class Behaviour(enum.Enum):
@@ -56,6 +57,7 @@ class Personality:
     modes: tuple[ModeSpec, ...]
     boot_mode: str
     hold_mode: str  # where PX4 goes after takeoff and on offboard loss
+    stop_mode: str  # what an agent commands to stop and hold position (ArduPilot BRAKE, PX4 its hold mode)
     offboard_mode: str
     land_mode: str
     takeoff_mode: str | None  # None: takeoff happens inside the offboard (GUIDED) mode
@@ -64,6 +66,12 @@ class Personality:
     param_bytewise: bool  # integer params packed into the float's bits (PX4) or cast (ArduPilot)
     takeoff_alt_is_amsl: bool  # NAV_TAKEOFF param7: PX4 AMSL, ArduPilot relative to home
     takeoff_needs_offboard_mode: bool  # ArduPilot only takes off in GUIDED
+    # -- quirks the emulator (and the client's mode commands) follow
+    set_mode_main_sub: bool  # DO_SET_MODE param2/param3 = PX4 main/sub mode; else param2 = custom_mode
+    offboard_needs_stream: bool  # PX4 refuses OFFBOARD unless setpoints already stream
+    offboard_from_ground: bool  # PX4 follows setpoints on the ground; ArduPilot GUIDED needs a takeoff first
+    offboard_timeout_s: float  # default setpoint-loss timeout (COM_OF_LOSS_T / GUID_TIMEOUT)
+    land_speed_mps: float  # default final descent speed (MPC_LAND_SPEED / LAND_SPEED), capped by the airframe
 
     def mode(self, name: str) -> ModeSpec:
         for m in self.modes:
@@ -79,7 +87,7 @@ class Personality:
 
     def custom_mode_from_set_mode(self, p2: float, p3: float) -> int:
         """custom_mode requested by MAV_CMD_DO_SET_MODE (param2, param3)."""
-        if self.autopilot == dialect.MAV_AUTOPILOT_PX4:
+        if self.set_mode_main_sub:
             sub = 0 if p3 != p3 else int(p3)  # NaN (unset) means no sub mode
             return px4_custom_mode(int(p2), sub)
         return int(p2)
@@ -87,7 +95,7 @@ class Personality:
     def set_mode_params(self, name: str) -> tuple[float, float]:
         """(param2, param3) of MAV_CMD_DO_SET_MODE for mode `name` (client side)."""
         cm = self.mode(name).custom_mode
-        if self.autopilot == dialect.MAV_AUTOPILOT_PX4:
+        if self.set_mode_main_sub:
             return float((cm >> 16) & 0xFF), float((cm >> 24) & 0xFF)
         return float(cm), 0.0
 
@@ -114,6 +122,7 @@ PX4 = Personality(
     ),
     boot_mode="AUTO.LOITER",
     hold_mode="AUTO.LOITER",
+    stop_mode="AUTO.LOITER",
     offboard_mode="OFFBOARD",
     land_mode="AUTO.LAND",
     takeoff_mode="AUTO.TAKEOFF",
@@ -130,6 +139,12 @@ PX4 = Personality(
     param_bytewise=True,
     takeoff_alt_is_amsl=True,
     takeoff_needs_offboard_mode=False,
+    # -- quirks
+    set_mode_main_sub=True,
+    offboard_needs_stream=True,
+    offboard_from_ground=True,
+    offboard_timeout_s=1.0,
+    land_speed_mps=0.7,
 )
 
 ARDUPILOT = Personality(
@@ -146,6 +161,7 @@ ARDUPILOT = Personality(
     ),
     boot_mode="STABILIZE",
     hold_mode="LOITER",
+    stop_mode="BRAKE",
     offboard_mode="GUIDED",
     land_mode="LAND",
     takeoff_mode=None,
@@ -162,18 +178,33 @@ ARDUPILOT = Personality(
     param_bytewise=False,
     takeoff_alt_is_amsl=False,
     takeoff_needs_offboard_mode=True,
+    # -- quirks
+    set_mode_main_sub=False,
+    offboard_needs_stream=False,
+    offboard_from_ground=False,
+    offboard_timeout_s=3.0,
+    land_speed_mps=0.5,
 )
 
 PERSONALITIES = {p.name: p for p in (PX4, ARDUPILOT)}
 
 
 def personality(name: str) -> Personality:
+    """The personality called `name`; an unknown name is a UserError listing the known ones."""
     try:
         return PERSONALITIES[name]
     except KeyError:
-        raise KeyError(f"unknown personality {name!r} (choose {', '.join(PERSONALITIES)})") from None
+        raise UserError(f"unknown autopilot {name!r} (known: {', '.join(PERSONALITIES)})") from None
 
 
 def personality_for_autopilot(autopilot: int) -> Personality:
-    """The personality a client should assume for a HEARTBEAT's autopilot field."""
-    return PX4 if autopilot == dialect.MAV_AUTOPILOT_PX4 else ARDUPILOT
+    """The personality a client should assume for a HEARTBEAT's autopilot field.
+
+    Anything but the autopilots we know is an error: guessing would command modes by numbers
+    that mean something else to that firmware.
+    """
+    for p in PERSONALITIES.values():
+        if p.autopilot == autopilot:
+            return p
+    known = ", ".join(f"{p.name} ({enum_name('MAV_AUTOPILOT', p.autopilot)})" for p in PERSONALITIES.values())
+    raise UserError(f"the vehicle's heartbeat names autopilot {enum_name('MAV_AUTOPILOT', autopilot)}; known: {known}")

@@ -16,14 +16,13 @@ from __future__ import annotations
 import asyncio
 import logging
 import random
-import select
 import socket
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import aiomqtt
-import paho.mqtt.client as mqtt
 
+from plmarl_sitl.deploy.mqtt import aiomqtt_fastpath
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 
 log = logging.getLogger("plmarl.bus")
@@ -49,47 +48,10 @@ class BusStats:
         return dict(self.__dict__)
 
 
-def _no_delay(client: aiomqtt.Client) -> None:
-    """TCP_NODELAY on the broker connection. paho leaves Nagle's algorithm on, so a small
-    publish right after another waits for the broker's delayed ACK (40 ms on Linux): at
-    15x that put 0.6 s of vehicle time on each hop of a signalling instant."""
-    try:
-        sock = client._client.socket()  # the paho client's; aiomqtt has no public handle
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # type: ignore[union-attr]
-    except (AttributeError, OSError) as exc:  # not TCP (websockets) or already closed
-        log.debug("TCP_NODELAY not set: %s", exc)
-
-
-MAX_READS_PER_WAKEUP = 256
-
-
-def _read_all_per_wakeup(client: aiomqtt.Client) -> None:
-    """Read every MQTT packet waiting on the socket each time it turns readable.
-
-    aiomqtt's reader has paho read one packet per event-loop iteration. In a loop that is
-    busy between yields (the SITL world steps 20 vehicles per chunk) the 20 updates of a
-    signalling instant then took 20 iterations, 10-15 ms each at 15x: the last arrived
-    3 s of vehicle time late. This reader keeps reading while the socket has data; a
-    broken connection ends the session as aiomqtt's own reader does."""
-    paho = getattr(client, "_client", None)  # aiomqtt has no public hook for its reader
-    sock = paho.socket() if paho is not None else None
-    if type(sock) is not socket.socket or sock.fileno() < 0:
-        return  # websockets or TLS (buffers bytes select cannot see): keep aiomqtt's reader
-    fd = sock.fileno()
-
-    def read_all() -> None:
-        try:
-            for _ in range(MAX_READS_PER_WAKEUP):
-                if paho.loop_read() != mqtt.MQTT_ERR_SUCCESS or paho.socket() is None:
-                    return
-                if not select.select([fd], [], [], 0)[0]:
-                    return
-        except Exception as exc:  # noqa: BLE001 - as aiomqtt: an error here is a broken connection
-            gone = getattr(client, "_disconnected", None)
-            if isinstance(gone, asyncio.Future) and not gone.done():
-                gone.set_exception(exc)
-
-    asyncio.get_running_loop().add_reader(fd, read_all)  # replaces aiomqtt's reader for fd
+# TCP_NODELAY on the broker connection. paho leaves Nagle's algorithm on, so a small publish
+# right after another waits for the broker's delayed ACK (40 ms on Linux): at 15x that put
+# 0.6 s of vehicle time on each hop of a signalling instant.
+NO_DELAY = (socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
 
 class MqttBus:
@@ -173,53 +135,56 @@ class MqttBus:
             keepalive=self.keepalive_s,
             timeout=self.connect_timeout_s,
             clean_session=True,
+            socket_options=[NO_DELAY],
         )
-        async with asyncio.timeout(self.connect_timeout_s * 2):
-            await client.__aenter__()
-        _no_delay(client)
-        _read_all_per_wakeup(client)
         try:
-            for topic in self.subscriptions:
-                await client.subscribe(topic, qos=0)
-            while not self._queue.empty():  # whatever was queued belongs to the old session
-                self._queue.get_nowait()
-            for topic, payload in self._sticky.items():
-                await client.publish(topic, payload, qos=0, retain=True)
-            self.stats.connects += 1
-            self.connected.set()
-            log.info("%s: connected to %s", self.name, self.url)
-            # Plain tasks, not a TaskGroup: when the connection breaks while this task is
-            # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup
-            # raises the MqttError and drops the CancelledError, and run() would then
-            # reconnect for ever instead of ending.
-            workers = [asyncio.create_task(self._sender(client), name=f"{self.name}-sender"),
-                       asyncio.create_task(self._receiver(client), name=f"{self.name}-receiver")]
-            try:
-                done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_COMPLETED)
-            finally:
-                for w in workers:
-                    w.cancel()
-                await asyncio.gather(*workers, return_exceptions=True)
-            for w in done:
-                if not w.cancelled() and w.exception() is not None:
-                    raise w.exception()  # an MqttError: run() reconnects
-            raise aiomqtt.MqttError("message stream ended")
+            async with asyncio.timeout(self.connect_timeout_s * 2) as connecting, client:
+                connecting.reschedule(None)  # the deadline is on connecting only
+                aiomqtt_fastpath.read_all_per_wakeup(client)
+                try:
+                    await self._serve(client)
+                finally:
+                    self._was_connected = self.connected.is_set()
+                    if self._was_connected:
+                        self.stats.disconnects += 1
+                    self.connected.clear()
+        except aiomqtt.MqttError:
+            # Closing a connection whose broker is gone can fail too (aiomqtt's __aexit__
+            # raises); while we are being cancelled (Ctrl-C also stops a local broker) that
+            # error must not hide the cancellation, or run() would reconnect for ever.
+            if asyncio.current_task().cancelling():  # type: ignore[union-attr]
+                raise asyncio.CancelledError from None
+            raise
         finally:
-            self._was_connected = self.connected.is_set()
-            if self._was_connected:
-                self.stats.disconnects += 1
-            self.connected.clear()
-            try:
-                await client.__aexit__(None, None, None)
-            except aiomqtt.MqttError:
-                pass  # the connection is already gone; nothing left to close cleanly
-            finally:
-                # aiomqtt keeps an unexpected disconnection's error in a future that its
-                # __aexit__ returns early on without reading; unread, asyncio prints
-                # "Future exception was never retrieved" at exit (e.g. after Ctrl-C).
-                gone = getattr(client, "_disconnected", None)
-                if isinstance(gone, asyncio.Future) and gone.done() and not gone.cancelled():
-                    gone.exception()
+            aiomqtt_fastpath.retrieve_disconnection(client)
+
+    async def _serve(self, client: aiomqtt.Client) -> None:
+        """Subscribe, re-send sticky messages, then send and receive until the connection breaks."""
+        for topic in self.subscriptions:
+            await client.subscribe(topic, qos=0)
+        while not self._queue.empty():  # whatever was queued belongs to the old session
+            self._queue.get_nowait()
+        for topic, payload in self._sticky.items():
+            await client.publish(topic, payload, qos=0, retain=True)
+        self.stats.connects += 1
+        self.connected.set()
+        log.info("%s: connected to %s", self.name, self.url)
+        # Plain tasks, not a TaskGroup: when the connection breaks while this task is
+        # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup
+        # raises the MqttError and drops the CancelledError, and run() would then
+        # reconnect for ever instead of ending.
+        workers = [asyncio.create_task(self._sender(client), name=f"{self.name}-sender"),
+                   asyncio.create_task(self._receiver(client), name=f"{self.name}-receiver")]
+        try:
+            done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in workers:
+                w.cancel()
+            await asyncio.gather(*workers, return_exceptions=True)
+        for w in done:
+            if not w.cancelled() and w.exception() is not None:
+                raise w.exception()  # an MqttError: run() reconnects
+        raise aiomqtt.MqttError("message stream ended")
 
     async def _sender(self, client: aiomqtt.Client) -> None:
         # Publish whatever is queued as one batch: each aiomqtt publish waits for its

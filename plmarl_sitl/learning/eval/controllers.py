@@ -1,4 +1,4 @@
-"""Learnt policies as twin controllers (`reset()`, `act(obs) -> accel`), deterministic.
+"""Learnt policies as twin `Controller`s (`reset()`, `act(obs) -> accel`), deterministic.
 
 A LearnedController runs exactly what a deployed agent runs: the belief tracker once per
 physics second (replayed up to the observation time, see `Beliefs.catch_up`) and the

@@ -16,7 +16,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.controllers import LearnedController
@@ -24,7 +23,7 @@ from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.twin.env import CoverageEnv
+from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
 ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic")
@@ -45,7 +44,7 @@ def needed_policies(methods: list[str]) -> set[str]:
     return need
 
 
-def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> Callable[[CoverageEnv], object]:
+def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeController:
     if method == "oracle":
         from plmarl_sitl.twin.oracle import OracleController
 
@@ -67,7 +66,7 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> Callable
 
 def run_method(
     mission: Mission,
-    make: Callable[[CoverageEnv], object],
+    make: MakeController,
     episodes: int,
     seed: int,
     *,
@@ -76,30 +75,13 @@ def run_method(
     failure_prob: float = 0.0,
     on_decision: Callable[[int], None] | None = None,
 ) -> MethodRun:
-    covs, fulls, lams, traces = [], [], [], []
-    torch.set_grad_enabled(False)
-    try:
-        for k, lo in enumerate(range(0, episodes, batch)):
-            b = min(batch, episodes - lo)
-            env = CoverageEnv(mission, b, seed + k, track_lambda2=True, failure_prob=failure_prob)
-            ctl = make(env)
-            ctl.reset()  # type: ignore[attr-defined]
-            obs = env.observe()
-            cs, ls = [], []
-            while not env.done:
-                obs, _, info = env.step(ctl.act(obs))  # type: ignore[attr-defined]
-                cs.append(info.coverage)
-                ls.append(info.lambda2)
-                if on_decision:
-                    on_decision(b)
-            c, lam = torch.cat(cs, -1), torch.cat(ls, -1)  # (b, T): value after second t = 1..T
-            traces.append(c.numpy())
-            covs.append(c[:, from_s:].mean(-1).numpy())
-            fulls.append(c.mean(-1).numpy())
-            lams.append(lam[:, from_s:].mean(-1).numpy())
-    finally:
-        torch.set_grad_enabled(True)
-    return MethodRun(np.concatenate(covs), np.concatenate(fulls), np.concatenate(lams), np.concatenate(traces))
+    runs = rollout(mission, make, episodes, seed, batch=batch, failure_prob=failure_prob, on_decision=on_decision)
+    return MethodRun(
+        np.concatenate([r.coverage[:, from_s:].mean(-1).numpy() for r in runs]),
+        np.concatenate([r.coverage.mean(-1).numpy() for r in runs]),
+        np.concatenate([r.lambda2[:, from_s:].mean(-1).numpy() for r in runs]),
+        np.concatenate([r.coverage.numpy() for r in runs]),
+    )
 
 
 def evaluate_methods(

@@ -28,6 +28,7 @@ from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
 from plmarl_sitl.learning.nn.policy import Actor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
+from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv
 from plmarl_sitl.twin.oracle import OracleController
@@ -84,7 +85,8 @@ def imitate_oracle(
             tups.append(tup)
             m = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
             m = m.with_tup(tup)
-            env = CoverageEnv(m, n_eps, env_seed, failure_prob=args.failure_prob, random_launch=args.general)
+            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
+                              random_launch=args.general)
             teacher = OracleController(env)
             beliefs = Beliefs(tracker)
             flags = FailureFlags(scales.r_comm)

@@ -45,6 +45,7 @@ from plmarl_sitl.learning.nn.features import (
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
+from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.demand import cell_centres, demand_cells, demand_map
@@ -215,7 +216,7 @@ def train(args: Args, progress=None) -> dict:
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
         scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
-        env = CoverageEnv(scenario.with_tup(tup), B, args.seed * 100_003 + it, failure_prob=p_fail,
+        env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
                           failure_at_s=args.failure_at_s, random_launch=args.general)
         N = env.n
 

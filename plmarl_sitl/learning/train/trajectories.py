@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 import torch
 
+from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.vehicle import velocity_tracking_accel
 from plmarl_sitl.twin.env import CoverageEnv, Observation
@@ -81,7 +82,7 @@ def record(
     failure_prob: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """-> (traj (E, N, T+1, 6) true states at t = 0..T, alive (E, N, T+1) bool)."""
-    env = CoverageEnv(mission, episodes, seed, failure_prob=failure_prob)
+    env = CoverageEnv(mission, episodes, training_twin_seed(seed), failure_prob=failure_prob)
     gen = torch.Generator().manual_seed(seed + 7919)
     if controller == "oracle":
         from plmarl_sitl.twin.oracle import OracleController

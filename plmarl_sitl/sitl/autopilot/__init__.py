@@ -1,7 +1,8 @@
 """Point-mass autopilot emulator: the vehicle side of MAVLink, PX4 or ArduPilot flavoured.
 
 `AutopilotHost` hosts N vehicles in one asyncio process (the SITL world process owns the
-clock and calls `advance`); `run_realtime` drives a host from wall time × speedup.
+clock and calls `advance`); `run_realtime` drives a host from wall time × speedup. Inside,
+modules depend one way: host -> handlers -> telemetry -> vehicle -> fleet -> guidance, schedule.
 """
 
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost

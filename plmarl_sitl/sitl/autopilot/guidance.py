@@ -2,7 +2,7 @@
 
 Every vehicle has one guidance *kind* and a target vector. They live in numpy arrays that
 the per-vehicle state machines write at events (a setpoint arrives, a mode changes), and
-the host reads them once per physics substep as zero-copy torch views, so one batched call
+the fleet reads them once per physics substep as zero-copy torch views, so one batched call
 of the shared controllers (`goto_accel`, `velocity_tracking_accel`) serves all N vehicles.
 Per-vehicle speed/acceleration limits are (N, 1) tensors: the controllers broadcast them.
 """
@@ -27,6 +27,9 @@ class Kind(enum.IntEnum):
     POSITION = 3  # fly to a point and stop there (hold, takeoff, position setpoints)
     LAND = 4  # hold x/y, descend at `descent` m/s
     FALL = 5  # motors off in the air (forced disarm, node failure)
+    # A landing or fall reached the ground this substep and the airframe stopped (set by the
+    # fleet's ground contact, after the physics); the vehicle then disarms and goes IDLE.
+    TOUCHDOWN = 6
 
 
 class Guidance:

@@ -13,18 +13,10 @@ import math
 from collections.abc import Callable
 
 from plmarl_sitl.deploy.mavlink.codec import Message, dialect, param_id_str
+from plmarl_sitl.deploy.mavlink.wire import FORCE_ARM_MAGIC, MASK_ACC, MASK_FORCE_SET, MASK_POS, MASK_VEL
 from plmarl_sitl.sitl.autopilot import telemetry
 from plmarl_sitl.sitl.autopilot.guidance import Kind
-from plmarl_sitl.sitl.autopilot.vehicle import (
-    ACCEPTED,
-    DENIED,
-    FORCE_MAGIC,
-    MASK_ACC,
-    MASK_FORCE_SET,
-    MASK_POS,
-    MASK_VEL,
-    Vehicle,
-)
+from plmarl_sitl.sitl.autopilot.vehicle import ACCEPTED, DENIED, Vehicle
 
 d = dialect
 UNSUPPORTED = d.MAV_RESULT_UNSUPPORTED
@@ -110,7 +102,7 @@ def _cmd_arm(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     if not _finite(p[0]) or p[0] not in (0.0, 1.0):
         v.drop("bad_value", f"arm param1 {p[0]}")
         return DENIED
-    force = p[1] == FORCE_MAGIC
+    force = p[1] == FORCE_ARM_MAGIC
     return v.arm(force) if p[0] == 1.0 else v.disarm(force)
 
 
@@ -152,12 +144,12 @@ def _cmd_set_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Ad
     if interval_us < 0:
         hz = 0.0
     elif interval_us == 0:
-        hz = v.host.default_rate(msgid)
+        hz = v.fleet.default_rates.get(msgid, 0.0)
     elif interval_us < 1000:  # > 1 kHz of sim time is not a telemetry rate
         return DENIED
     else:
         hz = 1e6 / interval_us
-    v.host.scheduler.set_rate(v.index, msgid, hz, v.host.now)
+    v.fleet.streams.set_rate(v.index, msgid, hz, v.fleet.now)
     return ACCEPTED
 
 
@@ -165,7 +157,7 @@ def _cmd_get_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Ad
     if not _finite(p[0]):
         return DENIED
     msgid = int(p[0])
-    hz = v.host.scheduler.rate(v.index, msgid)
+    hz = v.fleet.streams.rate(v.index, msgid)
     interval = int(1e6 / hz) if hz > 0 else (-1 if msgid in telemetry.BUILDERS else 0)
     v.send(v.codec.mav.message_interval_encode(msgid, interval), addr)
     return ACCEPTED
@@ -304,7 +296,7 @@ def _mission_count(v: Vehicle, msg: Message, addr: Addr) -> None:
 
 def _timesync(v: Vehicle, msg: Message, addr: Addr) -> None:
     if msg.tc1 == 0:  # a request: answer with our clock (sim time, ns)
-        v.send(v.codec.mav.timesync_encode(int(v.host.now * 1e9), msg.ts1), addr)
+        v.send(v.codec.mav.timesync_encode(int(v.fleet.now * 1e9), msg.ts1), addr)
 
 
 _FTP_NAK, _FTP_OPEN_RO = 129, 4

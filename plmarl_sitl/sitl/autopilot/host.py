@@ -6,8 +6,9 @@ physics, failsafes and telemetry move by exactly that much sim time. The standal
 boot (time_boot_ms, SYSTEM_TIME, TIMESYNC) is sim time, so a sped-up run looks like a
 normal vehicle to clients that time-stamp by the vehicle clock.
 
-All vehicles are stepped in one batched call of the shared point-mass dynamics
-(`plmarl_sitl.model.vehicle.step_point_mass`), float64, shape (N, 3).
+The host owns the sockets, the vehicles and their shared batched state (`Fleet`); each
+substep it steps the fleet, runs the state machines that asked to be watched, fires
+setpoint-loss failsafes and sends the telemetry that is due.
 """
 
 from __future__ import annotations
@@ -16,20 +17,19 @@ import asyncio
 import logging
 import math
 import socket
-import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from plmarl_sitl.config import VehicleModel, load_vehicle
 from plmarl_sitl.deploy.mavlink.personality import Personality, personality
 from plmarl_sitl.mission import Origin
-from plmarl_sitl.model.vehicle import Limits, step_point_mass
+from plmarl_sitl.model.geodesy import ned_to_geodetic
+from plmarl_sitl.model.vehicle import Limits
 from plmarl_sitl.sitl.autopilot import handlers, telemetry
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
-from plmarl_sitl.sitl.autopilot.guidance import Guidance
+from plmarl_sitl.sitl.autopilot.fleet import Fleet
 from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
 
 log = logging.getLogger("plmarl.autopilot")
@@ -107,8 +107,7 @@ class AutopilotHost:
             raise ValueError("physics_hz must be >= 50 (the contract is >= 50 Hz of sim time)")
         self.personality: Personality = personality(personality_name)
         self.model = vehicle if isinstance(vehicle, VehicleModel) else load_vehicle(vehicle)
-        self.limits = Limits.ground_to_ceiling(self.model)
-        self.origin = origin or Origin()
+        self.origin = o = origin or Origin()
         offsets = list(home_offsets_ned or [(0.0, 0.0, 0.0)] * count)
         if len(offsets) != count:
             raise ValueError(f"home_offsets_ned has {len(offsets)} entries for {count} vehicles")
@@ -117,25 +116,18 @@ class AutopilotHost:
         self.bind_host = bind_host
         self.gcs = gcs
         self.physics_dt = 1.0 / physics_hz
-        self.now = 0.0  # sim seconds since boot
-        self._unix_at_boot = time.time()
-        self.guidance = Guidance(count)
-        self.pos = torch.zeros(count, 3, dtype=torch.float64)
-        self.vel = torch.zeros(count, 3, dtype=torch.float64)
-        self.acc = torch.zeros(count, 3, dtype=torch.float64)
-        self._refresh_views()
-        self._watch: dict[int, Vehicle] = {}
-        self.sp_deadline = np.full(count, np.inf)  # sim time each vehicle's setpoint stream times out
-        self.scheduler = telemetry.Scheduler()
-        self._rates = dict(telemetry.DEFAULT_RATES)
+        rates = dict(telemetry.DEFAULT_RATES)
         for k, hz in (streams or {}).items():
-            self._rates[telemetry.message_id(k)] = float(hz)
+            rates[telemetry.message_id(k)] = float(hz)
+        self.fleet = Fleet(count, Limits.ground_to_ceiling(self.model), rates)
         self.vehicles = [
-            Vehicle(self, i, sysids[i], self.personality, self.model, tuple(offsets[i]), signing_key) for i in range(count)
+            Vehicle(
+                self.fleet, i, sysids[i], self.personality, self.model,
+                ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, offsets[i][0], offsets[i][1], 0.0),
+                gcs=gcs, signing_key=signing_key, heartbeat=telemetry.heartbeat,
+            )
+            for i in range(count)
         ]
-        for v in self.vehicles:
-            for msgid, hz in self._rates.items():
-                self.scheduler.set_rate(v.index, msgid, hz, 0.0)
         self._transports: list[asyncio.DatagramTransport] = []
         self._logged_drops: dict[int, int] = {}
 
@@ -197,20 +189,33 @@ class AutopilotHost:
     def vehicle(self, i: int) -> Vehicle:
         return self.vehicles[i]
 
+    @property
+    def now(self) -> float:
+        """Sim seconds since boot (the fleet's clock)."""
+        return self.fleet.now
+
+    @now.setter
+    def now(self, t: float) -> None:  # tests of the SITL world set the clock by hand
+        self.fleet.now = t
+
     def true_states(self) -> torch.Tensor:
         """(N, 6) float64 copy of [pos, vel] NED, each in its vehicle's local (home) frame.
 
         A normal tensor (the state itself lives in inference mode), safe to keep or use in autograd.
         """
-        return torch.cat([self.pos, self.vel], dim=-1).clone()
+        return torch.cat([self.fleet.pos, self.fleet.vel], dim=-1).clone()
 
     def mission_positions(self) -> torch.Tensor:
         """(N, 3) positions in the mission frame (local position + home offset)."""
-        return (self.pos + self.home_offsets).clone()
+        return (self.fleet.pos + self.home_offsets).clone()
 
     def kill(self, i: int) -> None:
         """Node failure: vehicle i stops answering and sending, and falls if airborne."""
         self.vehicles[i].kill()
+
+    def set_gnss_noise(self, i: int, std_m: float) -> None:
+        """GNSS noise: vehicle i's reported position gets Gaussian noise of `std_m` per axis (0: none)."""
+        self.vehicles[i].gnss_noise_std_m = float(std_m)
 
     def counters(self) -> list[InputCounters]:
         return [v.counters for v in self.vehicles]
@@ -223,16 +228,6 @@ class AutopilotHost:
                 self._logged_drops[v.index] = dropped
                 log.warning("vehicle %d: %d datagrams, dropped %s", v.sysid, v.counters.datagrams, v.counters.summary())
 
-    def unix_time_s(self) -> float:
-        return self._unix_at_boot + self.now
-
-    def default_rate(self, msgid: int) -> float:
-        return self._rates.get(msgid, 0.0)
-
-    def watch(self, v: Vehicle) -> None:
-        """Run v's state machine every substep (until it says it is idle)."""
-        self._watch[v.index] = v
-
     # ------------------------------------------------------------------ the clock
     def advance(self, dt_s: float) -> None:
         """Move every vehicle forward by `dt_s` seconds of sim time (substeps <= physics_dt)."""
@@ -243,29 +238,18 @@ class AutopilotHost:
         for _ in range(n):
             self._substep(h)
 
-    @torch.inference_mode()  # no autograd bookkeeping: ~15 % off the physics call
     def _substep(self, h: float) -> None:
-        self.acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel)
-        self.pos, self.vel = step_point_mass(self.pos, self.vel, self.acc, h, self.limits)
-        self.now += h
-        self._refresh_views()
-        if self._watch:
-            for i, v in list(self._watch.items()):
-                if not v.update(self.now):
-                    del self._watch[i]
-        if self.sp_deadline.min() < self.now:
-            for i in np.flatnonzero(self.sp_deadline < self.now).tolist():
-                self.vehicles[i].check_setpoint_loss(self.now)
+        f = self.fleet
+        f.step(h)
+        for i in f.watched():
+            if not self.vehicles[i].update(f.now):
+                f.unwatch(i)
+        for i in f.setpoints_lost():
+            self.vehicles[i].check_setpoint_loss(f.now)
         due: dict[int, list[int]] = {}
-        for vi, msgid in self.scheduler.pop_due(self.now):
+        for vi, msgid in f.streams.pop_due(f.now):
             due.setdefault(vi, []).append(msgid)
         for vi, ids in due.items():  # one datagram per vehicle and substep
             v = self.vehicles[vi]
             if v.peers or self.gcs is not None:
                 v.send_bundle([telemetry.BUILDERS[msgid](v) for msgid in ids])
-
-    def _refresh_views(self) -> None:
-        # Zero-copy numpy views for the per-vehicle Python code (telemetry, state machines).
-        self.pos_np = self.pos.numpy()
-        self.vel_np = self.vel.numpy()
-        self.acc_np = self.acc.numpy()

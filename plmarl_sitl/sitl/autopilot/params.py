@@ -46,15 +46,14 @@ def ranges(model: VehicleModel) -> dict[str, Range]:
 
 
 def defaults(model: VehicleModel, personality: Personality, sysid: int) -> dict[str, float]:
-    px4 = personality.name == "px4"
     return {
-        "offboard_timeout_s": 1.0 if px4 else 3.0,  # COM_OF_LOSS_T / GUID_TIMEOUT defaults
+        "offboard_timeout_s": personality.offboard_timeout_s,
         "sysid": float(sysid),
         "takeoff_alt_m": model.takeoff_alt_m,
         "max_accel_mps2": model.max_accel_mps2,
         "max_speed_mps": model.max_speed_mps,
         "max_climb_mps": model.max_climb_mps,
-        "land_speed_mps": min(0.7 if px4 else 0.5, model.max_climb_mps),
+        "land_speed_mps": min(personality.land_speed_mps, model.max_climb_mps),
     }
 
 

@@ -1,28 +1,24 @@
-"""Telemetry messages and their schedule.
+"""Telemetry messages: builders that turn a vehicle's state into what PX4/ArduPilot stream.
 
-Builders turn a vehicle's state into the messages PX4/ArduPilot stream. Rates are in sim
-time (a 10 Hz stream at --speedup 20 sends 200 messages per wall second), so a client that
-timestamps by time_boot_ms sees a normal vehicle. One heap per host orders all due
-messages of all vehicles; SET_MESSAGE_INTERVAL bumps a per-(vehicle, message) generation
-so stale heap entries are skipped instead of searched for.
+Rates are in sim time (a 10 Hz stream at --speedup 20 sends 200 messages per wall second),
+so a client that timestamps by time_boot_ms sees a normal vehicle; `schedule.Scheduler`
+decides when each message of each vehicle is due.
 """
 
 from __future__ import annotations
 
-import heapq
-import itertools
 import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from plmarl_sitl.deploy.mavlink.codec import Message, dialect
+from plmarl_sitl.deploy.mavlink.wire import MASK_POS, MASK_VEL
 
 if TYPE_CHECKING:
     from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
 
 d = dialect
 G = 9.80665
-_EARTH_RADIUS_M = 6_378_137.0
 
 # Sensors a healthy multirotor reports; MAVSDK derives health from these bits
 # (GPS present+healthy -> local/global position OK; PREARM_CHECK -> armable).
@@ -53,15 +49,8 @@ DEFAULT_RATES: dict[int, float] = {
 }
 
 
-def geodetic(lat0: float, lon0: float, alt0: float, north: float, east: float, up: float) -> tuple[float, float, float]:
-    """Flat-earth offset of a geodetic point (good to centimetres over a few km)."""
-    lat = lat0 + math.degrees(north / _EARTH_RADIUS_M)
-    lon = lon0 + math.degrees(east / (_EARTH_RADIUS_M * math.cos(math.radians(lat0))))
-    return lat, lon, alt0 + up
-
-
 def _ms(v: Vehicle) -> int:
-    return int(v.host.now * 1000) & 0xFFFFFFFF
+    return int(v.fleet.now * 1000) & 0xFFFFFFFF
 
 
 def heartbeat(v: Vehicle) -> Message:
@@ -79,14 +68,14 @@ def sys_status(v: Vehicle) -> Message:
 
 
 def system_time(v: Vehicle) -> Message:
-    return v.codec.mav.system_time_encode(int(v.host.unix_time_s() * 1e6), _ms(v))
+    return v.codec.mav.system_time_encode(int(v.fleet.unix_time_s() * 1e6), _ms(v))
 
 
 def gps_raw_int(v: Vehicle) -> Message:
     lat, lon, alt = v.geodetic()
     vn, ve, _ = v.velocity()
     return v.codec.mav.gps_raw_int_encode(
-        int(v.host.unix_time_s() * 1e6), d.GPS_FIX_TYPE_3D_FIX, int(lat * 1e7), int(lon * 1e7),
+        int(v.fleet.unix_time_s() * 1e6), d.GPS_FIX_TYPE_3D_FIX, int(lat * 1e7), int(lon * 1e7),
         int(alt * 1000), 80, 120, int(math.hypot(vn, ve) * 100), 65535, 12,
     )
 
@@ -99,7 +88,7 @@ def home_position(v: Vehicle) -> Message:
     lat, lon, alt = v.home_geodetic
     return v.codec.mav.home_position_encode(
         int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
-        int(v.host.unix_time_s() * 1e6),
+        int(v.fleet.unix_time_s() * 1e6),
     )
 
 
@@ -139,7 +128,7 @@ def position_target_local_ned(v: Vehicle) -> Message | None:
         return None
     mask, (a, b, c) = target
     vec = [0.0] * 9
-    group = 0 if mask & 0x7 == 0 else 1 if mask & 0x38 == 0 else 2
+    group = 0 if mask & MASK_POS == 0 else 1 if mask & MASK_VEL == 0 else 2
     vec[3 * group : 3 * group + 3] = (a, b, c)
     return v.codec.mav.position_target_local_ned_encode(_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0)
 
@@ -192,56 +181,3 @@ def message_id(name_or_id: str | int) -> int:
     if isinstance(name_or_id, int):
         return name_or_id
     return getattr(d, f"MAVLINK_MSG_ID_{name_or_id.upper()}")
-
-
-# Streams start on a per-vehicle grid (see Scheduler.set_rate): 0.1 s, the period of the
-# 10 Hz streams, split into 5 phases, one per 50 Hz physics substep.
-STREAM_GRID_S = 0.1
-STREAM_PHASES = 5
-
-
-class Scheduler:
-    """Heap of (due sim time, vehicle, message) over all vehicles of a host."""
-
-    def __init__(self) -> None:
-        self._heap: list[tuple[float, int, int, int, int]] = []
-        self._tie = itertools.count()
-        self._gen: dict[tuple[int, int], int] = {}
-        self._interval: dict[tuple[int, int], float] = {}
-
-    def set_rate(self, vehicle: int, msgid: int, hz: float, now: float) -> None:
-        """Stream `msgid` of `vehicle` at `hz` (0 stops it), starting at the vehicle's next
-        grid point: each vehicle's streams share one phase on a STREAM_GRID_S grid, so
-        its 1 Hz messages fall on its 10 Hz ones and leave in the same datagram (as PX4
-        bundles), and the phase differs between vehicles, so N vehicles' telemetry (and
-        their agents' work) does not all land in the same instant."""
-        key = (vehicle, msgid)
-        gen = self._gen.get(key, 0) + 1
-        self._gen[key] = gen
-        if hz <= 0:
-            self._interval.pop(key, None)
-            return
-        self._interval[key] = 1.0 / hz
-        phase = (vehicle % STREAM_PHASES) * STREAM_GRID_S / STREAM_PHASES
-        first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
-        heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
-
-    def rate(self, vehicle: int, msgid: int) -> float:
-        iv = self._interval.get((vehicle, msgid))
-        return 1.0 / iv if iv else 0.0
-
-    def pop_due(self, now: float) -> list[tuple[int, int]]:
-        """(vehicle, msgid) pairs due at `now`, each rescheduled one interval later."""
-        out = []
-        heap = self._heap
-        while heap and heap[0][0] <= now + 1e-9:
-            due, _, vi, mid, gen = heapq.heappop(heap)
-            if self._gen.get((vi, mid)) != gen:
-                continue
-            iv = self._interval[(vi, mid)]
-            nxt = due + iv
-            if nxt < now - iv:  # far behind (e.g. a huge advance): do not burst
-                nxt = now + iv
-            heapq.heappush(heap, (nxt, next(self._tie), vi, mid, gen))
-            out.append((vi, mid))
-        return out

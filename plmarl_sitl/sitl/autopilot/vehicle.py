@@ -1,9 +1,10 @@
 """One emulated autopilot: mode/arming state machine, setpoints and failsafes.
 
-The vehicle never integrates its own motion: the host steps all vehicles' physics in one
+The vehicle never integrates its own motion: the fleet steps all vehicles' physics in one
 batched call and this class only decides *what each vehicle is trying to do* (the guidance
-kind and target) and reacts to what happened (takeoff reached, touchdown, setpoint loss).
-Message parsing and replies live in `handlers.py`; telemetry builders in `telemetry.py`.
+kind and target, written into its row of the `Fleet`) and reacts to what happened (takeoff
+reached, touchdown, setpoint loss). Message parsing and replies live in `handlers.py`;
+telemetry builders in `telemetry.py`.
 """
 
 from __future__ import annotations
@@ -14,20 +15,21 @@ import random
 import struct
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from typing import TYPE_CHECKING, BinaryIO
 
 from plmarl_sitl.config import VehicleModel
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
 from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
+from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, POSITION_ONLY, VELOCITY_ONLY
+from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
+from plmarl_sitl.sitl.autopilot.fleet import Fleet
 from plmarl_sitl.sitl.autopilot.guidance import Kind
 from plmarl_sitl.sitl.autopilot.params import ParamStore
-from plmarl_sitl.sitl.autopilot.telemetry import geodetic
 
 if TYPE_CHECKING:
     import asyncio
-
-    from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 
 log = logging.getLogger("plmarl.autopilot")
 d = dialect
@@ -35,44 +37,47 @@ d = dialect
 ACCEPTED = d.MAV_RESULT_ACCEPTED
 DENIED = d.MAV_RESULT_DENIED
 TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
-FORCE_MAGIC = 21196  # param2 of COMPONENT_ARM_DISARM that forces (PX4 and ArduPilot)
 
-ON_GROUND_ALT_M = 0.05
 LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
 # Messages a signed vehicle still accepts unsigned: presence only, nothing that acts.
 ALLOW_UNSIGNED = (d.MAVLINK_MSG_ID_HEARTBEAT, d.MAVLINK_MSG_ID_RADIO_STATUS)
-
-# type_mask bits of SET_POSITION_TARGET_LOCAL_NED (POSITION_TARGET_TYPEMASK).
-MASK_POS, MASK_VEL, MASK_ACC = 0x007, 0x038, 0x1C0
-MASK_FORCE_SET = 0x200
-ECHO_MASK = {Kind.POSITION: 0xDF8, Kind.VELOCITY: 0xDC7, Kind.ACCEL: 0xC3F, Kind.LAND: 0xDC7}
+# POSITION_TARGET_LOCAL_NED's type_mask for what the vehicle tracks (a landing: a velocity).
+ECHO_MASK = {Kind.POSITION: POSITION_ONLY, Kind.VELOCITY: VELOCITY_ONLY, Kind.ACCEL: ACCEL_ONLY, Kind.LAND: VELOCITY_ONLY}
 
 
 class Vehicle:
-    """State of vehicle `index` of a host (sysid = index + 1 unless configured)."""
+    """State of vehicle `index` of a fleet (sysid = index + 1 unless configured).
+
+    `home_geodetic` is (lat, lon, alt) of its home, the origin of its local NED frame; `gcs`
+    a ground station that gets its telemetry besides its peers; `heartbeat` builds the
+    HEARTBEAT it sends at once on a mode or arming change (`telemetry.heartbeat`).
+    """
 
     def __init__(
         self,
-        host: AutopilotHost,
+        fleet: Fleet,
         index: int,
         sysid: int,
         personality: Personality,
         model: VehicleModel,
-        home_offset_ned: tuple[float, float, float],
+        home_geodetic: tuple[float, float, float],
+        *,
+        gcs: tuple[str, int] | None,
         signing_key: bytes | None,
+        heartbeat: Callable[[Vehicle], Message],
     ) -> None:
-        self.host = host
+        self.fleet = fleet
         self.index = index
         self.personality = personality
         self.model = model
         self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, ALLOW_UNSIGNED)
         self.params = ParamStore(model, personality, sysid)
         self.counters = InputCounters()
-        self.home_offset_ned = home_offset_ned
-        o = host.origin
-        self.home_geodetic = geodetic(o.lat_deg, o.lon_deg, o.alt_m, home_offset_ned[0], home_offset_ned[1], 0.0)
+        self.home_geodetic = home_geodetic
+        self.gcs = gcs
+        self._heartbeat = heartbeat
         self.transport: asyncio.DatagramTransport | None = None
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.killed = False
@@ -120,7 +125,7 @@ class Vehicle:
     def _refresh_deadline(self) -> None:
         """Publish when this vehicle's setpoint stream times out (inf: no timeout armed).
 
-        The host compares all deadlines with the clock in one numpy call per substep, so
+        The fleet compares all deadlines with the clock in one numpy call per substep, so
         vehicles that are simply flying setpoints cost nothing per substep.
         """
         dl = math.inf
@@ -132,7 +137,7 @@ class Vehicle:
             and not self.killed
         ):
             dl = self.setpoint_time + self.params["offboard_timeout_s"]
-        self.host.sp_deadline[self.index] = dl
+        self.fleet.set_deadline(self.index, dl)
 
     def _announce_state(self) -> None:
         """Send a HEARTBEAT right away on a mode or arming change.
@@ -140,9 +145,7 @@ class Vehicle:
         Clients learn the mode only from heartbeats (1 Hz); without this a failsafe would
         look up to a second late to MAVSDK, which judges offboard loss to within 0.5 s.
         """
-        from plmarl_sitl.sitl.autopilot.telemetry import heartbeat
-
-        self.send(heartbeat(self))
+        self.send(self._heartbeat(self))
 
     @property
     def mode(self) -> str:
@@ -157,19 +160,19 @@ class Vehicle:
         return self.mode_spec.behaviour
 
     def position(self) -> tuple[float, float, float]:
-        p = self.host.pos_np[self.index]
+        p = self.fleet.pos_np[self.index]
         return float(p[0]), float(p[1]), float(p[2])
 
     def velocity(self) -> tuple[float, float, float]:
-        v = self.host.vel_np[self.index]
+        v = self.fleet.vel_np[self.index]
         return float(v[0]), float(v[1]), float(v[2])
 
     def last_accel(self) -> tuple[float, float, float]:
-        a = self.host.acc_np[self.index]
+        a = self.fleet.acc_np[self.index]
         return float(a[0]), float(a[1]), float(a[2])
 
     def altitude(self) -> float:
-        return -float(self.host.pos_np[self.index, 2])
+        return self.fleet.altitude(self.index)
 
     def nav_position(self) -> tuple[float, float, float]:
         """The position the navigation filter reports: truth plus GNSS noise (if set by a
@@ -183,7 +186,7 @@ class Vehicle:
     def geodetic(self) -> tuple[float, float, float]:
         x, y, z = self.nav_position()
         lat, lon, alt = self.home_geodetic
-        return geodetic(lat, lon, alt, x, y, -z)
+        return ned_to_geodetic(lat, lon, alt, x, y, z)
 
     @property
     def yaw(self) -> float:
@@ -197,13 +200,12 @@ class Vehicle:
     def landed_state(self) -> int:
         if self.taking_off:
             return d.MAV_LANDED_STATE_TAKEOFF
-        if int(self.host.guidance.kind[self.index]) == Kind.LAND:
+        if int(self.fleet.guidance.kind[self.index]) == Kind.LAND:
             return d.MAV_LANDED_STATE_LANDING
         return d.MAV_LANDED_STATE_ON_GROUND if self.on_ground() else d.MAV_LANDED_STATE_IN_AIR
 
     def on_ground(self) -> bool:
-        vx, vy, vz = self.velocity()
-        return self.altitude() <= ON_GROUND_ALT_M and abs(vz) < 0.2 and math.hypot(vx, vy) < 0.5
+        return self.fleet.on_ground(self.index)
 
     # ------------------------------------------------------------------ output
     def send(self, msg: Message | None, addr: tuple[str, int] | None = None) -> None:
@@ -234,7 +236,7 @@ class Vehicle:
         """One datagram to every peer and to the ground station."""
         for peer in self.peers:
             t.sendto(buf, peer)
-        gcs = self.host.gcs
+        gcs = self.gcs
         if gcs is not None and gcs not in self.peers:
             t.sendto(buf, gcs)
 
@@ -264,7 +266,7 @@ class Vehicle:
 
     # ------------------------------------------------------------------ guidance
     def _apply_limits(self) -> None:
-        g = self.host.guidance
+        g = self.fleet.guidance
         i = self.index
         g.max_speed[i, 0] = self.params["max_speed_mps"]
         g.max_accel[i, 0] = self.params["max_accel_mps2"]
@@ -273,13 +275,11 @@ class Vehicle:
         self._apply_limits()
         self._refresh_deadline()
         if self.taking_off:
-            self.host.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
+            self.fleet.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
 
     def _guide(self, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
-        self.host.guidance.set(self.index, kind, target)
+        self.fleet.guide(self.index, kind, target, watch=self.taking_off)
         self._apply_limits()
-        if kind in (Kind.LAND, Kind.FALL) or self.taking_off:
-            self.host.watch(self)
 
     def _hold_here(self) -> None:
         """Brake at half the acceleration limit and hold where the vehicle stops."""
@@ -294,7 +294,7 @@ class Vehicle:
 
     def active_target(self) -> tuple[int, tuple[float, float, float]] | None:
         """(type_mask, vector) of what the vehicle is tracking, for POSITION_TARGET_LOCAL_NED."""
-        g = self.host.guidance
+        g = self.fleet.guidance
         kind = Kind(int(g.kind[self.index]))
         mask = ECHO_MASK.get(kind)
         if mask is None:
@@ -314,16 +314,14 @@ class Vehicle:
         """Whether external setpoints drive the vehicle right now."""
         if self.behaviour != Behaviour.OFFBOARD or not self.armed:
             return False
-        # ArduPilot ignores GUIDED setpoints on the ground: it needs a takeoff first.
-        return self.personality.name == "px4" or not (self.on_ground() and not self.taking_off)
+        return self.personality.offboard_from_ground or not (self.on_ground() and not self.taking_off)
 
     # ------------------------------------------------------------------ actions
     def set_mode(self, spec: ModeSpec) -> int:
         if spec.behaviour == Behaviour.TAKEOFF:
             return self.takeoff(None)
-        if spec.behaviour == Behaviour.OFFBOARD and self.personality.failsafe == Failsafe.LEAVE_TO_HOLD:
-            # PX4 refuses OFFBOARD unless setpoints are already streaming.
-            if self.host.now - self.setpoint_time > self.params["offboard_timeout_s"]:
+        if spec.behaviour == Behaviour.OFFBOARD and self.personality.offboard_needs_stream:
+            if self._setpoint_stale():
                 return TEMP_REJECTED
         self.mode_spec = spec
         self.taking_off = False
@@ -381,7 +379,7 @@ class Vehicle:
         self.taking_off = True
         self._takeoff_alt = alt
         self._guide(Kind.POSITION, (x, y, -alt))
-        self.host.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
+        self.fleet.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
         return ACCEPTED
 
     def land(self) -> int:
@@ -401,7 +399,7 @@ class Vehicle:
 
     def accept_setpoint(self, kind: Kind, vec: tuple[float, float, float], type_mask: int) -> None:
         self.setpoint = (kind, vec, type_mask)
-        self.setpoint_time = self.host.now
+        self.setpoint_time = self.fleet.now
         self.setpoint_timed_out = False
         if self._offboard_in_control():
             self._apply_setpoint()
@@ -418,20 +416,19 @@ class Vehicle:
     def update(self, now: float) -> bool:
         """Takeoff/landing/falling progress after a physics substep. False: stop watching me.
 
-        Setpoint loss is not checked here but through `_refresh_deadline`.
+        Ground contact is the fleet's (it turns the kind into TOUCHDOWN); setpoint loss is
+        not checked here but through `_refresh_deadline`.
         """
-        g = self.host.guidance
+        g = self.fleet.guidance
         kind = int(g.kind[self.index])
-        if kind == Kind.FALL or kind == Kind.LAND:
-            alt = self.altitude()
-            if kind == Kind.LAND:
-                fast = self.params["max_climb_mps"]
-                g.descent[self.index] = fast if alt > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
-            # A fall ends where the airframe hits the ground, at whatever speed (on_ground
-            # also asks for a slow drift, which only a controlled landing has).
-            if self.on_ground() or kind == Kind.FALL and alt <= ON_GROUND_ALT_M:
-                self._touchdown()
-                return False
+        if kind == Kind.TOUCHDOWN:
+            self._touchdown()
+            return False
+        if kind == Kind.LAND:
+            fast = self.params["max_climb_mps"]
+            g.descent[self.index] = fast if self.altitude() > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
+            return True
+        if kind == Kind.FALL:
             return True
         if self.taking_off:
             if abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3:
@@ -443,10 +440,7 @@ class Vehicle:
     def _touchdown(self) -> None:
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
-        self.host.guidance.set(self.index, Kind.IDLE)
-        # Ground contact stops the airframe: the floor only removes vertical velocity, and
-        # a wreck (or a landing drifting under 0.5 m/s) slid on for ever.
-        self.host.vel_np[self.index] = 0.0  # a view of the host's velocity tensor
+        self.fleet.guide(self.index, Kind.IDLE)
         if was_armed:
             self.statustext("Landed, disarmed")
 
@@ -461,7 +455,7 @@ class Vehicle:
         self.statustext("Takeoff complete")
 
     def _setpoint_stale(self) -> bool:
-        return self.host.now - self.setpoint_time > self.params["offboard_timeout_s"]
+        return self.fleet.now - self.setpoint_time > self.params["offboard_timeout_s"]
 
     def check_setpoint_loss(self, now: float) -> None:
         """Called by the host once this vehicle's setpoint deadline has passed."""

@@ -5,7 +5,7 @@ controller). SITL: `SitlWorld(seed=seed)` (same users: same generator seeding an
 per-second stepping) with one `plmarl agent` child per UAV over a real broker. Both
 report the mean of C(t) over mission seconds 1..episode_s.
 
-    python -m plmarl_sitl.sitl.gap missions/paper_urban.yaml --policy policies/pl-marl --seeds 0 1 2
+    python -m plmarl_sitl.bench.gap missions/paper_urban.yaml --policy policies/pl-marl --seeds 0 1 2
 """
 
 from __future__ import annotations

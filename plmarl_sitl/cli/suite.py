@@ -1,0 +1,112 @@
+"""`plmarl suite`: the held-out evaluation suite (named scenario families, evaluation seeds)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from plmarl_sitl.cmdline import comma_list, progress
+
+DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,oracle"
+DEFAULT_SUITE = "missions/suite/suite.yaml"
+
+
+def _methods(text: str) -> list[str]:
+    from plmarl_sitl.learning.eval.evaluate import ALL_METHODS  # here: `plmarl --help` must not load torch
+
+    return comma_list(str, "method", choices=ALL_METHODS)(text)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "suite",
+        help="run the held-out evaluation suite (scenario families the policies never saw)",
+        description="Run deterministic policies and baselines on named scenario families (defined in "
+        f"{DEFAULT_SUITE}: each a list of mission YAMLs): random connected layouts, moved clusters, launch "
+        "elsewhere, RPGM mobility, zero-shot N = 8/12/20, node failure at t = 100 s, and the paper map as a "
+        "reference. Each family's episodes are spread over its missions; every method sees the same episodes.\n\n"
+        "Seeds: every twin here is seeded from the evaluation range (>= 1_000_000_000: batch k of mission v of "
+        "run --seed S uses 1_000_000_000 + 10000 S + 100 v + k). Training refuses twin seeds in that range "
+        "(plmarl_sitl/learning/train/seeds.py), so no suite episode is a training episode.\n\n"
+        "Each row: coverage (mean C(t) for t > --from-s, mean and 95% CI over episodes), the mean per-episode "
+        "fraction of the Oracle on the same episodes, lambda_2, and the two-sided Mann-Whitney U p-value of "
+        "PL-MARL against the row's method; failure families add the transient (trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
+        "The Oracle ignores signalling, so it runs once per family and serves every T_up.",
+        epilog="examples:\n  plmarl suite all --episodes 30 --tup 5,15,50 --out runs/suite\n"
+        "  plmarl suite random,launch --episodes 10 --json\n  plmarl suite --list",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("families", nargs="?", default=None, help="'all' or a comma list of family names (see --list)")
+    p.add_argument("--list", action="store_true", help="list the suite's families and exit")
+    p.add_argument("--suite-file", default=DEFAULT_SUITE, help=f"suite YAML (default: {DEFAULT_SUITE})")
+    p.add_argument("--methods", type=_methods, default=DEFAULT_METHODS.split(","),
+                   help=f"comma list (default: {DEFAULT_METHODS})")
+    p.add_argument("--tup", type=comma_list(int, "T_up", positive=True), default=[5, 15, 50],
+                   help="T_up values for families that do not pin their own (default: 5,15,50)")
+    p.add_argument("--episodes", type=int, default=30, help="episodes per family and T_up (default: 30)")
+    p.add_argument("--seed", type=int, default=0, help="suite run seed 0..99999, picks the evaluation seeds (default: 0)")
+    p.add_argument("--policies", default="policies", help="directory holding <method>/{predictor.pt,policy.pt,card.yaml}")
+    p.add_argument("--from-s", type=int, default=50, help="steady-state window starts after this many seconds (default: 50)")
+    p.add_argument("--out", default=None, help="write results.json, results.md and PNG plots here")
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout (no traces)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import shlex
+    import sys
+    import time
+    from datetime import UTC, datetime
+
+    import torch
+
+    from plmarl_sitl.errors import UserError
+    from plmarl_sitl.learning.eval.evaluate import needed_policies
+    from plmarl_sitl.learning.eval.suite import decisions, load_suite, run_suite, select
+    from plmarl_sitl.learning.eval.suite_report import print_summary, write_outputs
+    from plmarl_sitl.learning.nn.features import FeatureScales
+    from plmarl_sitl.learning.nn.io import load_policy
+    from plmarl_sitl.learning.pipeline import git_commit
+    from plmarl_sitl.machine import machine_info
+
+    torch.set_num_threads(1)
+    spec, families = load_suite(args.suite_file)
+    if args.list:
+        for f in spec.families:
+            print(f"{f.name:10s} {f.about}")
+        return 0
+    if args.families is None:
+        raise UserError("name the families to run ('all' or a comma list; see plmarl suite --list)")
+    chosen = [families[n] for n in select(spec, args.families)]
+    # Policies are checked against every mission they will fly (area, vehicle, buffer length).
+    loaded: dict = {}
+    checked: set = set()
+    for m in (m for fam in chosen for m in fam.missions):
+        key = (FeatureScales.from_mission(m), m.signalling.buffer_len)
+        if key not in checked:
+            checked.add(key)
+            for meth in sorted(needed_policies(args.methods)):
+                loaded.setdefault(meth, load_policy(Path(args.policies) / meth, m))
+    total = sum(decisions(f, args.episodes, args.tup, args.methods) for f in chosen)
+    t0 = time.time()
+    with progress(disable=args.json) as bar:
+        task = bar.add_task("suite", total=total)
+        res = run_suite(
+            chosen, loaded, args.methods, args.tup, args.episodes, args.seed, from_s=args.from_s,
+            on_decision=lambda b: bar.advance(task, b),
+            on_family=lambda name: bar.update(task, description=f"suite {name} (seed {args.seed})"),
+        )
+    res.update({
+        "command": "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        "suite_file": args.suite_file, "policies": args.policies, "commit": git_commit(), "machine": machine_info(),
+        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "wall_s": round(time.time() - t0, 1),
+        "torch_threads": 1,
+    })
+    if args.out:
+        write_outputs(res, list(spec.scaling), Path(args.out))
+    if args.json:
+        print(json.dumps({k: v for k, v in res.items() if k != "traces"}))
+    else:
+        print_summary(res)
+    return 0

@@ -1,0 +1,38 @@
+"""What one agent is started with (the `plmarl agent` flags, parsed)."""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S
+from plmarl_sitl.errors import UserError
+from plmarl_sitl.mission import Mission
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    uav_id: int
+    connect_url: str  # the autopilot's URL, for messages (whoever starts the agent builds the link)
+    mission: Mission
+    autopilot: str = "auto"  # auto | px4 | ardupilot
+    tup_s: int | None = None  # None: mission.signalling.tup_s
+    swarm: str = "sitl"
+    bus_mode: str = "sitl"  # sitl: the world relays tx -> rx/<id>; direct: subscribe tx/+
+    takeoff: bool = True
+    wait_start: bool = True  # wait for the world's start announcement (else start now)
+    settle_min_s: float = 0.1  # vehicle s: an instant is never closed earlier than this
+    settle_wall_s: float = INSTANT_WAIT_WALL_S  # wall s: ... and at most this late (x the observed speedup, >= INSTANT_WAIT_MIN_S)
+    connect_timeout_s: float = 30.0
+    takeoff_timeout_s: float = 120.0  # vehicle seconds
+    trace_path: Path | None = None
+    stats_path: Path | None = None
+    # Signalling session: receivers tell a restarted agent's messages from its predecessor's
+    # by it (also part of the MQTT client id).
+    session_id: int = field(default_factory=lambda: random.getrandbits(16))
+
+    def __post_init__(self) -> None:
+        n = self.mission.n_uavs
+        if not 0 <= self.uav_id < n:
+            raise UserError(f"--id {self.uav_id}: the mission has {n} UAVs (ids 0..{n - 1})")

@@ -1,0 +1,176 @@
+"""One mission second of the agent: Algorithm 1 and the policy, and the command in force.
+
+At each due second k (see `MissionClock.second_due`): book the misses of the instants
+whose grace has passed (failure state f), advance Algorithm 1's tracker one second
+(`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds run
+`policy.pt` on (ego at the first sample of second k, beliefs, N_i mask, sensing features,
+f) -> an acceleration, held until the next decision. `command()` is what goes to the
+autopilot: before the mission a soft hold where offboard control began, then the
+policy's acceleration through the altitude band guard.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+
+import torch
+
+from plmarl_sitl.deploy.agent.clock import EPS, MissionClock
+from plmarl_sitl.deploy.agent.guard import band_guard
+from plmarl_sitl.deploy.agent.inbox import SenseHistory
+from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
+from plmarl_sitl.learning.nn.io import LoadedPolicy
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
+
+log = logging.getLogger("plmarl.agent")
+
+HOLD_KP, HOLD_KD, HOLD_MAX_ACCEL = 0.3, 1.0, 2.5  # pre-mission hold: soft, so loop delays cannot make it ring
+
+
+class Decision:
+    def __init__(self, mission: Mission, me: int, lp: LoadedPolicy, clock: MissionClock, table: NeighbourTable,
+                 stats: LoopStats, trace: Trace, sense_topic: str) -> None:
+        self.mission, self.me, self.n = mission, me, mission.n_uavs
+        self.sense_topic = sense_topic  # where sensing comes from (for the warning when it does not)
+        self.tracker, self.policy = lp.tracker, lp.policy
+        self.vm = mission.vehicle_model()
+        self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
+        self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
+        self.hold_target: torch.Tensor | None = None  # pre-mission hold point (None: where the vehicle is)
+        self.accel = (0.0, 0.0, 0.0)  # the command in force (before the band guard)
+        self.ego_at: dict[int, torch.Tensor] = {}  # the state at the first sample of each second not yet processed
+        self.buf: torch.Tensor | None = None  # the tracker's state
+        self.seen: torch.Tensor | None = None
+        self.belief = torch.zeros(self.n, 6)
+        self.aoi = torch.ones(self.n)
+        # The last few sensing messages, (mission second, (K, 2) users in R_s): a decision at
+        # k uses second k's users even when k+1's have already arrived (this agent ran late).
+        self.sense_history: SenseHistory = collections.deque(maxlen=8)
+        self.used_sense_t: float | None = None
+        self.sense_warned = False
+
+    @torch.inference_mode()
+    def warm_up(self, calls: int = 4) -> None:
+        """Run tracker and policy on this agent's shapes a few times before flying.
+
+        TorchScript's profiling executor records and optimises a graph over the first
+        calls; done mid-flight that costs milliseconds on the first decisions. The
+        tracker's state here is scratch, not the agent's."""
+        n = self.n
+        held = torch.zeros(n, 6)
+        held[:, 0] = torch.arange(n, dtype=torch.float32) * 40.0
+        buf, seen = self.tracker.init_state(held)
+        for t in range(calls * 2):
+            t_rx = torch.full((n,), float(t if t % 2 == 0 else t - 1))
+            belief, _, buf, seen = self.tracker(float(t), held, t_rx, buf, seen)
+            mask = torch.ones(n, dtype=torch.bool)
+            mask[self.me] = False
+            self.policy(held[self.me], belief, mask, torch.zeros(SENSING_FEATURES), torch.tensor(t % 4 == 3))
+        sensing_features(held[:1, :3], torch.zeros(3, 2), self.mission.radii.sensing_m, self.mission.users.cluster_size)
+
+    def catch_up(self, tm: float) -> bool:
+        """Mission time tm (the latest telemetry, `ego`): process every second now due;
+        True if one of them decided."""
+        clock = self.clock
+        for k in range(clock.next_k, math.floor(tm + EPS) + 1):
+            self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
+        decided = False
+        while clock.second_due(clock.next_k, tm, self.awaiting_sensing(), self.delivered):
+            k = clock.next_k
+            decided |= self.second(k, max(0.0, tm - k))
+            clock.next_k = k + 1
+        return decided
+
+    def awaiting_sensing(self) -> bool:
+        """No sensing message yet, and not yet given up on one."""
+        return not self.sense_history and not self.sense_warned
+
+    def delivered(self, k: int) -> bool:
+        """Every neighbour expected to deliver for instant k has."""
+        t_rx = self.table.t_rx
+        return all(float(t_rx[j]) == k for j in self.expected(k))
+
+    def expected(self, k: int) -> list[int]:
+        """Neighbours whose update for instant k we wait for: at the first instant everyone;
+        later those in N_i that the tracker believes within R_comm (one that has flown out
+        of range will not deliver, and waiting for it would only delay the decision)."""
+        others = [j for j in range(self.n) if j != self.me]
+        if k == self.clock.first_k:
+            return others
+        r2 = self.mission.radii.comm_m ** 2
+        d = self.belief[:, :3] - self.ego[:3]
+        near = (d * d).sum(-1) <= r2
+        return [j for j in others if self.table.in_set(j) and bool(near[j])]
+
+    @torch.inference_mode()
+    def _book_misses(self, k: int, sub_s: float) -> None:
+        for inst in self.clock.instants_to_book(k, sub_s):
+            for j in self.table.close_instant(float(inst)):
+                log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed); f = 1", j, k, self.table.drop)
+
+    def second(self, k: int, sub_s: float = 0.0) -> bool:
+        """Mission second k (processed `sub_s` late): close the instant, advance the
+        tracker, maybe decide; True if it decided."""
+        self.stats.seconds += 1
+        self._book_misses(k, sub_s)
+        held, t_rx = self.table.state, self.table.t_rx
+        if self.buf is None:
+            self.buf, self.seen = self.tracker.init_state(held)
+        self.belief, self.aoi, self.buf, self.seen = self.tracker(float(k), held, t_rx, self.buf, self.seen)
+        decided = self.clock.is_decision(k)
+        ego = self.ego_at.pop(k, self.ego)
+        for old in [s for s in self.ego_at if s < k]:
+            del self.ego_at[old]
+        mask = self.table.mask()
+        if decided:
+            sense = self._sense(ego, k)
+            fail = torch.tensor(self.table.lost)
+            a = self.policy(ego, self.belief, mask, sense, fail)
+            self.accel = (float(a[0]), float(a[1]), float(a[2]))
+            self.stats.decisions += 1
+        if self.trace.active:
+            self.trace.write({
+                "t": k,
+                "boot_s": round(self.clock.boot_s, 3),
+                "aoi": [round(float(x), 2) for x in self.aoi],
+                "mask": [bool(x) for x in mask],
+                "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
+                "fail": self.table.lost,
+                "ego": [round(x, 2) for x in ego.tolist()],
+                "accel": [round(x, 3) for x in self.accel],  # the policy's command
+                "cmd": [round(x, 3) for x in self.command()],  # after the band guard
+                "decided": decided,
+                "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
+            })
+        return decided
+
+    def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
+        """Sensing features of the newest users' message not after second k (usually
+        second k - 1: the world publishes second k's a moment after its telemetry)."""
+        m = self.mission
+        if not self.sense_history:
+            if not self.sense_warned:
+                self.sense_warned = True
+                log.warning("no sensing publisher on %s: flying as if no users are sensed", self.sense_topic)
+            return torch.zeros(SENSING_FEATURES)
+        t, users = next(((t, u) for t, u in reversed(self.sense_history) if t <= k + 1e-6), self.sense_history[0])
+        self.used_sense_t = t
+        return sensing_features(ego[:3].unsqueeze(0), users, m.radii.sensing_m, m.users.cluster_size)[0]
+
+    def command(self) -> tuple[float, float, float]:
+        """The acceleration to send now (NED, m/s^2)."""
+        vm = self.vm
+        alt, v_up = -float(self.ego[2]), -float(self.ego[5])
+        if not self.clock.in_mission():
+            # Before the mission: hold where offboard control began (PD on position).
+            tgt = self.hold_target if self.hold_target is not None else self.ego[:3]
+            a = HOLD_KP * (tgt - self.ego[:3]) - HOLD_KD * self.ego[3:]
+            norm = float(torch.linalg.vector_norm(a))
+            if norm > HOLD_MAX_ACCEL:
+                a = a * (HOLD_MAX_ACCEL / norm)
+            return float(a[0]), float(a[1]), float(a[2])
+        return band_guard(self.accel, alt, v_up, vm.min_alt_m, vm.max_alt_m, vm.max_accel_mps2)

@@ -1,0 +1,131 @@
+"""Mission events on the mission clock: one schedule for the twin and the SITL world.
+
+A mission's events (its `failures` list and its `events`: node failures, link blackouts,
+broker outages, T_up changes, GNSS noise) take effect at whole mission seconds, the only
+instants either world acts on: an event at `at_s` starts at second ceil(at_s), and one
+with a duration ends at second ceil(at_s + duration_s); in between it is in force.
+
+The schedule answers two questions about the same data:
+
+* what is in force at second t (`failure_s`, `tup_at`, `broker_down`, `cut_off`,
+  `active`, `gnss_std_m`): the twin asks while it steps;
+* what changes at second t (`changes_at`): the SITL world applies the changes it owns
+  (vehicles, links, GNSS noise, T_up) and the launcher the rest (a failed node's agent
+  process, the broker gate) and logs them all.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from plmarl_sitl.mission import Event, Mission
+
+
+def start_second(ev: Event) -> int:
+    """The mission second `ev` starts at."""
+    return math.ceil(ev.at_s)
+
+
+def end_second(ev: Event) -> float:
+    """The mission second `ev` is over at (inf: it lasts to the end of the mission)."""
+    return math.ceil(ev.end_s()) if ev.duration_s is not None else math.inf
+
+
+@dataclass(frozen=True)
+class Change:
+    """`event` starts at mission second `second` (or, when `ends`, its duration runs out)."""
+
+    second: int
+    event: Event
+    ends: bool = False
+
+
+@dataclass(frozen=True)
+class EventSchedule:
+    n_uavs: int
+    tup_s: int  # the mission's signalling interval, before any tup_change
+    # Every event, node failures of the `failures` list included (first), in time order;
+    # events at the same time keep the order they are written in.
+    events: tuple[Event, ...]
+
+    @classmethod
+    def of(cls, mission: Mission) -> EventSchedule:
+        failures = tuple(Event(type="node_failure", at_s=f.at_s, uav=f.uav) for f in mission.failures)
+        events = tuple(sorted(failures + mission.events, key=lambda e: e.at_s))
+        return cls(mission.n_uavs, mission.signalling.tup_s, events)
+
+    def has(self, kind: str) -> bool:
+        return any(e.type == kind for e in self.events)
+
+    def uavs_of(self, ev: Event) -> tuple[int, ...]:
+        """The UAVs a link_blackout or gnss_noise event touches: its `uavs`, or all when empty."""
+        return ev.uavs or tuple(range(self.n_uavs))
+
+    # ------------------------------------------------------------------ what changes at t
+    def changes_at(self, second: int) -> list[Change]:
+        """What starts at `second` (in schedule order), then what ends there."""
+        starts = [Change(second, e) for e in self.events if start_second(e) == second]
+        ends = [Change(second, e, ends=True) for e in self.events if end_second(e) == second]
+        return starts + ends
+
+    # ------------------------------------------------------------------ what is in force at t
+    def active(self, kind: str, t: int) -> tuple[Event, ...]:
+        """The events of `kind` in force at second t, in schedule order."""
+        return tuple(e for e in self.events if e.type == kind and start_second(e) <= t < end_second(e))
+
+    def failure_s(self) -> tuple[float, ...]:
+        """Per UAV, the second it fails at (inf: never); it is dead from then on."""
+        at = [math.inf] * self.n_uavs
+        for e in self.events:
+            if e.type == "node_failure" and e.uav is not None:
+                at[e.uav] = min(at[e.uav], start_second(e))
+        return tuple(float(s) for s in at)
+
+    def tup_at(self, t: int) -> int:
+        """The signalling interval in force at second t (the latest tup_change wins)."""
+        tup = self.tup_s
+        for e in self.events:
+            if e.type == "tup_change" and e.tup_s is not None and start_second(e) <= t:
+                tup = e.tup_s
+        return tup
+
+    def broker_down(self, t: int) -> bool:
+        return bool(self.active("broker_outage", t))
+
+    def cut_off(self, t: int) -> frozenset[int]:
+        """The UAVs whose every link a blackout cuts at second t."""
+        return frozenset(u for e in self.active("link_blackout", t) for u in self.uavs_of(e))
+
+    def gnss_std_m(self, t: int) -> tuple[float, ...]:
+        """Per UAV, the standard deviation (m per axis) of its position noise at second t:
+        independent noises of overlapping gnss_noise events add up in quadrature."""
+        stds: list[list[float]] = [[] for _ in range(self.n_uavs)]
+        for e in self.active("gnss_noise", t):
+            for u in self.uavs_of(e):
+                stds[u].append(float(e.std_m or 0.0))
+        return tuple(math.hypot(*s) for s in stds)
+
+
+def failure_times(
+    schedule: EventSchedule, num_envs: int, gen: torch.Generator, failure_prob: float = 0.0, failure_at_s: float = 100.0
+) -> torch.Tensor:
+    """(num_envs, N) float64: the second each UAV of each episode fails at (inf: never).
+
+    The mission's node failures in every episode, plus the twin's training curriculum: with
+    probability `failure_prob` an episode also loses one UAV, drawn at random, at `failure_at_s`.
+    """
+    b, n = num_envs, schedule.n_uavs
+    fail_at = torch.tensor(schedule.failure_s(), dtype=torch.float64).repeat(b, 1)
+    if failure_prob > 0:
+        hit = torch.rand(b, generator=gen) < failure_prob
+        who = torch.randint(0, n, (b,), generator=gen)
+        rows = torch.nonzero(hit).flatten()
+        at = torch.tensor(float(math.ceil(failure_at_s)), dtype=torch.float64)
+        fail_at[rows, who[rows]] = torch.minimum(fail_at[rows, who[rows]], at)
+    return fail_at
+
+
+__all__ = ["Change", "EventSchedule", "end_second", "failure_times", "start_second"]

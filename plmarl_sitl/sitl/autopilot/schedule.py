@@ -1,0 +1,63 @@
+"""When each telemetry message of each vehicle is due, in sim time.
+
+One heap per host orders all due messages of all vehicles; SET_MESSAGE_INTERVAL bumps a
+per-(vehicle, message) generation so stale heap entries are skipped instead of searched for.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import math
+
+# Streams start on a per-vehicle grid (see Scheduler.set_rate): 0.1 s, the period of the
+# 10 Hz streams, split into 5 phases, one per 50 Hz physics substep.
+STREAM_GRID_S = 0.1
+STREAM_PHASES = 5
+
+
+class Scheduler:
+    """Heap of (due sim time, vehicle, message) over all vehicles of a host."""
+
+    def __init__(self) -> None:
+        self._heap: list[tuple[float, int, int, int, int]] = []
+        self._tie = itertools.count()
+        self._gen: dict[tuple[int, int], int] = {}
+        self._interval: dict[tuple[int, int], float] = {}
+
+    def set_rate(self, vehicle: int, msgid: int, hz: float, now: float) -> None:
+        """Stream `msgid` of `vehicle` at `hz` (0 stops it), starting at the vehicle's next
+        grid point: each vehicle's streams share one phase on a STREAM_GRID_S grid, so
+        its 1 Hz messages fall on its 10 Hz ones and leave in the same datagram (as PX4
+        bundles), and the phase differs between vehicles, so N vehicles' telemetry (and
+        their agents' work) does not all land in the same instant."""
+        key = (vehicle, msgid)
+        gen = self._gen.get(key, 0) + 1
+        self._gen[key] = gen
+        if hz <= 0:
+            self._interval.pop(key, None)
+            return
+        self._interval[key] = 1.0 / hz
+        phase = (vehicle % STREAM_PHASES) * STREAM_GRID_S / STREAM_PHASES
+        first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
+        heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
+
+    def rate(self, vehicle: int, msgid: int) -> float:
+        iv = self._interval.get((vehicle, msgid))
+        return 1.0 / iv if iv else 0.0
+
+    def pop_due(self, now: float) -> list[tuple[int, int]]:
+        """(vehicle, msgid) pairs due at `now`, each rescheduled one interval later."""
+        out = []
+        heap = self._heap
+        while heap and heap[0][0] <= now + 1e-9:
+            due, _, vi, mid, gen = heapq.heappop(heap)
+            if self._gen.get((vi, mid)) != gen:
+                continue
+            iv = self._interval[(vi, mid)]
+            nxt = due + iv
+            if nxt < now - iv:  # far behind (e.g. a huge advance): do not burst
+                nxt = now + iv
+            heapq.heappush(heap, (nxt, next(self._tie), vi, mid, gen))
+            out.append((vi, mid))
+        return out
