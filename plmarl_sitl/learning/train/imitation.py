@@ -98,7 +98,7 @@ def imitate_oracle(
                     belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                     fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
                     ego_x, nbr_x, rel_x, mask = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
-                    a_teacher = teacher.act(obs)
+                    a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
                     live = obs.alive
                     data["ego"].append(ego_x[live])
