@@ -52,6 +52,19 @@ def demand_map(
     return out.scatter_add_(-1, r * cols + c, ones)
 
 
+def map_period(refresh_s: float, decision_every_s: int) -> int:
+    """Seconds between published maps. The twin refreshes at t = 0 and then at the first
+    decision instant (a multiple of tau) at least `refresh_s` after the last map, so the
+    maps fall on the multiples of this period; the SITL world publishes on the same
+    seconds and an agent knows from it when a new map is due."""
+    tau = int(decision_every_s)
+    return tau * max(1, math.ceil(refresh_s / tau - 1e-9))
+
+
+def is_map_instant(t: int, refresh_s: float, decision_every_s: int) -> bool:
+    return t % map_period(refresh_s, decision_every_s) == 0
+
+
 def demand_cells(counts: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
     """The policy's demand input: counts (..., K) and centres (K, 2) -> (..., K, 3)
     [centre north, centre east, count]. Any subset of cells (e.g. only the nonzero ones a
@@ -60,4 +73,4 @@ def demand_cells(counts: torch.Tensor, centres: torch.Tensor) -> torch.Tensor:
     return torch.cat([c, counts.unsqueeze(-1)], -1)
 
 
-__all__ = ["DEMAND_CELL_FIELDS", "cell_centres", "demand_cells", "demand_map", "grid_shape"]
+__all__ = ["DEMAND_CELL_FIELDS", "cell_centres", "demand_cells", "demand_map", "grid_shape", "is_map_instant", "map_period"]

@@ -10,6 +10,12 @@ second, where the twin's per-second work happens with the twin's code:
   mission-frame positions (vehicle local NED + home offset; homes are the twin's launch
   positions at ground level);
 * each vehicle's sensed users (within R_s of its true position) go to `sense/<id>`;
+* the user-density map (`model.demand.demand_map`, the twin's function) goes to the
+  retained `demand` topic for t = 0 when the mission starts and then for every map
+  instant (`model.demand.is_map_instant`: where the twin refreshes its map). The users'
+  motion does not depend on the UAVs, so the world steps them a second ahead and
+  publishes the map of second k during second k - 1: it is at the agents before their
+  decision at k needs it (they still wait, bounded, for a late one);
 * `metrics` carries coverage, lambda_2 and per-UAV truth (JSON).
 
 Signalling is relayed as it arrives: a state on `tx/<j>` goes to `rx/<i>` for every i that
@@ -44,6 +50,7 @@ from typing import TYPE_CHECKING
 import torch
 
 from plmarl_sitl.deploy.mavlink.personality import Behaviour
+from plmarl_sitl.deploy.mqtt.demand import encode_demand
 from plmarl_sitl.deploy.mqtt.schema import (
     INSTANT_WAIT_MIN_S,
     INSTANT_WAIT_WALL_S,
@@ -57,6 +64,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
+from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant
 from plmarl_sitl.model.events import EventSchedule, end_second
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
@@ -143,11 +151,14 @@ class SitlWorld:
         seed = m.seed if cfg.seed is None else cfg.seed
         self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
         self.users: UserState = init_users(m, 1, self.gen, torch.float32)
+        self.users_next: UserState | None = None  # the users of the next mission second (stepped ahead for the map)
+        self.map_seq = 0
         self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
         self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
         # A retained start (and T_up) of a previous run must not reach this run's agents.
         self.bus.publish(self.topics.start, b"", sticky=True)
         self.bus.publish(self.topics.ctl, b"", sticky=True)
+        self.bus.publish(self.topics.demand, b"", sticky=True)
         self.summary = WorldSummary()
         self.t0: float | None = None  # boot second of mission t = 0
         self.mission_t: int | None = None  # last whole mission second processed
@@ -304,7 +315,27 @@ class SitlWorld:
             self.summary.t0_boot_s = self.t0
             self._next_second = self.t0
             self.bus.publish(self.topics.start, encode_json({"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}), sticky=True)
+            self.publish_map(0, self.users)  # the users stay at their t = 0 positions until t0
             log.info("mission starts at boot %.0f s (now %.2f s)", self.t0, self.host.now)
+
+    def publish_map(self, k: int, users: UserState) -> None:
+        """The user-density map of mission second k (users at k) on the retained demand topic."""
+        m = self.mission
+        counts = demand_map(users.xy[0], m.area.north_m, m.area.east_m, m.demand.cell_m)
+        rows, cols = grid_shape(m.area.north_m, m.area.east_m, m.demand.cell_m)
+        payload = encode_demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
+        self.bus.publish(self.topics.demand, payload, sticky=True)
+        self.map_seq += 1
+
+    def _step_users(self, k: int) -> None:
+        """Users at mission second k (stepped ahead at k - 1), and those of k + 1, whose map
+        goes out now if k + 1 is a map instant. The generator is used in the twin's order."""
+        m = self.mission
+        if k >= 1:
+            self.users = self.users_next if self.users_next is not None else step_users(self.users, m, m.timing.dt_s, self.gen)
+        self.users_next = step_users(self.users, m, m.timing.dt_s, self.gen)
+        if is_map_instant(k + 1, m.demand.refresh_s, m.timing.decision_every_s):
+            self.publish_map(k + 1, self.users_next)
 
     def _second(self) -> None:
         """Work at a whole second: mission second k = now - t0 (or a boot second before t0)."""
@@ -312,8 +343,7 @@ class SitlWorld:
         k: int | None = None
         if self.t0 is not None and self.host.now >= self.t0 - 1e-6:
             k = int(round(self.host.now - self.t0))
-            if k >= 1:
-                self.users = step_users(self.users, m, m.timing.dt_s, self.gen)
+            self._step_users(k)
             self.mission_t = k
         pos = self.positions()
         alive = self.alive()
