@@ -11,11 +11,14 @@ second, where the twin's per-second work happens with the twin's code:
   positions at ground level);
 * each vehicle's sensed users (within R_s of its true position) go to `sense/<id>`;
 * the user-density map (`model.demand.demand_map`, the twin's function) goes to the
-  retained `demand` topic for t = 0 when the mission starts and then for every map
-  instant (`model.demand.is_map_instant`: where the twin refreshes its map). The users'
-  motion does not depend on the UAVs, so the world steps them a second ahead and
-  publishes the map of second k during second k - 1: it is at the agents before their
-  decision at k needs it (they still wait, bounded, for a late one);
+  retained `demand` topic for every map instant (`model.demand.is_map_instant`: where
+  the twin refreshes its map), each computed from the users at its instant. The twin's
+  agents see the map of instant k at k, with no delay; a broker has one (seconds of
+  vehicle time with the in-process amqtt on a loaded machine). The users' motion does not
+  depend on the UAVs, so the world steps them one map period ahead and publishes the
+  map of instant k at k - period (map 0 with the start announcement): it is at the
+  agents long before their decision at k, which never uses a map of a later instant
+  (and still waits, bounded, for a late one);
 * `metrics` carries coverage, lambda_2 and per-UAV truth (JSON).
 
 Signalling is relayed as it arrives: a state on `tx/<j>` goes to `rx/<i>` for every i that
@@ -38,6 +41,7 @@ from the same schedule (a failed node's agent process, the broker gate).
 from __future__ import annotations
 
 import asyncio
+import collections
 import heapq
 import itertools
 import logging
@@ -64,7 +68,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
-from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant
+from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant, map_period
 from plmarl_sitl.model.events import EventSchedule, end_second
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
@@ -151,7 +155,7 @@ class SitlWorld:
         seed = m.seed if cfg.seed is None else cfg.seed
         self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
         self.users: UserState = init_users(m, 1, self.gen, torch.float32)
-        self.users_next: UserState | None = None  # the users of the next mission second (stepped ahead for the map)
+        self.users_ahead: collections.deque[UserState] = collections.deque()  # users of seconds k + 1 .. k + map period
         self.map_seq = 0
         self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
         self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
@@ -328,14 +332,19 @@ class SitlWorld:
         self.map_seq += 1
 
     def _step_users(self, k: int) -> None:
-        """Users at mission second k (stepped ahead at k - 1), and those of k + 1, whose map
-        goes out now if k + 1 is a map instant. The generator is used in the twin's order."""
+        """The users at mission second k (stepped earlier), and the seconds ahead up to one
+        map period: a map instant among them has its map published now. One step per
+        second, in order: the generator is used as in the twin."""
         m = self.mission
         if k >= 1:
-            self.users = self.users_next if self.users_next is not None else step_users(self.users, m, m.timing.dt_s, self.gen)
-        self.users_next = step_users(self.users, m, m.timing.dt_s, self.gen)
-        if is_map_instant(k + 1, m.demand.refresh_s, m.timing.decision_every_s):
-            self.publish_map(k + 1, self.users_next)
+            self.users = self.users_ahead.popleft()
+        period = map_period(m.demand.refresh_s, m.timing.decision_every_s)
+        while len(self.users_ahead) < period:
+            last = self.users_ahead[-1] if self.users_ahead else self.users
+            self.users_ahead.append(step_users(last, m, m.timing.dt_s, self.gen))
+            t = k + len(self.users_ahead)
+            if is_map_instant(t, m.demand.refresh_s, m.timing.decision_every_s):
+                self.publish_map(t, self.users_ahead[-1])
 
     def _second(self) -> None:
         """Work at a whole second: mission second k = now - t0 (or a boot second before t0)."""

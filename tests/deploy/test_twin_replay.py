@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import pytest
 import torch
 
 from plmarl_sitl.deploy.agent.clock import MissionClock
@@ -26,7 +25,7 @@ from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant, map_period
 from plmarl_sitl.twin.env import CoverageEnv
 
-from .conftest import MISSION, ROOT, make_untrained_policy
+from .conftest import MISSION, ROOT
 
 TUP = 5
 EPISODE_S = 95  # four demand maps (t = 0, 30, 60, 90)
@@ -97,19 +96,13 @@ def replay(policy_dir: Path, seed: int, fail_at: float) -> dict[str, int]:
     return seen
 
 
-@pytest.fixture(scope="module")
-def v2_policy(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    m = dataclasses.replace(load_mission(MISSION), n_uavs=4)
-    return make_untrained_policy(tmp_path_factory.mktemp("v2"), m)
-
-
-def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy: Path) -> None:
+def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy_dir: Path) -> None:
     """Input version 2: a node fails at t = 10 s on the launch line (its neighbours still
     believe it in range: f = 1) or at t = 70 s; every decision matches the twin's, with
     f raised in some and not in others."""
     total = {"decisions": 0, "f": 0}
     for seed, fail_at in ((0, 10.0), (1, 70.0)):
-        seen = replay(v2_policy, seed, fail_at)
+        seen = replay(v2_policy_dir, seed, fail_at)
         for k in total:
             total[k] += seen[k]
     assert total["decisions"] > 180

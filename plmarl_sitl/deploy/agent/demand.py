@@ -7,8 +7,8 @@ function; empty cells are simply absent), or None before the first map.
 
 When a map is due (`model.demand.is_map_instant`: the seconds the twin refreshes its map),
 the decision waits for it, bounded like a signalling instant (`MissionClock.second_due`);
-the SITL world publishes each map a second ahead, so the wait is a guard against a late
-bus, not the rule. A decision made at a map instant without that map counts as `late`.
+the SITL world publishes each map a map period ahead, so the wait is a guard against a
+late bus, not the rule. A decision made at a map instant without that map counts as `late`.
 Before any map has arrived only the first decision waits (is there a publisher at all?).
 """
 
