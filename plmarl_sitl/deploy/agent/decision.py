@@ -5,9 +5,9 @@ whose grace has passed (failure state f), advance Algorithm 1's tracker one seco
 (`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds run
 `policy.pt` on (ego at the first sample of second k, beliefs, N_i mask, sensing features,
 f, demand map) -> an acceleration, held until the next decision. f and the map are the
-twin's: f latches `model.signalling.silent_in_range` at decisions (`FailureFlags`, the
-class the twin's controllers use) and the map is the newest published one not after k
-(`demand.DemandMaps`). A policy of input version 1 is called as it was trained: without
+twin's: f latches `model.signalling.silent_in_range` on the beliefs of the decision at
+which the twin sees a drop (`failure.FailureFlag`; the twin's controllers use
+`FailureFlags`) and the map is the newest published one not after k (`demand.DemandMaps`). A policy of input version 1 is called as it was trained: without
 the map, with f = "a neighbour was dropped" (`NeighbourTable.lost`). `command()` is what goes to the
 autopilot: before the mission a soft hold where offboard control began, then the
 policy's acceleration through the altitude band guard.
@@ -23,12 +23,12 @@ import torch
 
 from plmarl_sitl.deploy.agent.clock import EPS, MissionClock
 from plmarl_sitl.deploy.agent.demand import DemandMaps
+from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
-from plmarl_sitl.learning.nn.belief import FailureFlags
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
@@ -45,7 +45,7 @@ class Decision:
         self.sense_topic = topics.sense(me)  # where sensing comes from (for the warning when it does not)
         self.tracker, self.policy = lp.tracker, lp.policy
         self.input_version = lp.input_version
-        self.flags = FailureFlags(float(lp.policy.r_comm))  # f of input version 2, as the twin's controllers
+        self.flag = FailureFlag(self.n, clock.tau, float(lp.policy.r_comm))  # f of input version 2
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
@@ -127,8 +127,11 @@ class Decision:
     @torch.inference_mode()
     def _book_misses(self, k: int, sub_s: float) -> None:
         for inst in self.clock.instants_to_book(k, sub_s):
-            for j in self.table.close_instant(float(inst)):
+            dropped = self.table.close_instant(float(inst))
+            for j in dropped:
                 log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed)", j, k, self.table.drop)
+            if dropped:
+                self.flag.on_dropped(inst, dropped)
 
     def second(self, k: int, sub_s: float = 0.0) -> bool:
         """Mission second k (processed `sub_s` late): close the instant, advance the
@@ -148,7 +151,7 @@ class Decision:
         if decided:
             sense = self._sense(ego, k)
             if self.input_version >= 2:
-                fail = self.flags.update(mask, self.belief, ego, torch.tensor(True))
+                fail = torch.tensor(self.flag.on_decision(k, self.belief, ego))
                 got = self.demand.for_decision(k)
                 if got is not None and got[0] != self.used_demand_t:
                     new_map = got[1]
