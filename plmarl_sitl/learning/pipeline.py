@@ -100,6 +100,8 @@ def run_training(
     if res.get("imitation"):
         card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
         card["imitation"] = res["imitation"]
+    card["training"]["selection"] = {**res["selection"], "rule": "best mean coverage of the deterministic actor on a "
+                                     "fixed validation set of training-distribution scenarios (training-range seeds)"}
     card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],
                              "machine": machine_info(), "torch_threads": threads})
     card["config"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}

@@ -3,13 +3,15 @@ predicted-in-range failure flag, the training distribution, and a tiny training 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
 from plmarl_sitl.learning.nn.belief import FailureFlags
-from plmarl_sitl.learning.nn.features import DEMAND_FEATURES, EGO_FEATURES, policy_input
+from plmarl_sitl.learning.nn.features import DEMAND_FEATURES, EGO_FEATURES, TOKEN_FEATURES, policy_input
 from plmarl_sitl.learning.nn.io import script
 from plmarl_sitl.learning.train.mappo import Args, train
 from plmarl_sitl.learning.train.scenarios import training_mission
@@ -56,14 +58,16 @@ def test_input_size_does_not_depend_on_neighbours_clusters_or_cells():
     pol = script(_policy())
     for m, k in ((0, 1), (1, 5), (7, 100), (19, 400)):
         ego, bel, mask, sense, demand = _scenario(gen, m, k)
-        ego_x, nbr_x, rel_x, _ = policy_input(scales, ego, bel, mask, sense, torch.tensor(False), demand)
+        ego_x, nbr_x, rel_x, _, tok_x, tok_m = policy_input(scales, ego, bel, mask, sense, torch.tensor(False), demand)
         assert ego_x.shape == (EGO_FEATURES,) and nbr_x.shape == (m, 6) and rel_x.shape == (m, 3)
+        assert tok_x.shape == (k, TOKEN_FEATURES) and tok_m.shape == (k,)
         assert torch.isfinite(pol(ego, bel, mask, sense, torch.tensor(False), demand)).all()
     # Empty cells and cell order change nothing: a message may carry only the nonzero cells.
     ego, bel, mask, sense, demand = _scenario(gen, 4, 50)
     padded = torch.cat([demand, torch.tensor([[0.0, 0.0, 0.0], [9e3, 9e3, 0.0]])])[torch.randperm(52, generator=gen)]
     a, b = (policy_input(scales, ego, bel, mask, sense, torch.tensor(False), d)[0] for d in (demand, padded))
     assert torch.allclose(a, b)
+    assert torch.allclose(*(pol(ego, bel, mask, sense, torch.tensor(False), d) for d in (demand, padded)), atol=1e-6)
     # No map yet (demand None) is the empty map.
     assert torch.equal(pol(ego, bel, mask, sense, torch.tensor(False)),
                        pol(ego, bel, mask, sense, torch.tensor(False), torch.zeros(1, 3)))
@@ -84,6 +88,21 @@ def test_cells_near_a_believed_neighbour_are_claimed():
     assert float(total.sum()) > 0 and float(free.sum()) == 0.0
     total, free = desc(near_nbr, ~on).chunk(2)  # a masked slot claims nothing
     assert torch.equal(total, free)
+
+
+def test_demand_tokens_say_which_cells_are_nearer_to_a_neighbour():
+    scales = FeatureScales.from_mission(MISSION)
+    ego = torch.tensor([500.0, 500.0, -90.0, 0.0, 0.0, 0.0])
+    demand = torch.tensor([[800.0, 500.0, 60.0], [200.0, 500.0, 30.0], [0.0, 0.0, 0.0]])
+    nbr = torch.tensor([[850.0, 500.0, -90.0, 0.0, 0.0, 0.0]])  # 50 m from cell 0, 650 m from cell 1
+    on = torch.tensor([True])
+    *_, tok, tok_m = policy_input(scales, ego, nbr, on, torch.zeros(4), torch.tensor(False), demand)
+    assert tok_m.tolist() == [True, True, False]
+    r = scales.r_comm
+    assert torch.allclose(tok[0], torch.tensor([300.0 / r, 0.0, math.log1p(1.0), (50.0 - 300.0) / r, math.log1p(1.0)]))
+    assert torch.allclose(tok[1, 3:], torch.tensor([(650.0 - 300.0) / r, 0.0]))
+    *_, tok, _ = policy_input(scales, ego, nbr, ~on, torch.zeros(4), torch.tensor(False), demand)
+    assert tok[0, 3] == 2.0 and tok[0, 4] == 0.0  # a masked slot is nobody
 
 
 def test_failure_flags_latch_only_for_a_neighbour_predicted_in_range():

@@ -37,7 +37,7 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     ego, bel, sense = _inputs(5, m, gen)
     mask = torch.zeros(5, m, dtype=torch.bool)
     mask[:, :n_nbrs] = True
-    ego_x, nbr_x, rel_x, mk = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3),
+    ego_x, nbr_x, rel_x, mk, _, _ = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3),
                                                  SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq())
     assert ego_x.shape == (5, EGO_FEATURES) and nbr_x.shape == (5, m, NBR_FEATURES) and rel_x.shape == (5, m, 3)
     fusion = AttentionFusion()

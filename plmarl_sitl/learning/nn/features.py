@@ -44,6 +44,7 @@ DEMAND_BINS = DEMAND_SECTORS * (len(DEMAND_RING_EDGES_M) + 1)
 DEMAND_FEATURES = 2 * DEMAND_BINS  # all users, unclaimed users
 EGO_FEATURES = 4 + SENSING_FEATURES + 1 + DEMAND_FEATURES  # altitude, velocity, sensing, f, demand
 NBR_FEATURES = 6  # relative belief state (Encoder input)
+TOKEN_FEATURES = 5  # one demand cell as an attention token (demand_tokens)
 REL_FEATURES = 3  # relative displacement / R_comm (PE input)
 
 
@@ -99,6 +100,40 @@ def demand_descriptor(
     return torch.log1p(out / demand_unit)
 
 
+def demand_tokens(
+    ego_pos: torch.Tensor,
+    demand: torch.Tensor,
+    nbr_pos: torch.Tensor,
+    mask: torch.Tensor,
+    r_comm: float,
+    demand_unit: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every demand cell as a token for the policy's demand attention.
+
+    -> (tokens (..., K, TOKEN_FEATURES), token_mask (..., K) = count > 0). A token is
+    [north offset / R_comm, east offset / R_comm, log1p(count / demand_unit), the ground
+    distance of the nearest believed neighbour minus the agent's own / R_comm (clamped to
+    +-2; +2 without neighbours), log1p(believed neighbours nearer the cell than the agent)].
+    The last two are what a decentralised assignment needs: which cells are "mine" (no
+    one is nearer) and how contested the others are. The octant descriptor loses the
+    direction to a cluster to within 45 degrees; a token keeps it exactly.
+    """
+    dn = demand[..., 0] - ego_pos[..., 0:1]
+    de = demand[..., 1] - ego_pos[..., 1:2]
+    count = demand[..., 2]
+    own = torch.sqrt(dn * dn + de * de)
+    cn = demand[..., :, None, 0] - nbr_pos[..., None, :, 0]  # (..., K, M)
+    ce = demand[..., :, None, 1] - nbr_pos[..., None, :, 1]
+    theirs = torch.sqrt(cn * cn + ce * ce)
+    live = mask.unsqueeze(-2)
+    far = torch.full_like(theirs, 4.0 * r_comm)
+    nearest = torch.where(live, theirs, far).min(-1).values if theirs.shape[-1] > 0 else far.sum(-1)
+    nearer = ((theirs < own.unsqueeze(-1)) & live).sum(-1).to(count.dtype)
+    advantage = torch.clamp((nearest - own) / r_comm, -2.0, 2.0)
+    tokens = torch.stack([dn / r_comm, de / r_comm, torch.log1p(count / demand_unit), advantage, torch.log1p(nearer)], -1)
+    return tokens, count > 0
+
+
 def build_policy_input(
     ego: torch.Tensor,
     beliefs: torch.Tensor,
@@ -112,8 +147,9 @@ def build_policy_input(
     claim_m: float,
     demand_unit: float,
     edges_sq: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool).
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool,
+    tok_x (..., K, TOKEN_FEATURES), tok_mask (..., K) bool).
 
     `demand` (..., K, 3) has ego's leading shape (expand one map over the agents of an
     environment). Neighbour slots outside the mask are ignored by the attention and by the
@@ -124,13 +160,14 @@ def build_policy_input(
     ego_x = torch.cat([alt, ego[..., 3:6] / v_max, sense, fail_flag.unsqueeze(-1).to(ego.dtype), desc], -1)
     rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) / r_comm
     nbr_x = torch.cat([rel_x, (beliefs[..., 3:6] - ego[..., 3:6].unsqueeze(-2)) / v_max], -1)
-    return ego_x, nbr_x, rel_x, mask
+    tok_x, tok_mask = demand_tokens(ego[..., 0:3], demand, beliefs[..., 0:3], mask, r_comm, demand_unit)
+    return ego_x, nbr_x, rel_x, mask, tok_x, tok_mask
 
 
 def policy_input(
     scales: FeatureScales, ego: torch.Tensor, beliefs: torch.Tensor, mask: torch.Tensor, sense: torch.Tensor,
     fail_flag: torch.Tensor, demand: torch.Tensor,
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """`build_policy_input` with a mission's constants (the trainers' form); `demand` may be
     one map per environment (B, K, 3) for ego (B, N, 6)."""
     if demand.dim() == ego.dim():

@@ -26,6 +26,7 @@ from plmarl_sitl.learning.nn.features import (
     INPUT_VERSION,
     NBR_FEATURES,
     REL_FEATURES,
+    TOKEN_FEATURES,
     build_policy_input,
     ring_edges_sq,
 )
@@ -75,26 +76,47 @@ class AttentionFusion(nn.Module):
         return h, m, alpha
 
 
+class DemandAttention(nn.Module):
+    """Scaled dot-product attention of the agent over the demand cells (tokens): the query
+    comes from the ego embedding h_i, so the agent can point at one cell and read its exact
+    offset back from the pooled value. Any number of cells; no cells -> a zero vector."""
+
+    def __init__(self, d: int = 32) -> None:
+        super().__init__()
+        self.tok_enc = _ortho(nn.Linear(TOKEN_FEATURES, d))
+        self.query = _ortho(nn.Linear(d, d, bias=False), 1.0)
+        self.key = _ortho(nn.Linear(d, d, bias=False), 1.0)
+        self.scale = 1.0 / d**0.5
+
+    def forward(self, h: torch.Tensor, tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.Tensor:
+        v = torch.tanh(self.tok_enc(tok_x))  # (..., K, d)
+        e = (self.key(v) @ self.query(h).unsqueeze(-1)).squeeze(-1) * self.scale  # (..., K)
+        alpha = torch.softmax(torch.where(tok_mask, e, -1.0e9), -1)
+        alpha = torch.where(tok_mask, alpha, 0.0)
+        return F.elu((alpha.unsqueeze(-2) @ v).squeeze(-2))
+
+
 class Actor(nn.Module):
     def __init__(self, d: int = 32, hidden: int = 64, log_std_init: float = -0.5) -> None:
         super().__init__()
         self.fusion = AttentionFusion(EGO_FEATURES, d)
+        self.demand = DemandAttention(d)
         self.trunk = nn.Sequential(
-            _ortho(nn.Linear(2 * d + EGO_FEATURES, hidden)), nn.Tanh(), _ortho(nn.Linear(hidden, hidden)), nn.Tanh()
+            _ortho(nn.Linear(3 * d + EGO_FEATURES, hidden)), nn.Tanh(), _ortho(nn.Linear(hidden, hidden)), nn.Tanh()
         )
         self.mu = _ortho(nn.Linear(hidden, 3), 0.01)
         self.log_std = nn.Parameter(torch.full((3,), log_std_init))
 
-    def forward(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor,
+                tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.Tensor:
         """Mean of the normalised action u (..., 3), in (-1, 1)."""
         h, m, _ = self.fusion(ego_x, nbr_x, rel_x, mask)
-        return torch.tanh(self.mu(self.trunk(torch.cat([h, m, ego_x], -1))))
+        md = self.demand(h, tok_x, tok_mask)
+        return torch.tanh(self.mu(self.trunk(torch.cat([h, m, md, ego_x], -1))))
 
-    def act(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return self.forward(ego_x, nbr_x, rel_x, mask)
-
-    def dist(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.distributions.Normal:
-        mean = self.forward(ego_x, nbr_x, rel_x, mask)
+    def dist(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor,
+             tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.distributions.Normal:
+        mean = self.forward(ego_x, nbr_x, rel_x, mask, tok_x, tok_mask)
         return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
 
 
@@ -144,6 +166,7 @@ class DeployedPolicy(nn.Module):
     ) -> torch.Tensor:
         if demand is None:  # no map received yet: no demand known beyond the own sensing
             demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
-        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max,
-                                                    self.r_comm, self.claim_m, self.demand_unit, self.edges_sq)
-        return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)
+        ego_x, nbr_x, rel_x, m, tok_x, tok_m = build_policy_input(
+            ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max, self.r_comm, self.claim_m,
+            self.demand_unit, self.edges_sq)
+        return self.actor(ego_x, nbr_x, rel_x, m, tok_x, tok_m) * self.a_max  # tanh mean: already inside (-1, 1)

@@ -53,6 +53,9 @@ class ImitationArgs:
     general: bool = True
 
 
+INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
+
+
 def cat_slots(parts: list[torch.Tensor]) -> torch.Tensor:
     """Concatenate samples of different swarm sizes: (S_k, M_k, ...) -> (sum S_k, max M_k, ...),
     padded with zeros / False (masked neighbour slots, ignored by the policy)."""
@@ -67,7 +70,7 @@ def imitate_oracle(
     scales = FeatureScales.from_mission(mission)
     rng = np.random.default_rng(args.seed)
     opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
-    data: dict[str, list[torch.Tensor]] = {"ego": [], "nbr": [], "rel": [], "mask": [], "u": []}
+    data: dict[str, list[torch.Tensor]] = {k: [] for k in (*INPUTS, "u")}
     t0 = time.time()
     mse = float("nan")
     episodes = 0
@@ -97,25 +100,23 @@ def imitate_oracle(
                 while not env.done:
                     belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                     fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                    ego_x, nbr_x, rel_x, mask = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
+                    x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
                     a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
                     live = obs.alive
-                    data["ego"].append(ego_x[live])
-                    data["nbr"].append(nbr_x[live])
-                    data["rel"].append(rel_x[live])
-                    data["mask"].append(mask[live])
+                    for k, v in zip(INPUTS, x, strict=True):
+                        data[k].append(v[live])
                     data["u"].append(u[live])
-                    a_student = actor(ego_x, nbr_x, rel_x, mask) * scales.a_max
+                    a_student = actor(*x) * scales.a_max
                     obs, _, _ = env.step(torch.where(use_teacher, a_teacher, a_student))
             episodes += n_eps
-        ds = {k: cat_slots(v) if k in ("nbr", "rel", "mask") else torch.cat(v) for k, v in data.items()}
+        ds = {k: torch.cat(v) if k in ("ego", "u") else cat_slots(v) for k, v in data.items()}
         n = ds["u"].shape[0]
         for _ in range(args.epochs):
             perm = torch.randperm(n)
             for lo in range(0, n, args.batch):
                 idx = perm[lo : lo + args.batch]
-                pred = actor(ds["ego"][idx], ds["nbr"][idx], ds["rel"][idx], ds["mask"][idx])
+                pred = actor(*(ds[k][idx] for k in INPUTS))
                 loss = ((pred - ds["u"][idx]) ** 2).sum(-1).mean()
                 opt.zero_grad()
                 loss.backward()

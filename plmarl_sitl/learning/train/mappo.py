@@ -36,7 +36,6 @@ from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
 from plmarl_sitl.learning.nn.features import (
     DEMAND_BINS,
     EGO_FEATURES,
-    NBR_FEATURES,
     FeatureScales,
     demand_descriptor,
     policy_input,
@@ -95,6 +94,13 @@ class Args:
     out: str = "runs/pl-marl"
     threads: int = 1
     checkpoint_every: int = 10  # iterations
+    # Model selection: every `validate_every` iterations (and after the warm start) the
+    # deterministic actor flies a fixed validation set of training-distribution scenarios
+    # (seeds of the training range, never an evaluation seed); the best one is exported.
+    # 0: export the last actor.
+    validate_every: int = 8
+    validation_batches: int = 4
+    validation_envs: int = 6
     extra: dict = field(default_factory=dict)
 
 
@@ -161,6 +167,36 @@ def critic_input(env: CoverageEnv, ego_x: torch.Tensor, scales: FeatureScales) -
     return torch.cat([ego_x, desc[..., :DEMAND_BINS], tail.unsqueeze(1).expand(-1, env.n, -1)], -1)
 
 
+def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
+    """Fixed (scenario, twin seed) pairs drawn like training rollouts, from their own stream."""
+    rng = np.random.default_rng(args.seed + 7_777)
+    tups = [int(x) for x in np.linspace(min(args.tup_choices), max(args.tup_choices), args.validation_batches)]
+    out = []
+    for j, tup in enumerate(tups):
+        scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+        out.append((scenario.with_tup(tup), training_twin_seed(args.seed * 100_003 + 90_000 + j)))
+    return out
+
+
+@torch.no_grad()
+def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: list[tuple[Mission, int]], envs: int,
+             general: bool) -> float:
+    """Mean coverage of the deterministic actor over the validation set (no failures)."""
+    beliefs, flags, covs = Beliefs(tracker), FailureFlags(scales.r_comm), []
+    for m, seed in sets:
+        env = CoverageEnv(m, envs, seed, random_launch=general)
+        obs = env.reset()
+        beliefs.reset()
+        flags.reset()
+        while not env.done:
+            belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+            fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
+            u = actor(*policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand))
+            obs, _, info = env.step(action_to_accel(u, scales.a_max))
+            covs.append(info.coverage.mean())
+    return float(torch.stack(covs).mean())
+
+
 def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
 
@@ -199,6 +235,17 @@ def train(args: Args, progress=None) -> dict:
     iterations = math.ceil(args.episodes / B)
     rng = np.random.default_rng(args.seed)
 
+    val_sets = validation_set(args, mission) if args.validate_every > 0 else []
+    best = {"coverage": -1.0, "episodes": 0, "actor": None}
+
+    def select(episodes: int) -> float:
+        cov = validate(actor, tracker, scales, val_sets, args.validation_envs, args.general)
+        if cov > best["coverage"]:
+            best.update(coverage=cov, episodes=episodes, actor={k: v.clone() for k, v in actor.state_dict().items()})
+        return cov
+
+    if val_sets:
+        select(0)
     curve_path = out / "curve.jsonl"
     curve_f = curve_path.open("w")
     t_start = time.time()
@@ -221,10 +268,7 @@ def train(args: Args, progress=None) -> dict:
         N = env.n
 
         # -------------------------------------------------------------- rollout buffers (N varies per rollout)
-        ego_b = torch.zeros(T, B, N, EGO_FEATURES)
-        nbr_b = torch.zeros(T, B, N, N, NBR_FEATURES)
-        rel_b = torch.zeros(T, B, N, N, 3)
-        mask_b = torch.zeros(T, B, N, N, dtype=torch.bool)
+        inputs_b: list[tuple[torch.Tensor, ...]] = []  # the actor's inputs per step (policy_input)
         act_b = torch.zeros(T, B, N, 3)
         logp_b = torch.zeros(T, B, N)
         live_b = torch.zeros(T, B, N, dtype=torch.bool)
@@ -242,11 +286,11 @@ def train(args: Args, progress=None) -> dict:
             for step in range(T):
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                 fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                ego_x, nbr_x, rel_x, mask = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
-                gs = critic_input(env, ego_x, scales)
-                dist = actor.dist(ego_x, nbr_x, rel_x, mask)
+                x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
+                gs = critic_input(env, x[0], scales)
+                dist = actor.dist(*x)
                 u = dist.sample()
-                ego_b[step], nbr_b[step], rel_b[step], mask_b[step] = ego_x, nbr_x, rel_x, mask
+                inputs_b.append(x)
                 act_b[step], logp_b[step] = u, dist.log_prob(u).sum(-1)
                 live_b[step], gs_b[step], val_b[step] = obs.alive, gs, critic(gs)
                 obs, reward, info = env.step(action_to_accel(u, scales.a_max))
@@ -272,7 +316,7 @@ def train(args: Args, progress=None) -> dict:
         # -------------------------------------------------------------- flatten, death mask
         live = live_b.flatten()
         idx_all = torch.nonzero(live).flatten()
-        f_ego, f_nbr, f_rel, f_mask = ego_b.flatten(0, 2), nbr_b.flatten(0, 2), rel_b.flatten(0, 2), mask_b.flatten(0, 2)
+        f_inputs = [torch.stack(parts).flatten(0, 2) for parts in zip(*inputs_b, strict=True)]
         f_act, f_logp = act_b.flatten(0, 2), logp_b.flatten(0, 2)
         f_adv = adv.flatten()
         f_gs, f_val, f_ret = gs_b.flatten(0, 2), val_b.flatten(), ret_n.flatten()
@@ -286,7 +330,7 @@ def train(args: Args, progress=None) -> dict:
                 if len(mb) < 2:
                     continue
                 rows = mb  # per-agent critic: the same sample row
-                dist = actor.dist(f_ego[mb], f_nbr[mb], f_rel[mb], f_mask[mb])
+                dist = actor.dist(*(x[mb] for x in f_inputs))
                 logp = dist.log_prob(f_act[mb]).sum(-1)
                 ratio = (logp - f_logp[mb]).exp()
                 a = f_adv[mb]
@@ -337,6 +381,8 @@ def train(args: Args, progress=None) -> dict:
             "losses/approx_kl": float(np.mean(stats["kl"])),
             "losses/clipfrac": float(np.mean(stats["clipfrac"])),
         }
+        if val_sets and ((it + 1) % args.validate_every == 0 or it == iterations - 1):
+            row["charts/validation_coverage"] = select(episodes_done)
         curve_f.write(json.dumps(row) + "\n")
         curve_f.flush()
         summary = row
@@ -349,5 +395,8 @@ def train(args: Args, progress=None) -> dict:
                 out / "checkpoint.pt",
             )
     curve_f.close()
-    return {"actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
+    selection = {k: v for k, v in best.items() if k != "actor"}
+    if best["actor"] is not None:
+        actor.load_state_dict(best["actor"])  # the exported actor is the validated best
+    return {"selection": selection, "actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
             "episodes": episodes_done, "last": summary, "curve": str(curve_path), "imitation": warm}
