@@ -44,6 +44,7 @@ TELEMETRY_HZ = 10.0
 TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
+SYSTEM_TIME_ID = 2  # MAVLINK_MSG_ID_SYSTEM_TIME
 UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
 REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
 ASK_HOME_EVERY_S = 2.0  # wall: REQUEST_MESSAGE(HOME_POSITION) again while home is not set
@@ -208,8 +209,7 @@ class VehicleSession:
         t_end = time.monotonic() + bound
         with link.subscribe("HOME_POSITION") as homes:
             while True:
-                with contextlib.suppress(CommandRejected):
-                    await link.request_message(HOME_POSITION_ID)
+                await self._ask(HOME_POSITION_ID)
                 left = t_end - time.monotonic()
                 try:
                     return await homes.next(max(0.0, min(ASK_HOME_EVERY_S, left)))
@@ -218,6 +218,16 @@ class VehicleSession:
                 except VehicleTimeout:
                     if time.monotonic() >= t_end:
                         raise VehicleTimeout(link.sysid, "HOME_POSITION (the autopilot has not set its home)", bound) from None
+
+    async def _ask(self, msgid: int) -> None:
+        """REQUEST_MESSAGE, for an answer that comes through a subscription. Refused or
+        unanswered is no error: an autopilot that streams the message needs no asking."""
+        try:
+            await self.link.request_message(msgid)
+        except LinkLost:
+            raise
+        except (CommandRejected, VehicleTimeout) as exc:
+            log.debug("REQUEST_MESSAGE %d: %s", msgid, exc)
 
     def _place(self, home: Any) -> None:
         """Where the vehicle's local frame lies in the mission frame, from its home: known
@@ -340,10 +350,15 @@ class VehicleSession:
         SYSTEM_TIME. Signalling instants are then multiples of T_up since midnight on every
         vehicle. Without a unix time (no GPS yet) fall back to boot time 0, which agrees
         only between vehicles that booted together (one SITL host)."""
-        try:
-            st = await self.link.recv("SYSTEM_TIME", 5.0)
-        except VehicleTimeout:
-            st = None
+        # Asked for, not only awaited: ArduPilot does not stream SYSTEM_TIME unless told.
+        with self.link.subscribe("SYSTEM_TIME") as times:
+            try:
+                await self._ask(SYSTEM_TIME_ID)
+                st = await times.next(5.0)
+            except LinkLost:
+                raise
+            except VehicleTimeout:
+                st = None
         if st is None or st.time_unix_usec == 0:
             log.warning("no SYSTEM_TIME unix time from the autopilot: signalling instants follow its boot clock")
             return 0.0
