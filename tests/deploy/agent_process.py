@@ -31,26 +31,42 @@ class AgentRun:
 
 
 async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.0,
-                    on_line: Callable[[str], bool | None] | None = None) -> AgentRun:
-    """Run `plmarl agent ARGV` until it exits; `on_line(line)` sees each stderr line and
-    returning True sends SIGINT (Ctrl-C) once."""
+                    on_line: Callable[[str], bool | None] | None = None,
+                    interrupt_when: Callable[[], bool] | None = None) -> AgentRun:
+    """Run `plmarl agent ARGV` until it exits. `on_line(line)` sees each stderr line;
+    returning True sends SIGINT (Ctrl-C), as does `interrupt_when()` turning True (polled
+    every 0.2 s): once."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     proc = await asyncio.create_subprocess_exec(sys.executable, "-m", "plmarl_sitl.cli", "agent", *argv, cwd=cwd, env=env,
                                                 stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
     assert proc.stderr is not None
     lines: list[str] = []
     interrupted = False
+
+    def interrupt() -> None:
+        nonlocal interrupted
+        if not interrupted and proc.returncode is None:
+            proc.send_signal(signal.SIGINT)
+            interrupted = True
+
+    async def poll() -> None:
+        while interrupt_when is not None and not interrupted:
+            if interrupt_when():
+                interrupt()
+            await asyncio.sleep(0.2)
+
+    poller = asyncio.create_task(poll())
     try:
         async with asyncio.timeout(timeout_s):
             while line := (await proc.stderr.readline()).decode():
                 lines.append(line)
-                if on_line is not None and not interrupted and on_line(line):
-                    proc.send_signal(signal.SIGINT)
-                    interrupted = True
+                if on_line is not None and on_line(line):
+                    interrupt()
             await proc.wait()
     except TimeoutError:
         pytest.fail(f"the agent did not end within {timeout_s:g} s:\n{''.join(lines)}")
     finally:
+        poller.cancel()
         if proc.returncode is None:
             proc.kill()
             await proc.wait()
