@@ -45,6 +45,8 @@ EPILOG = """\
 examples:
   plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
   plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff
+  plmarl agent --id 0 --connect tcpout://127.0.0.1:5760 --broker mqtt://127.0.0.1 --bus direct \\
+      --n-uavs 1                # a real ArduCopter SITL (SERIAL0), started at the mission's launch point
   plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot \\
       --rt-priority 20          # SCHED_FIFO, as for any control loop on a companion computer"""
 
