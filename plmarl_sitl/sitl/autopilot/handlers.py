@@ -157,6 +157,10 @@ def _cmd_set_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Ad
         return answers.unknown_stream
     if interval_us < 0 and interval_us != -1 and answers.only_minus_one_stops:
         return DENIED
+    if not v.fleet.boot.ready(v.fleet.now):
+        # ArduPilot acks it but sets up its streams from SRn_ parameters on its first send
+        # after start-up, which overwrites any interval set before "ArduPilot Ready" (measured).
+        return ACCEPTED
     if interval_us < 0:
         hz = 0.0
     elif interval_us == 0:
