@@ -61,6 +61,8 @@ def test_boot_statustexts_in_order(target: Target) -> None:
 def test_home_before_local_position_on_the_real_timeline(target: Target) -> None:
     home, lpn = target.boot["home_s"], target.boot["lpn_s"]
     assert home is not None and lpn is not None, target.boot
+    print(f"{target.name}: home at {home:.1f} s, LOCAL_POSITION_NED at {lpn:.1f} s (vehicle clock), "
+          f"start-up {target.boot['wall_s']:.1f} s wall at x{target.speedup:g}")
     assert home < lpn
     assert home == pytest.approx(HOME_AT_S, abs=BOOT_TOLERANCE_S)
     assert lpn == pytest.approx(POSITION_AT_S, abs=BOOT_TOLERANCE_S)
