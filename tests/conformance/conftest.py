@@ -78,7 +78,11 @@ def record_boot(link: Link, target: Target) -> dict:
 @pytest.fixture(scope="module", params=TARGETS)
 def target(request: pytest.FixtureRequest) -> Iterator[Target]:
     workdir = Path(tempfile.mkdtemp(prefix=f"plmarl-conformance-{request.param}-"))
-    t = _start(request.param, workdir)
+    try:
+        t = _start(request.param, workdir)
+    except BaseException:  # a skip, too: leave no directory behind
+        shutil.rmtree(workdir, ignore_errors=True)
+        raise
     t0 = time.monotonic()
     try:
         link = Link(connect(t), t)
