@@ -18,13 +18,16 @@ from typing import Any, Literal, TypeVar
 
 import yaml
 
+from plmarl_sitl.errors import UserError
+
 T = TypeVar("T")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 
 
-class ConfigError(ValueError):
-    """A configuration value is wrong. `path` is the dotted path to it, `reason` says why."""
+class ConfigError(UserError, ValueError):
+    """A configuration value is wrong. `path` is the dotted path to it, `reason` says why.
+    A user error: the file the user gave needs fixing."""
 
     def __init__(self, path: str, reason: str, source: str | None = None) -> None:
         self.path = path

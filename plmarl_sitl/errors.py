@@ -1,6 +1,16 @@
-"""The toolkit's error tree. Public fields, causes chained with `from`."""
+"""The toolkit's error tree (public fields, causes chained with `from`) and `run_reporting`,
+which turns every failure a user can cause or meet into one line on stderr and an exit code."""
 
 from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+
+# Exit codes of every program (`plmarl ...`, the agent run without the CLI).
+EXIT_USER = 2  # something the user gave is wrong (a flag, a file, a mission that does not fit the vehicle)
+EXIT_VEHICLE = 3  # the vehicle refused, went silent or its link broke
+EXIT_SYSTEM = 1  # the operating system refused (a port in use, a permission)
+EXIT_INTERRUPTED = 130  # Ctrl-C
 
 
 class PlmarlError(Exception):
@@ -18,12 +28,13 @@ class CommandRejected(PlmarlError):
     transient refusal (TEMPORARILY_REJECTED) from a permanent one (DENIED, UNSUPPORTED).
     """
 
-    def __init__(self, sysid: int, command: int, result: int, result_name: str = "") -> None:
+    def __init__(self, sysid: int, command: int, result: int, result_name: str = "", command_name: str = "") -> None:
         self.sysid = sysid
         self.command = command
         self.result = result
         self.result_name = result_name or str(result)
-        super().__init__(f"vehicle {sysid}: command {command} rejected ({self.result_name})")
+        named = f"{command_name} ({command})" if command_name else str(command)
+        super().__init__(f"vehicle {sysid}: command {named} rejected ({self.result_name})")
 
 
 class VehicleTimeout(PlmarlError):
@@ -47,6 +58,14 @@ class LinkLost(VehicleTimeout):
         self.args = (f"vehicle {sysid}: link lost ({reason})",)
 
 
+class VehicleLost(PlmarlError):
+    """A flying vehicle went silent or its link broke: the agent can no longer fly it."""
+
+    def __init__(self, cause: VehicleTimeout) -> None:
+        self.sysid = cause.sysid
+        super().__init__(f"vehicle lost: {cause}")
+
+
 class PolicyFileError(UserError):
     """A policy file (predictor.pt, policy.pt, card.yaml) is missing, corrupt or mismatched."""
 
@@ -54,3 +73,42 @@ class PolicyFileError(UserError):
         self.path = path
         self.problem = problem
         super().__init__(f"{path}: {problem}")
+
+
+def reported(exc: BaseException) -> BaseException:
+    """The exception to report for `exc`: a task group's error is the first one its tasks
+    raised (an asyncio.TaskGroup wraps even a single failure in an ExceptionGroup)."""
+    while isinstance(exc, BaseExceptionGroup):
+        exc = exc.exceptions[0]
+    return exc
+
+
+def exit_code(exc: BaseException) -> int | None:
+    """The exit code for a failure a user can cause or meet; None for anything else (a bug,
+    which keeps its traceback)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return EXIT_INTERRUPTED
+    if isinstance(exc, UserError):
+        return EXIT_USER
+    if isinstance(exc, PlmarlError):
+        return EXIT_VEHICLE
+    if isinstance(exc, OSError):
+        return EXIT_SYSTEM
+    return None
+
+
+def run_reporting(prog: str, body: Callable[[], int | None]) -> int:
+    """Run a program's body and return its exit code; a user-facing failure prints
+    `PROG: error: MESSAGE` (or `PROG: interrupted`) on stderr instead of a traceback."""
+    try:
+        return int(body() or 0)
+    except BaseException as raised:  # noqa: BLE001 - sorted below; anything unknown is re-raised
+        exc = reported(raised)
+        code = exit_code(exc)
+        if code is None:
+            raise
+        if code == EXIT_INTERRUPTED:
+            print(f"{prog}: interrupted", file=sys.stderr)
+        else:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+        return code

@@ -1,8 +1,9 @@
 """`plmarl` command line: one subcommand per module in this package.
 
 Each module listed in SUBCOMMANDS defines `register(subparsers)`, which adds its parser
-and sets `func` (args -> exit code). User errors (bad YAML, bad flags, missing files) are
-`UserError`/`ConfigError` and print one line on stderr with exit code 2, no traceback.
+and sets `func` (args -> exit code). Failures a user can cause or meet print one line on
+stderr and exit non-zero, no traceback (`errors.run_reporting`): user errors (bad YAML,
+bad flags, missing files) 2, a vehicle that refuses or goes silent 3, Ctrl-C 130.
 """
 
 from __future__ import annotations
@@ -11,8 +12,7 @@ import argparse
 import importlib
 import sys
 
-from plmarl_sitl.config import ConfigError
-from plmarl_sitl.errors import UserError
+from plmarl_sitl.errors import run_reporting
 
 SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval", "suite", "world", "agent", "report", "swarm"]
 
@@ -47,14 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
-    try:
-        return int(args.func(args) or 0)
-    except (ConfigError, UserError) as exc:
-        print(f"plmarl {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"plmarl {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return run_reporting(f"plmarl {args.command}", lambda: args.func(args))
 
 
 if __name__ == "__main__":

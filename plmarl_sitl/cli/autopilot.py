@@ -13,7 +13,7 @@ import logging
 import signal
 import sys
 
-from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES, personality
+from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
 
@@ -44,6 +44,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--spacing", type=float, default=5.0, metavar="M",
                    help="vehicle i's home is i*M metres east of the origin (default 5)")
     p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    p.add_argument("--boot", choices=["instant", "real"], default="instant",
+                   help="autopilot start-up: instant (home and position at once, default) or real "
+                   "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time); "
+                   "with real, the clock starts at the first datagram, as ArduPilot's SITL waits for its client)")
     p.add_argument("--signing-key", default=None, metavar="HEX", help="MAVLink 2 signing key, 64 hex digits")
     p.add_argument("--gcs", default=None, metavar="udp:HOST:PORT", help="also push telemetry to this ground station")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S wall seconds")
@@ -77,7 +81,9 @@ def parse_key(text: str) -> bytes:
 
 
 def run(args: argparse.Namespace) -> int:
-    personality(args.personality)  # an unknown name fails here, before anything starts
+    from plmarl_sitl.sitl.autopilot.boot import check_boot
+
+    check_boot(args.personality, args.boot)  # an unknown name fails here, before anything starts
     if not 1 <= args.count <= 250:
         raise UserError("--count must be in 1..250 (one MAVLink system id per vehicle)")
     if not args.speedup > 0:
@@ -102,6 +108,7 @@ async def _main(args: argparse.Namespace) -> int:
         bind_host=args.bind,
         signing_key=parse_key(args.signing_key) if args.signing_key else None,
         gcs=parse_gcs(args.gcs) if args.gcs else None,
+        boot=args.boot,
     )
     try:
         await host.start()
@@ -113,10 +120,16 @@ async def _main(args: argparse.Namespace) -> int:
         loop.add_signal_handler(sig, stop.set)
     print(
         f"plmarl autopilot: {args.count} {args.personality} vehicle(s) on udp {args.bind}:"
-        f"{host.ports[0]}-{host.ports[-1]} (sysid 1-{args.count}), speedup {args.speedup:g}; Ctrl-C stops",
+        f"{host.ports[0]}-{host.ports[-1]} (sysid 1-{args.count}), speedup {args.speedup:g}, boot {args.boot}; "
+        "Ctrl-C stops",
         flush=True,
     )
     try:
+        if args.boot == "real":
+            # ArduPilot's SITL starts its clock when its client connects, so the client sees
+            # the whole start-up (STATUSTEXTs included): do the same.
+            while not stop.is_set() and not any(v.peers for v in host.vehicles):
+                await asyncio.sleep(0.005)
         stats = await run_realtime(host, args.speedup, stop=stop, duration_s=args.duration)
     finally:
         host.close()

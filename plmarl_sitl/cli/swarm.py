@@ -44,6 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_seed(up, default=None)
     up.add_argument("--policy", type=Path, default=None, metavar="DIR", help="policy directory (default policies/pl-marl)")
     up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4", help="autopilot personality (default px4)")
+    up.add_argument("--boot", choices=["instant", "real"], default="instant",
+                    help="autopilot start-up: instant (home and position at once, default) or real "
+                   "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
     up.set_defaults(func=run_up)
@@ -63,17 +66,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_up(args: argparse.Namespace) -> int:
     from plmarl_sitl.errors import UserError
+    from plmarl_sitl.sitl.autopilot.boot import check_boot
     from plmarl_sitl.sitl.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
     from plmarl_sitl.sitl.launcher import run_up as launch
 
     if args.speedup <= 0:
         raise UserError("--speedup must be > 0")
+    check_boot(args.personality, args.boot)
     if args.duration is not None and args.duration < 1:
         raise UserError("--duration must be >= 1 s")
     opts = UpOptions(
         mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
-        personality=args.personality, swarm=args.swarm_name,
+        personality=args.personality, boot=args.boot, swarm=args.swarm_name,
     )
     try:
         summary = launch(opts)

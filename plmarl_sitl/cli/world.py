@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
     p.add_argument("--swarm", default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
     p.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
+    p.add_argument("--boot", choices=["instant", "real"], default="instant",
+                   help="autopilot start-up: instant (home and position at once, default) or real "
+                   "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
     p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs")
@@ -54,9 +57,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.sitl.autopilot.boot import check_boot
 
     if not args.speedup > 0:
         raise UserError("--speedup must be > 0")
+    check_boot(args.personality, args.boot)
     if not 0 <= args.loss <= 1:
         raise UserError("--loss must be in [0, 1]")
     mission = load_mission(args.mission)
@@ -75,6 +80,7 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         broker_url=args.broker,
         swarm=args.swarm,
         personality=args.personality,
+        boot=args.boot,
         speedup=args.speedup,
         base_port=args.base_port,
         seed=None if args.seed < 0 else args.seed,

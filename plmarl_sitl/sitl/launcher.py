@@ -74,6 +74,7 @@ class UpOptions:
     seed: int | None = None
     policy: Path = DEFAULT_POLICY
     personality: str = "px4"
+    boot: str = "instant"  # emulated autopilots' start-up: instant or real (measured timeline)
     swarm: str = "sitl"
     start_timeout_s: float = 120.0  # wall seconds for every vehicle to get airborne
 
@@ -217,7 +218,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             bus_url = gate.url
         base_port = free_udp_ports(n)
         world = SitlWorld(
-            WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, speedup=opts.speedup,
+            WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot, speedup=opts.speedup,
                         base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule),
             on_metrics=on_metrics,
         )

@@ -90,6 +90,7 @@ class WorldConfig:
     broker_url: str
     swarm: str = "sitl"
     personality: str = "px4"
+    boot: str = "instant"  # autopilot start-up: instant, or real (the personality's measured timeline)
     speedup: float = 1.0
     base_port: int = 14540
     seed: int | None = None  # users' seed; None: mission.seed
@@ -150,6 +151,7 @@ class SitlWorld:
             origin=m.origin,
             home_offsets_ned=[tuple(map(float, h)) for h in homes],
             base_port=cfg.base_port,
+            boot=cfg.boot,
         )
         self.radius = CoverageRadius(m.channel, m.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
         seed = m.seed if cfg.seed is None else cfg.seed

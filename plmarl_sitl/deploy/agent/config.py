@@ -12,11 +12,31 @@ from plmarl_sitl.mission import Mission
 
 
 @dataclass(frozen=True)
+class StartupBounds:
+    """How long start-up waits for each step, in wall seconds from the step's start.
+
+    A real ArduCopter SITL at 1x sets its home ~19 s and streams LOCAL_POSITION_NED ~40 s
+    after the link comes up (its EKF needs GPS first); a real vehicle can take longer
+    for a GPS fix. A sped-up SITL or the emulator gets there sooner, so wall bounds sized
+    for 1x hold at any speedup."""
+
+    heartbeat_s: float = 30.0  # an autopilot heartbeat on the link
+    home_s: float = 120.0  # HOME_POSITION (home set: GPS fix and EKF origin)
+    position_s: float = 120.0  # the first LOCAL_POSITION_NED (the EKF uses GPS)
+    arm_s: float = 60.0  # the offboard mode and arming accepted (pre-arm checks pass)
+
+    def __post_init__(self) -> None:
+        for name in ("heartbeat_s", "home_s", "position_s", "arm_s"):
+            if not getattr(self, name) > 0:
+                raise UserError(f"start-up bound {name} must be > 0 s")
+
+
+@dataclass(frozen=True)
 class AgentConfig:
     uav_id: int
     connect_url: str  # the autopilot's URL, for messages (whoever starts the agent builds the link)
     mission: Mission
-    autopilot: str = "auto"  # auto | px4 | ardupilot
+    autopilot: str = "auto"  # auto or a personality name
     tup_s: int | None = None  # None: mission.signalling.tup_s
     swarm: str = "sitl"
     bus_mode: str = "sitl"  # sitl: the world relays tx -> rx/<id>; direct: subscribe tx/+
@@ -24,7 +44,7 @@ class AgentConfig:
     wait_start: bool = True  # wait for the world's start announcement (else start now)
     settle_min_s: float = 0.1  # vehicle s: an instant is never closed earlier than this
     settle_wall_s: float = INSTANT_WAIT_WALL_S  # wall s: ... and at most this late (x the observed speedup, >= INSTANT_WAIT_MIN_S)
-    connect_timeout_s: float = 30.0
+    bounds: StartupBounds = StartupBounds()
     takeoff_timeout_s: float = 120.0  # vehicle seconds
     trace_path: Path | None = None
     stats_path: Path | None = None

@@ -22,7 +22,9 @@ as the `Bus` and `session.Link` protocols. Flying, mission second k = boot_s - t
   wall-clock watchdog so the stream never stops while the process lives.
 
 A broker outage only stops updates: the tracker keeps predicting, the bus reconnects with
-backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE), exit.
+backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE), exit 0.
+A failure ends the run the same way and is raised as itself (`errors.run_reporting` makes
+it one line and an exit code).
 """
 
 from __future__ import annotations
@@ -42,10 +44,12 @@ from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.session import Link, VehicleSession
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace, process_start_time, write_stats
 from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_state
-from plmarl_sitl.errors import VehicleTimeout
+from plmarl_sitl.errors import reported
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 
 log = logging.getLogger("plmarl.agent")
+
+START_WAIT_LOG_S = 10.0  # wall: how often a wait for the SITL world's start is said again
 
 
 class BusCounters(Protocol):
@@ -106,30 +110,41 @@ class Agent:
         self.bus.publish(self.topics.tx(self.me), encode_state(msg))
 
     async def run(self) -> int:
-        """Run until `stop_event` is set (signal handler) or the vehicle goes silent."""
+        """Run until `stop_event` is set (signal handler): 0. A failure (the vehicle refuses,
+        goes silent, is lost; a user error found on the way) is raised as itself, not in
+        the task group's ExceptionGroup, after the vehicle is handed to its stop mode."""
         torch.set_num_threads(1)
         self.trace.open()
-        code = 0
         try:
             async with asyncio.TaskGroup() as tg:
                 helpers = [
                     tg.create_task(self.bus.run(), name="bus"),
                     tg.create_task(self.session.gcs_heartbeat(), name="gcs-heartbeat"),
                     tg.create_task(self.session.watchdog(), name="setpoint-watchdog"),
+                    tg.create_task(self._announce_start_wait(), name="start-wait"),
                 ]
                 main = tg.create_task(self._main(), name="main")
                 helpers.append(tg.create_task(self._cancel_on_stop(main), name="stop-watch"))
                 # The helpers only serve `main`: when it ends, so do they.
                 main.add_done_callback(lambda _t: [h.cancel() for h in helpers])
-        except* VehicleTimeout as eg:
-            log.error("vehicle lost: %s", eg.exceptions[0])
-            code = 3
+        except BaseExceptionGroup as eg:
+            raise reported(eg) from None
         finally:
             await self.session.hold()
             self.session.close()
             self.trace.close()
             self._write_stats()
-        return code
+        return 0
+
+    async def _announce_start_wait(self) -> None:
+        """Waiting for a SITL world's start announcement is said, every START_WAIT_LOG_S,
+        with the way out for a real deployment (which has no world to announce it)."""
+        topic = self.topics.start
+        while True:
+            if self.cfg.wait_start and self.session.flying and self.clock.t0 is None:
+                log.info("waiting for the SITL world's start message on %s (a real deployment has no SITL world: "
+                         "run the agents with --bus direct)", topic)
+            await asyncio.sleep(START_WAIT_LOG_S)
 
     async def _cancel_on_stop(self, main: asyncio.Task) -> None:
         await self.stop_event.wait()

@@ -27,18 +27,26 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from plmarl_sitl.cmdline import rt_priority_arg, tup_arg  # noqa: E402
-from plmarl_sitl.config import ConfigError  # noqa: E402
-from plmarl_sitl.errors import UserError  # noqa: E402
+from plmarl_sitl.config import REPO_ROOT  # noqa: E402
+from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
+from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
+from plmarl_sitl.errors import UserError, run_reporting  # noqa: E402
 
 PROG = "plmarl agent"
 HELP = "run the PL-MARL agent for one UAV (MAVLink + MQTT + TorchScript policy)"
 DESCRIPTION = __doc__.split("\n\n")[1].replace("\n", " ")
-DEFAULT_MISSION = "missions/paper_urban.yaml"
+# The shipped mission and policy, found from the installed project (not the current
+# directory): an agent started from anywhere flies them.
+DEFAULT_MISSION = REPO_ROOT / "missions" / "paper_urban.yaml"
+DEFAULT_POLICY = REPO_ROOT / "policies" / "pl-marl"
+BOUNDS = StartupBounds()
 
 EPILOG = """\
 examples:
   plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
   plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff
+  plmarl agent --id 0 --connect tcpout://127.0.0.1:5760 --broker mqtt://127.0.0.1 --bus direct \\
+      --n-uavs 1                # a real ArduCopter SITL (SERIAL0), started at the mission's launch point
   plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot \\
       --rt-priority 20          # SCHED_FIFO, as for any control loop on a companion computer"""
 
@@ -48,10 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", required=True, metavar="URL",
                    help="autopilot: udpout://HOST:PORT, udpin://BIND:PORT, tcpout://HOST:PORT, serial:///dev/X:BAUD")
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
-    p.add_argument("--mission", default=DEFAULT_MISSION, help=f"mission YAML (default {DEFAULT_MISSION})")
+    p.add_argument("--mission", default=str(DEFAULT_MISSION), help=f"mission YAML (default: the project's {DEFAULT_MISSION})")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs (must match the world)")
-    p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
-    p.add_argument("--autopilot", choices=["auto", "px4", "ardupilot"], default="auto",
+    p.add_argument("--policy", default=str(DEFAULT_POLICY), help=f"policy directory (default: the project's {DEFAULT_POLICY})")
+    p.add_argument("--autopilot", choices=["auto", *PERSONALITIES], default="auto",
                    help="expected autopilot (default auto: from the heartbeat)")
     p.add_argument("--tup", type=tup_arg, default=None, help="signalling interval T_up, s (default: the mission's)")
     p.add_argument("--swarm", default="sitl", help="swarm name: topics plmarl/<swarm>/... (default sitl)")
@@ -66,7 +74,38 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rt-priority", type=rt_priority_arg(), default=None, metavar="P",
                    help="run under SCHED_FIFO at priority P (1-99), as a control loop on a companion computer "
                    "should: then no normal-priority process preempts a decision (needs CAP_SYS_NICE; default off)")
-    p.add_argument("-v", "--verbose", action="store_true")
+    b = p.add_argument_group("start-up bounds (wall seconds each; a real ArduCopter SITL at 1x sets its home "
+                             "~20 s and streams its position ~40 s after the link comes up)")
+    b.add_argument("--wait-heartbeat", type=_seconds, default=BOUNDS.heartbeat_s, metavar="S",
+                   help=f"for an autopilot heartbeat (default {BOUNDS.heartbeat_s:g})")
+    b.add_argument("--wait-home", type=_seconds, default=BOUNDS.home_s, metavar="S",
+                   help=f"for the home position (default {BOUNDS.home_s:g})")
+    b.add_argument("--wait-position", type=_seconds, default=BOUNDS.position_s, metavar="S",
+                   help=f"for the local position stream (default {BOUNDS.position_s:g})")
+    b.add_argument("--wait-arm", type=_seconds, default=BOUNDS.arm_s, metavar="S",
+                   help=f"for the autopilot to accept the offboard mode and arming (default {BOUNDS.arm_s:g})")
+    p.add_argument("-v", "--verbose", action="store_true", help="also log the agent's debug lines")
+    p.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only (no start-up progress)")
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be > 0 s")
+    return value
+
+
+def _output_path(flag: str, path: str | None) -> Path | None:
+    """An output file's path, its directory checked now (not after the flight)."""
+    if path is None:
+        return None
+    out = Path(path)
+    if not out.parent.is_dir():
+        raise UserError(f"{flag} {path}: no such directory {out.parent}")
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -84,8 +123,11 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.mission import load_mission
 
     torch.set_num_threads(1)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+    # INFO by default: start-up says what it waits for (a real autopilot takes tens of seconds).
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO,
                         format=f"%(asctime)s agent{args.id} %(levelname)s %(message)s", stream=sys.stderr)
+    if args.verbose:
+        logging.getLogger("plmarl").setLevel(logging.DEBUG)
     parse_url(args.connect)  # bad URLs fail before anything slow
     mission = load_mission(args.mission)
     if args.n_uavs is not None:
@@ -112,8 +154,9 @@ def run(args: argparse.Namespace) -> int:
         bus_mode=args.bus,
         takeoff=not args.no_takeoff,
         wait_start=start == "wait",
-        trace_path=Path(args.trace) if args.trace else None,
-        stats_path=Path(args.stats_json) if args.stats_json else None,
+        bounds=StartupBounds(args.wait_heartbeat, args.wait_home, args.wait_position, args.wait_arm),
+        trace_path=_output_path("--trace", args.trace),
+        stats_path=_output_path("--stats-json", args.stats_json),
     )
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
@@ -148,14 +191,8 @@ def parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str]) -> int:
-    """`plmarl agent ARGV` without the CLI around it: the same output and exit codes (user
-    errors: one line and 2, Ctrl-C before the agent flies: 130)."""
+    """`plmarl agent ARGV` without the CLI around it: the same output and exit codes
+    (`errors.run_reporting`: one line on stderr; user errors 2, vehicle failures 3,
+    Ctrl-C before the agent flies 130)."""
     args = parser().parse_args(argv)
-    try:
-        return int(run(args) or 0)
-    except (ConfigError, UserError) as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
+    return run_reporting(PROG, lambda: run(args))

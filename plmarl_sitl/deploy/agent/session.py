@@ -1,12 +1,16 @@
 """The agent's vehicle session: everything it says to its autopilot over MAVLink.
 
-Start-up: heartbeat (-> personality), position and home valid, setpoints streaming, mode
-(PX4 OFFBOARD after the stream is up, ArduPilot GUIDED), arm and take off (or attach to
-an airborne vehicle with `takeoff=False`). Flying: every telemetry message goes to the
-agent (`on_telemetry`, which sends the setpoint), a wall-clock watchdog keeps the stream
-up if telemetry stalls, a GCS heartbeat goes out at 1 Hz, and the offboard mode is asked
-back after a setpoint-loss failsafe. Stop: the personality's stop mode (hold or brake).
-Every mode name comes from the personality.
+Start-up, each wait bounded (`config.StartupBounds`) and announced in an INFO line: an
+autopilot heartbeat (-> personality), the home position (a real EKF sets it ~20 s after
+boot), which must lie near the mission area, the local position stream (a real EKF
+streams it once it uses GPS, ~40 s after boot), then the take-off decision from the
+ARMED flag and the height above home: a vehicle on the ground gets the offboard mode
+(ArduPilot GUIDED), is armed once its pre-arm checks pass, and takes off; an armed
+vehicle in the air is attached to as it flies. Flying: every telemetry message goes to
+the agent (`on_telemetry`, which sends the setpoint), a wall-clock watchdog keeps the
+stream up if telemetry stalls, a GCS heartbeat goes out at 1 Hz, and the offboard mode is
+asked back after a setpoint-loss failsafe. Stop: the personality's stop mode (hold or
+brake). Every mode name comes from the personality.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ import gc
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any, Protocol
 
 import torch
@@ -27,8 +31,9 @@ from plmarl_sitl.deploy.agent.config import AgentConfig
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.stats import LoopStats, rss_mb
 from plmarl_sitl.deploy.mavlink.personality import Personality
-from plmarl_sitl.errors import CommandRejected, UserError, VehicleTimeout
-from plmarl_sitl.model.geodesy import geodetic_to_ned
+from plmarl_sitl.errors import CommandRejected, LinkLost, UserError, VehicleLost, VehicleTimeout
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.geodesy import EARTH_RADIUS_M, geodetic_to_ned
 
 log = logging.getLogger("plmarl.agent")
 
@@ -36,10 +41,31 @@ log = logging.getLogger("plmarl.agent")
 # this is also the setpoint rate (>= 10 Hz; PX4 needs > 2 Hz). 20 Hz doubles the load on a
 # SITL world of 20 vehicles at speedup 10 for no gain in a policy acting every 3 s.
 TELEMETRY_HZ = 10.0
+TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
+SYSTEM_TIME_ID = 2  # MAVLINK_MSG_ID_SYSTEM_TIME
 UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
 REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
+ASK_HOME_EVERY_S = 2.0  # wall: REQUEST_MESSAGE(HOME_POSITION) again while home is not set
+NOT_READY_RETRY_S = 1.0  # wall: retry a mode/arm command the autopilot is not ready for
+AIRBORNE_M = 2.0  # above home: an armed vehicle higher than this is flying (attach, no takeoff)
+# A home farther than this outside the mission area is not a launch site of that mission
+# but a wrong --home (ArduPilot SITL's default is Canberra) or a wrong --mission.
+FAR_HOME_M = 5_000.0
+ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED of HEARTBEAT.base_mode
+
+
+class Subscription(Protocol):
+    """A queue of one message type from the link (`mavlink.client.Subscription`)."""
+
+    queued: Any
+
+    async def next(self, timeout: float = ...) -> Any: ...
+    async def newest(self, timeout: float = ...) -> Any: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> Subscription: ...
+    def __exit__(self, *exc: object) -> None: ...
 
 
 class Link(Protocol):
@@ -52,14 +78,34 @@ class Link(Protocol):
     def sysid(self) -> int: ...
     async def open(self, timeout: float = ...) -> None: ...
     def close(self) -> None: ...
-    async def recv(self, mtype: str, timeout: float = ...) -> Any: ...
-    async def request(self, mtype: str, msgid: int, timeout: float = ...) -> Any: ...
+    def subscribe(self, mtype: str, pred: Callable[[Any], bool] | None = ...) -> Subscription: ...
+    async def recv(self, mtype: str, timeout: float = ..., pred: Callable[[Any], bool] | None = ...) -> Any: ...
+    async def request_message(self, msgid: int, timeout: float = ...) -> None: ...
     async def set_message_interval(self, message: str | int, hz: float) -> None: ...
     async def set_mode(self, name: str) -> None: ...
     async def arm(self, force: bool = ...) -> None: ...
     async def takeoff(self, alt_rel_m: float | None = ..., home_amsl_m: float | None = ...) -> None: ...
     def send_accel_ned(self, north: float, east: float, down: float) -> None: ...
     def send_heartbeat(self) -> None: ...
+
+
+def far_home_error(mission: Mission, sysid: int, lat: float, lon: float, alt: float) -> UserError | None:
+    """A UserError naming both positions if a home at (lat, lon) lies more than FAR_HOME_M
+    outside the mission area; None if it is near enough to fly to."""
+    o, area = mission.origin, mission.area
+    north, east, _ = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
+    outside = math.hypot(max(0.0, -north, north - area.north_m), max(0.0, -east, east - area.east_m))
+    if outside <= FAR_HOME_M:
+        return None
+    # Great-circle distance for the message: the flat-earth offsets mean nothing this far out.
+    p1, p2, dl = math.radians(o.lat_deg), math.radians(lat), math.radians(lon - o.lon_deg)
+    c = math.sin(p1) * math.sin(p2) + math.cos(p1) * math.cos(p2) * math.cos(dl)
+    km = EARTH_RADIUS_M * math.acos(max(-1.0, min(1.0, c))) / 1000.0
+    return UserError(
+        f"vehicle {sysid}'s home {lat:.6f}, {lon:.6f} ({alt:.0f} m) is {km:,.0f} km from the mission "
+        f"{mission.name!r} (origin {o.lat_deg:.6f}, {o.lon_deg:.6f}, {o.alt_m:.0f} m): start the autopilot at the "
+        "mission's launch point (ArduPilot SITL: --home LAT,LON,ALT,HEADING) or pass the mission it flies (--mission)"
+    )
 
 
 class VehicleSession:
@@ -71,7 +117,9 @@ class VehicleSession:
         self.vm = cfg.mission.vehicle_model()
         self.started = False  # start() has begun using the link
         self.personality: Personality | None = None  # once the autopilot is found
-        self.home = torch.zeros(3)  # the vehicle's local origin in the mission frame
+        self.origin = torch.zeros(3)  # the vehicle's local NED origin in the mission frame
+        self.home_local = (0.0, 0.0, 0.0)  # the vehicle's home in its local NED frame
+        self.positions: Subscription | None = None  # LOCAL_POSITION_NED, from start-up on
         self.flying = False  # streaming setpoints
         self.last_send_wall = 0.0
         self.reengaged = 0
@@ -81,7 +129,12 @@ class VehicleSession:
     def mission_state(self, m: Any) -> torch.Tensor:
         """[p, v] in the mission frame from a LOCAL_POSITION_NED."""
         local = torch.tensor([m.x, m.y, m.z, m.vx, m.vy, m.vz], dtype=torch.float32)
-        return torch.cat([local[:3] + self.home, local[3:]])
+        return torch.cat([local[:3] + self.origin, local[3:]])
+
+    def height_above_home(self) -> float:
+        """Metres above home, from the latest telemetry (the local frame: no geodesy)."""
+        ego_local_down = float(self.decision.ego[2] - self.origin[2])
+        return self.home_local[2] - ego_local_down
 
     # ------------------------------------------------------------------ setpoints
     def send_setpoint(self) -> None:
@@ -103,8 +156,10 @@ class VehicleSession:
             await asyncio.sleep(1.0)
 
     # ------------------------------------------------------------------ startup
-    async def _telemetry(self) -> None:
-        self.on_telemetry(await self.link.recv("LOCAL_POSITION_NED", 5.0))
+    async def _telemetry(self, timeout: float = TELEMETRY_TIMEOUT_S) -> None:
+        """Hand the newest position to the agent (older queued ones are stale)."""
+        assert self.positions is not None
+        self.on_telemetry(await self.positions.newest(timeout))
 
     async def _wait_until(self, what: str, cond: Callable[[], bool], timeout_s: float) -> None:
         """Wait on telemetry until cond() holds; timeout in VEHICLE seconds (speedup-safe)."""
@@ -113,9 +168,6 @@ class VehicleSession:
             await self._telemetry()
             if self.clock.boot_s - start > timeout_s:
                 raise VehicleTimeout(self.link.sysid, what, timeout_s)
-
-    def _alt(self) -> float:
-        return -float(self.decision.ego[2])
 
     async def _set_mode(self, name: str) -> None:
         for attempt in range(5):
@@ -127,27 +179,138 @@ class VehicleSession:
                     raise
                 await asyncio.sleep(0.2)
 
-    async def start(self) -> None:
-        """Find the autopilot, then take off (or attach) and switch to the offboard mode."""
+    def _waiting(self, bound_s: float, what: str) -> None:
+        log.info("waiting up to %g s for %s", bound_s, what)
+
+    async def _find_autopilot(self) -> Personality:
         cfg, link = self.cfg, self.link
-        self.started = True
+        bound = cfg.bounds.heartbeat_s
+        self._waiting(bound, f"an autopilot heartbeat on {cfg.connect_url}")
         try:
-            await link.open(timeout=cfg.connect_timeout_s)
+            await link.open(timeout=bound)
+        except LinkLost:
+            raise
         except VehicleTimeout as exc:
-            raise UserError(f"no autopilot heartbeat on {cfg.connect_url} within {cfg.connect_timeout_s:g} s") from exc
+            raise UserError(f"no autopilot heartbeat on {cfg.connect_url} within {bound:g} s "
+                            "(is the autopilot running, and is this its address?)") from exc
         assert link.personality is not None
         p = link.personality
         if cfg.autopilot != "auto" and cfg.autopilot != p.name:
             raise UserError(f"--autopilot {cfg.autopilot}, but the vehicle's heartbeat says {p.name}")
-        self.personality = p
         log.info("vehicle sysid %d on %s: %s personality (heartbeat at %.2f s)", link.sysid, cfg.connect_url, p.name,
                  time.time() - self.t_proc0)
+        return p
+
+    async def _wait_home(self) -> Any:
+        """HOME_POSITION, asked for every ASK_HOME_EVERY_S: an autopilot without a home yet
+        (no GPS fix, EKF origin not set) accepts the request and sends nothing."""
+        link, bound = self.link, self.cfg.bounds.home_s
+        self._waiting(bound, "the autopilot's home position (set once it has a GPS fix and an EKF origin)")
+        t_end = time.monotonic() + bound
+        with link.subscribe("HOME_POSITION") as homes:
+            while True:
+                await self._ask(HOME_POSITION_ID)
+                left = t_end - time.monotonic()
+                try:
+                    return await homes.next(max(0.0, min(ASK_HOME_EVERY_S, left)))
+                except LinkLost:
+                    raise
+                except VehicleTimeout:
+                    if time.monotonic() >= t_end:
+                        raise VehicleTimeout(link.sysid, "HOME_POSITION (the autopilot has not set its home)", bound) from None
+
+    async def _ask(self, msgid: int) -> None:
+        """REQUEST_MESSAGE, for an answer that comes through a subscription. Refused or
+        unanswered is no error: an autopilot that streams the message needs no asking."""
+        try:
+            await self.link.request_message(msgid)
+        except LinkLost:
+            raise
+        except (CommandRejected, VehicleTimeout) as exc:
+            log.debug("REQUEST_MESSAGE %d: %s", msgid, exc)
+
+    def _place(self, home: Any) -> None:
+        """Where the vehicle's local frame lies in the mission frame, from its home: known
+        geodetically (lat, lon, alt) and in the local frame (x, y, z; ArduPilot's EKF origin
+        need not be the home). A home far outside the mission area is a UserError."""
+        lat, lon, alt = home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0
+        err = far_home_error(self.cfg.mission, self.link.sysid, lat, lon, alt)
+        if err is not None:
+            raise err
+        o = self.cfg.mission.origin
+        home_mission = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
+        local = (home.x, home.y, home.z)
+        if not all(math.isfinite(v) for v in local):  # no local frame reported: it starts at home
+            local = (0.0, 0.0, 0.0)
+        self.home_local = tuple(float(v) for v in local)  # type: ignore[assignment]
+        self.origin = torch.tensor([h - v for h, v in zip(home_mission, local, strict=True)], dtype=torch.float32)
+
+    async def _wait_position(self) -> None:
+        bound = self.cfg.bounds.position_s
+        self._waiting(bound, "the autopilot's local position (LOCAL_POSITION_NED: streamed once its EKF uses GPS)")
+        try:
+            await self._telemetry(bound)
+        except LinkLost:
+            raise
+        except VehicleTimeout:
+            raise VehicleTimeout(self.link.sysid, "LOCAL_POSITION_NED (the autopilot has no position estimate)", bound) from None
+
+    async def _armed(self) -> bool:
+        """The ARMED flag of the autopilot's next heartbeat (another component's does not count)."""
+        link = self.link
+        hb = await link.recv("HEARTBEAT", 3.0, lambda m: m.get_srcComponent() == 1 and m.get_srcSystem() == link.sysid)
+        return bool(hb.base_mode & ARMED)
+
+    async def _until_ready(self, what: str, step: Callable[[], Awaitable[None]]) -> None:
+        """Run `step` until the autopilot accepts it: a refusal other than UNSUPPORTED means
+        "not ready yet" (pre-arm checks, an EKF still converging) and is retried every
+        NOT_READY_RETRY_S for at most bounds.arm_s; the timeout names the last refusal and
+        what the autopilot last said (its STATUSTEXT, e.g. "PreArm: ...")."""
+        bound = self.cfg.bounds.arm_s
+        self._waiting(bound, f"the autopilot to accept {what} (its pre-arm checks to pass)")
+        t_end = time.monotonic() + bound
+        with self.link.subscribe("STATUSTEXT") as texts:
+            while True:
+                try:
+                    await step()
+                    return
+                except CommandRejected as exc:
+                    if exc.result_name == "MAV_RESULT_UNSUPPORTED":
+                        raise
+                    if time.monotonic() >= t_end:
+                        said = f", it said {texts.queued[-1].text!r}" if texts.queued else ""
+                        raise VehicleTimeout(self.link.sysid, f"acceptance of {what} (last: {exc.result_name}{said})", bound) from exc
+                await asyncio.sleep(NOT_READY_RETRY_S)
+
+    async def _take_off(self, p: Personality, home_amsl_m: float) -> None:
+        link, alt_tgt = self.link, min(max(self.vm.takeoff_alt_m, self.vm.min_alt_m), self.vm.max_alt_m)
+        if p.takeoff_needs_offboard_mode:  # ArduPilot: GUIDED, arm, NAV_TAKEOFF
+
+            async def guided_and_armed() -> None:
+                await self._set_mode(p.offboard_mode)
+                await link.arm()
+
+            await self._until_ready(f"{p.offboard_mode} and arming", guided_and_armed)
+            await link.takeoff(alt_tgt)
+        else:  # PX4: arm, AUTO.TAKEOFF, then OFFBOARD once the stream is up
+            await self._until_ready("arming", link.arm)
+            await link.takeoff(alt_tgt, home_amsl_m=home_amsl_m)
+        log.info("taking off to %.0f m above home", alt_tgt)
+        await self._wait_until(
+            "takeoff", lambda: self.height_above_home() >= alt_tgt - 0.5 and abs(float(self.decision.ego[5])) < 0.3,
+            self.cfg.takeoff_timeout_s,
+        )
+
+    async def start(self) -> None:
+        """Find the autopilot, then take off (or attach) and switch to the offboard mode."""
+        cfg, link = self.cfg, self.link
+        self.started = True
+        p = self.personality = await self._find_autopilot()
+        self.positions = link.subscribe("LOCAL_POSITION_NED")
         await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
-        home = await link.request("HOME_POSITION", HOME_POSITION_ID, timeout=3.0)
-        o = cfg.mission.origin
-        offset = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0)
-        self.home = torch.tensor(offset, dtype=torch.float32)
-        await self._telemetry()
+        home = await self._wait_home()
+        self._place(home)
+        await self._wait_position()
         # Start-up ends here: policy loaded, autopilot found, position and home valid.
         # What follows (arming, climbing) is the vehicle's time, not the agent's.
         self.stats.startup_s = time.time() - self.t_proc0
@@ -162,29 +325,24 @@ class VehicleSession:
         # here, on the ground, because the collection itself takes a while.
         gc.collect()
         gc.freeze()
-        hb = link.latest.get("HEARTBEAT")
-        armed = bool(hb and hb.base_mode & 128)
-        alt_tgt = min(max(self.vm.takeoff_alt_m, self.vm.min_alt_m), self.vm.max_alt_m)
-        if cfg.takeoff and not armed:
-            if p.takeoff_needs_offboard_mode:  # ArduPilot: GUIDED, arm, NAV_TAKEOFF
-                await self._set_mode(p.offboard_mode)
-                await link.arm()
-                await link.takeoff(alt_tgt)
-            else:  # PX4: arm, AUTO.TAKEOFF, then OFFBOARD once the stream is up
-                await link.arm()
-                await link.takeoff(alt_tgt, home_amsl_m=home.altitude / 1000.0)
-            await self._wait_until(
-                "takeoff", lambda: self._alt() >= alt_tgt - 0.5 and abs(float(self.decision.ego[5])) < 0.3, cfg.takeoff_timeout_s
-            )
-        elif not armed:
-            raise UserError("--no-takeoff: the vehicle is not armed (attach only to a flying vehicle)")
+        armed = await self._armed()
+        await self._telemetry()
+        height = self.height_above_home()
+        if armed and height >= AIRBORNE_M:
+            log.info("vehicle armed and %.1f m above home: attaching (no takeoff)", height)
+        elif not cfg.takeoff:
+            state = f"armed, {height:.1f} m above home" if armed else "disarmed"
+            raise UserError(f"--no-takeoff: the vehicle is on the ground ({state}); attach only to a flying vehicle")
+        else:
+            await self._take_off(p, home.altitude / 1000.0)
         # PX4 refuses OFFBOARD until setpoints stream: stream first (hold here), then switch.
         self.decision.hold_target = self.decision.ego[:3].clone()
         self.flying = True
         for _ in range(5):
             await self._telemetry()
         await self._set_mode(p.offboard_mode)
-        log.info("in %s at %.1f m, %.2f s after process start", p.offboard_mode, self._alt(), time.time() - self.t_proc0)
+        log.info("in %s at %.1f m above home, %.2f s after process start", p.offboard_mode, self.height_above_home(),
+                 time.time() - self.t_proc0)
 
     async def common_epoch(self) -> float:
         """t0 on this vehicle's boot clock that every agent of the swarm agrees on, with no
@@ -192,10 +350,15 @@ class VehicleSession:
         SYSTEM_TIME. Signalling instants are then multiples of T_up since midnight on every
         vehicle. Without a unix time (no GPS yet) fall back to boot time 0, which agrees
         only between vehicles that booted together (one SITL host)."""
-        try:
-            st = await self.link.recv("SYSTEM_TIME", 5.0)
-        except VehicleTimeout:
-            st = None
+        # Asked for, not only awaited: ArduPilot does not stream SYSTEM_TIME unless told.
+        with self.link.subscribe("SYSTEM_TIME") as times:
+            try:
+                await self._ask(SYSTEM_TIME_ID)
+                st = await times.next(5.0)
+            except LinkLost:
+                raise
+            except VehicleTimeout:
+                st = None
         if st is None or st.time_unix_usec == 0:
             log.warning("no SYSTEM_TIME unix time from the autopilot: signalling instants follow its boot clock")
             return 0.0
@@ -205,9 +368,13 @@ class VehicleSession:
 
     # ------------------------------------------------------------------ flying
     async def fly(self, stop: asyncio.Event) -> None:
-        """Serve telemetry until `stop` is set (raises VehicleTimeout if the vehicle goes silent)."""
+        """Serve telemetry until `stop` is set (VehicleLost if the vehicle goes silent or its
+        link breaks)."""
         while not stop.is_set():
-            await self._telemetry()
+            try:
+                await self._telemetry()
+            except VehicleTimeout as exc:
+                raise VehicleLost(exc) from exc
             self._check_mode()
 
     def _check_mode(self) -> None:
@@ -252,5 +419,7 @@ class VehicleSession:
             log.error("stopped, but could not command %s: %s (the autopilot's own failsafe takes over)", mode, exc)
 
     def close(self) -> None:
+        if self.positions is not None:
+            self.positions.close()
         if self.started:
             self.link.close()

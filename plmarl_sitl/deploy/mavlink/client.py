@@ -72,7 +72,8 @@ class Subscription:
         self.link = link
         self.mtype = mtype
         self.pred = pred
-        self.dropped = 0
+        self.dropped = 0  # lost for being more than MAX_QUEUED behind
+        self.skipped = 0  # passed over by `newest`
         self.queued: deque[Message] = deque()
         self.ended: LinkLost | None = None
         self._waiter: asyncio.Future[None] | None = None  # set while `next` waits
@@ -103,6 +104,22 @@ class Subscription:
 
     async def next(self, timeout: float = 3.0) -> Message:
         """The oldest queued message, waiting up to `timeout` s for one."""
+        await self._wait(timeout)
+        return self.queued.popleft()
+
+    async def newest(self, timeout: float = 3.0) -> Message:
+        """The newest queued message (older ones are dropped, counted in `skipped`), waiting
+        up to `timeout` s for one: for a control loop, a state that has been superseded is
+        stale, and working through a backlog would only fall further behind."""
+        await self._wait(timeout)
+        self.skipped += len(self.queued) - 1
+        m = self.queued.pop()
+        self.queued.clear()
+        return m
+
+    async def _wait(self, timeout: float) -> None:
+        """Until a message is queued (VehicleTimeout after `timeout` s; the link's LinkLost
+        once it ended and nothing is left)."""
         if not self.queued and self.ended is None:
             self._waiter = asyncio.get_running_loop().create_future()
             try:
@@ -112,10 +129,9 @@ class Subscription:
                 raise VehicleTimeout(self.link.target_sysid or 0, self.mtype, timeout) from None
             finally:
                 self._waiter = None
-        if self.queued:
-            return self.queued.popleft()
-        assert self.ended is not None
-        raise self.ended
+        if not self.queued:
+            assert self.ended is not None
+            raise self.ended
 
     def close(self) -> None:
         self.link.unsubscribe(self)
@@ -157,8 +173,15 @@ class VehicleLink:
 
     # ------------------------------------------------------------------ lifecycle
     async def open(self, timeout: float = 5.0) -> None:
-        """Bind, say hello, and wait for the vehicle's autopilot heartbeat."""
-        await self._open_transport()
+        """Bind (or connect), say hello, and wait for the vehicle's autopilot heartbeat, all
+        within `timeout` s (VehicleTimeout otherwise)."""
+        t_end = asyncio.get_running_loop().time() + timeout
+        try:
+            async with asyncio.timeout(timeout):
+                await self._open_transport()
+        except TimeoutError:
+            raise VehicleTimeout(self.target_sysid or 0, "connection to the autopilot", timeout) from None
+        timeout = max(0.0, t_end - asyncio.get_running_loop().time())
         want = self.target_sysid
 
         def is_autopilot(m: Message) -> bool:
@@ -284,19 +307,25 @@ class VehicleLink:
 
     # ------------------------------------------------------------------ commands
     async def command(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3) -> None:
-        """COMMAND_LONG with retries (confirmation counts up); raises unless ACCEPTED."""
-        p = list(params) + [math.nan] * (7 - len(params))
-        for attempt in range(retries):
-            self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
-            try:
-                ack = await self.recv("COMMAND_ACK", timeout, lambda m: m.command == command)
-            except LinkLost:
-                raise
-            except VehicleTimeout:
-                continue
-            if ack.result != d.MAV_RESULT_ACCEPTED:
-                raise CommandRejected(self.sysid, command, ack.result, enum_name("MAV_RESULT", ack.result))
-            return
+        """COMMAND_LONG with retries (confirmation counts up); raises unless ACCEPTED.
+
+        Params not given are 0, as the MAVLink spec asks for reserved and unused params
+        (ArduPilot DENIES e.g. SET_MESSAGE_INTERVAL with NaN in its reserved param 3).
+        Pass NaN explicitly only where the command defines NaN ("current yaw/position")."""
+        p = list(params) + [0.0] * (7 - len(params))
+        with self.subscribe("COMMAND_ACK", lambda m: m.command == command) as acks:
+            for attempt in range(retries):
+                self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
+                try:
+                    ack = await acks.next(timeout)
+                except LinkLost:
+                    raise
+                except VehicleTimeout:
+                    continue
+                if ack.result != d.MAV_RESULT_ACCEPTED:
+                    raise CommandRejected(self.sysid, command, ack.result, enum_name("MAV_RESULT", ack.result),
+                                          enum_name("MAV_CMD", command))
+                return
         raise VehicleTimeout(self.sysid, f"COMMAND_ACK for command {command}", timeout * retries)
 
     async def arm(self, force: bool = False) -> None:
@@ -326,36 +355,47 @@ class VehicleLink:
                 alt = home_amsl_m + alt_rel_m
             else:
                 alt = alt_rel_m
+        # param4 yaw NaN: keep the current heading; params 5-6 NaN: here (PX4 flies to a
+        # given lat/lon; ArduCopter ignores them). Params 1-3 (pitch, empty) are 0.
         await self.command(d.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, alt)
 
     async def land(self) -> None:
-        await self.command(d.MAV_CMD_NAV_LAND)
+        # Params 1-3 (abort altitude: default; precision mode: off; empty) 0; yaw, lat, lon
+        # and ground altitude NaN: keep the heading and land here, on whatever ground is below.
+        await self.command(d.MAV_CMD_NAV_LAND, 0, 0, 0, math.nan, math.nan, math.nan, math.nan)
 
     async def set_message_interval(self, message: str | int, hz: float) -> None:
         """Stream `message` at `hz` (0 stops it)."""
         msgid = message if isinstance(message, int) else getattr(d, f"MAVLINK_MSG_ID_{message.upper()}")
         interval = -1.0 if hz <= 0 else 1e6 / hz
-        await self.command(d.MAV_CMD_SET_MESSAGE_INTERVAL, float(msgid), interval)
+        # Params 3-6 reserved (0: ArduPilot denies anything else in param 3); param 7, the
+        # response target, 0: the flight stack's default (the link that asked).
+        await self.command(d.MAV_CMD_SET_MESSAGE_INTERVAL, float(msgid), interval, 0, 0, 0, 0, 0)
+
+    async def request_message(self, msgid: int, timeout: float = 1.0) -> None:
+        """MAV_CMD_REQUEST_MESSAGE: ask for one `msgid` message (raises unless ACCEPTED; an
+        autopilot may accept and still send nothing while it has no such data, as ArduPilot
+        does for HOME_POSITION before its home is set)."""
+        # Params 2-6 (the message's own request params) unused: 0; param 7 response target 0 (default).
+        await self.command(d.MAV_CMD_REQUEST_MESSAGE, float(msgid), 0, 0, 0, 0, 0, 0, timeout=timeout)
 
     async def request(self, mtype: str, msgid: int, timeout: float = 2.0) -> Message:
-        """MAV_CMD_REQUEST_MESSAGE and the message it brings (in either order)."""
-        waiter = asyncio.ensure_future(self.recv(mtype, timeout))
-        try:
-            await self.command(d.MAV_CMD_REQUEST_MESSAGE, float(msgid), timeout=timeout)
-            return await waiter
-        finally:
-            waiter.cancel()
+        """MAV_CMD_REQUEST_MESSAGE and the message it brings (in either order: the
+        subscription is made before the command goes out)."""
+        with self.subscribe(mtype) as answers:
+            await self.request_message(msgid, timeout)
+            return await answers.next(timeout)
 
     # ------------------------------------------------------------------ parameters
     async def param_get(self, name: str, timeout: float = 2.0) -> float:
         """A parameter's wire value (REAL32 as is; integers as their wire float)."""
-        waiter = asyncio.ensure_future(self.recv("PARAM_VALUE", timeout, lambda m: param_id_str(m.param_id) == name))
-        self.send(self.codec.mav.param_request_read_encode(self.sysid, 1, name.encode(), -1))
-        return float((await waiter).param_value)
+        with self.subscribe("PARAM_VALUE", lambda m: param_id_str(m.param_id) == name) as values:
+            self.send(self.codec.mav.param_request_read_encode(self.sysid, 1, name.encode(), -1))
+            return float((await values.next(timeout)).param_value)
 
     async def param_set(self, name: str, value: float, param_type: int = d.MAV_PARAM_TYPE_REAL32,
                         timeout: float = 2.0) -> float:
         """Set a parameter; returns the value the vehicle reports back (unchanged if refused)."""
-        waiter = asyncio.ensure_future(self.recv("PARAM_VALUE", timeout, lambda m: param_id_str(m.param_id) == name))
-        self.send(self.codec.mav.param_set_encode(self.sysid, 1, name.encode(), value, param_type))
-        return float((await waiter).param_value)
+        with self.subscribe("PARAM_VALUE", lambda m: param_id_str(m.param_id) == name) as values:
+            self.send(self.codec.mav.param_set_encode(self.sysid, 1, name.encode(), value, param_type))
+            return float((await values.next(timeout)).param_value)

@@ -114,20 +114,35 @@ class _WriterTransport:
 
 
 class TcpLink(_StreamMixin, VehicleLink):
+    """A TCP client (ArduPilot SITL's SERIAL0). Until the autopilot listens, connecting is
+    retried (`open` bounds it); once connected, the autopilot closing the connection ends
+    the link at once: every wait on it raises LinkLost."""
+
     _writer: asyncio.StreamWriter | None = None
+    RETRY_CONNECT_S = 0.5
 
     async def _open_transport(self) -> None:
-        async with asyncio.timeout(5.0):
-            reader, self._writer = await asyncio.open_connection(*self.addr)
+        while True:
+            try:
+                reader, self._writer = await asyncio.open_connection(*self.addr)
+                break
+            except OSError as exc:  # refused: not listening yet (a SITL still starting)
+                log.debug("tcp %s:%d: %s; retrying", *self.addr, exc)
+                await asyncio.sleep(self.RETRY_CONNECT_S)
         self._reader_task = asyncio.create_task(self._read(reader), name=f"mavlink-tcp-{self.addr[1]}")
         self._transport = _WriterTransport(self._close_stream)  # type: ignore[assignment]
 
     async def _read(self, reader: asyncio.StreamReader) -> None:
-        while data := await reader.read(4096):
-            self._on_stream(data)
+        try:
+            while data := await reader.read(4096):
+                self._on_stream(data)
+            reason = "the autopilot closed the connection"
+        except OSError as exc:  # reset by the peer
+            reason = str(exc) or type(exc).__name__
+        self._lose(f"tcp {self.addr[0]}:{self.addr[1]}: {reason}")
 
     def _write(self, data: bytes) -> None:
-        if self._writer is not None and not self._writer.is_closing():
+        if self._writer is not None and not self._writer.is_closing() and self.lost is None:
             self._writer.write(data)  # buffered by asyncio: never blocks
 
     def _close_stream(self) -> None:

@@ -37,6 +37,37 @@ class ModeSpec:
     name: str
     custom_mode: int
     behaviour: Behaviour
+    needs_position: bool = False  # ArduPilot `requires_GPS()`: no arming (or entering it armed) without a position
+
+
+@dataclass(frozen=True)
+class BootTimeline:
+    """When a real autopilot gets ready, in seconds of its own clock after its link came up.
+
+    Measured on ArduCopter 4.7 SITL (docs/CONFORMANCE.md); an emulator booting "real" follows
+    it in sim time, a client must wait this long for home and position.
+    """
+
+    texts: tuple[tuple[float, str], ...]  # STATUSTEXTs at their instants
+    ready_s: float  # the heartbeat leaves MAV_STATE_BOOT
+    attitude_s: float  # the EKF is initialised: arming possible in modes without a position
+    origin_s: float  # EKF origin and home set: HOME_POSITION and GPS_GLOBAL_ORIGIN exist
+    position_s: float  # the EKF uses GPS: LOCAL_POSITION_NED, GLOBAL_POSITION_INT, arming in GUIDED
+
+
+@dataclass(frozen=True)
+class Answers:
+    """The MAV_RESULTs where PX4 and ArduPilot answer the same command differently
+    (ArduPilot: GCS_Common.cpp, checked against a real ArduCopter by tests/conformance)."""
+
+    refused: int  # a well-formed command the vehicle's state refuses (arm, disarm, takeoff, mode)
+    bad_arm_param: int  # COMPONENT_ARM_DISARM with param1 neither 0 nor 1
+    unknown_stream: int  # SET_MESSAGE_INTERVAL for a message it cannot stream
+    unknown_request: int  # REQUEST_MESSAGE for a message it cannot send
+    unavailable_request: int  # REQUEST_MESSAGE for a message that does not exist yet (home before origin)
+    interval_param3_must_be_zero: bool  # SET_MESSAGE_INTERVAL param3 (reserved) other than 0: DENIED
+    only_minus_one_stops: bool  # interval -1 stops a stream and other negatives are DENIED (else any < 0 stops)
+    set_mode_message_acked: bool  # the legacy SET_MODE message gets a COMMAND_ACK
 
 
 @dataclass(frozen=True)
@@ -72,6 +103,10 @@ class Personality:
     offboard_from_ground: bool  # PX4 follows setpoints on the ground; ArduPilot GUIDED needs a takeoff first
     offboard_timeout_s: float  # default setpoint-loss timeout (COM_OF_LOSS_T / GUID_TIMEOUT)
     land_speed_mps: float  # default final descent speed (MPC_LAND_SPEED / LAND_SPEED), capped by the airframe
+    answers: Answers
+    base_mode_flags: int  # HEARTBEAT base_mode bits besides SAFETY_ARMED
+    arm_texts: tuple[str, str]  # STATUSTEXT on arming, on disarming
+    boot_timeline: BootTimeline | None  # measured start-up of the real one (None: not measured)
 
     def mode(self, name: str) -> ModeSpec:
         for m in self.modes:
@@ -145,6 +180,19 @@ PX4 = Personality(
     offboard_from_ground=True,
     offboard_timeout_s=1.0,
     land_speed_mps=0.7,
+    answers=Answers(
+        refused=dialect.MAV_RESULT_DENIED,
+        bad_arm_param=dialect.MAV_RESULT_DENIED,
+        unknown_stream=dialect.MAV_RESULT_UNSUPPORTED,
+        unknown_request=dialect.MAV_RESULT_UNSUPPORTED,
+        unavailable_request=dialect.MAV_RESULT_DENIED,
+        interval_param3_must_be_zero=False,
+        only_minus_one_stops=False,
+        set_mode_message_acked=True,
+    ),
+    base_mode_flags=dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+    arm_texts=("Armed", "Disarmed"),
+    boot_timeline=None,
 )
 
 ARDUPILOT = Personality(
@@ -153,11 +201,11 @@ ARDUPILOT = Personality(
     modes=(
         ModeSpec("STABILIZE", 0, Behaviour.HOLD),
         ModeSpec("ALT_HOLD", 2, Behaviour.HOLD),
-        ModeSpec("GUIDED", 4, Behaviour.OFFBOARD),
-        ModeSpec("LOITER", 5, Behaviour.HOLD),
+        ModeSpec("GUIDED", 4, Behaviour.OFFBOARD, needs_position=True),
+        ModeSpec("LOITER", 5, Behaviour.HOLD, needs_position=True),
         ModeSpec("LAND", 9, Behaviour.LAND),
-        ModeSpec("POSHOLD", 16, Behaviour.HOLD),
-        ModeSpec("BRAKE", 17, Behaviour.BRAKE),
+        ModeSpec("POSHOLD", 16, Behaviour.HOLD, needs_position=True),
+        ModeSpec("BRAKE", 17, Behaviour.BRAKE, needs_position=True),
     ),
     boot_mode="STABILIZE",
     hold_mode="LOITER",
@@ -170,7 +218,7 @@ ARDUPILOT = Personality(
         ParamSpec("GUID_TIMEOUT", "offboard_timeout_s", _REAL32),
         ParamSpec("LAND_SPEED", "land_speed_mps", dialect.MAV_PARAM_TYPE_INT16, 100.0),
         ParamSpec("PILOT_TKOFF_ALT", "takeoff_alt_m", _REAL32, 100.0),
-        ParamSpec("SYSID_THISMAV", "sysid", dialect.MAV_PARAM_TYPE_INT16),
+        ParamSpec("MAV_SYSID", "sysid", dialect.MAV_PARAM_TYPE_INT16),  # SYSID_THISMAV before 4.7
         ParamSpec("WPNAV_ACCEL", "max_accel_mps2", _REAL32, 100.0),
         ParamSpec("WPNAV_SPEED", "max_speed_mps", _REAL32, 100.0),
         ParamSpec("WPNAV_SPEED_UP", "max_climb_mps", _REAL32, 100.0),
@@ -184,6 +232,35 @@ ARDUPILOT = Personality(
     offboard_from_ground=False,
     offboard_timeout_s=3.0,
     land_speed_mps=0.5,
+    answers=Answers(
+        refused=dialect.MAV_RESULT_FAILED,
+        bad_arm_param=dialect.MAV_RESULT_UNSUPPORTED,
+        unknown_stream=dialect.MAV_RESULT_DENIED,
+        unknown_request=dialect.MAV_RESULT_FAILED,
+        unavailable_request=dialect.MAV_RESULT_ACCEPTED,  # queued; sent once it exists
+        interval_param3_must_be_zero=True,
+        only_minus_one_stops=True,
+        set_mode_message_acked=False,
+    ),
+    # ArduCopter's base_mode(): STABILIZE, GUIDED (position controller active), MANUAL_INPUT, CUSTOM_MODE
+    base_mode_flags=(
+        dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | dialect.MAV_MODE_FLAG_GUIDED_ENABLED
+        | dialect.MAV_MODE_FLAG_STABILIZE_ENABLED | dialect.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+    ),
+    arm_texts=("Arming motors", "Disarming motors"),  # what ArduPilot's SITL build says
+    boot_timeline=BootTimeline(
+        texts=(
+            (1.4, "ArduPilot Ready"),
+            (3.4, "EKF3 IMU0 initialised"),
+            (3.4, "AHRS: EKF3 active"),
+            (19.0, "EKF3 IMU0 origin set"),
+            (40.0, "EKF3 IMU0 is using GPS"),
+        ),
+        ready_s=1.4,
+        attitude_s=3.4,
+        origin_s=19.0,
+        position_s=40.0,
+    ),
 )
 
 PERSONALITIES = {p.name: p for p in (PX4, ARDUPILOT)}

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from plmarl_sitl.model.vehicle import Limits, step_point_mass
+from plmarl_sitl.sitl.autopilot.boot import Boot
 from plmarl_sitl.sitl.autopilot.guidance import Guidance, Kind
 from plmarl_sitl.sitl.autopilot.schedule import Scheduler
 
@@ -32,11 +33,13 @@ _ENDS_ON_GROUND = (Kind.LAND, Kind.FALL)
 class Fleet:
     """State of `count` vehicles; vehicle i owns row i of every array.
 
-    `rates` are the telemetry streams every vehicle starts with (message id -> Hz of sim time).
+    `rates` are the telemetry streams every vehicle starts with (message id -> Hz of sim time);
+    `boot` the start-up stages all vehicles go through together (default: ready at once).
     """
 
-    def __init__(self, count: int, limits: Limits, rates: Mapping[int, float]) -> None:
+    def __init__(self, count: int, limits: Limits, rates: Mapping[int, float], boot: Boot | None = None) -> None:
         self.limits = limits
+        self.boot = boot or Boot(None)
         self.now = 0.0  # sim seconds since boot
         self.unix_at_boot = time.time()
         self.guidance = Guidance(count)

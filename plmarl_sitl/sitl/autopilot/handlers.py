@@ -101,7 +101,7 @@ def _finite(*xs: float) -> bool:
 def _cmd_arm(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     if not _finite(p[0]) or p[0] not in (0.0, 1.0):
         v.drop("bad_value", f"arm param1 {p[0]}")
-        return DENIED
+        return v.personality.answers.bad_arm_param
     force = p[1] == FORCE_ARM_MAGIC
     return v.arm(force) if p[0] == 1.0 else v.disarm(force)
 
@@ -113,7 +113,16 @@ def _cmd_set_mode(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     if not int(p[0]) & d.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
         return DENIED
     spec = v.personality.mode_by_custom(v.personality.custom_mode_from_set_mode(p[1], p[2]))
-    return DENIED if spec is None else v.set_mode(spec)
+    if spec is None:
+        return _no_such_mode(v, int(p[1]))
+    return v.set_mode(spec)
+
+
+def _no_such_mode(v: Vehicle, number: int) -> int:
+    result = v.personality.answers.refused
+    if result != DENIED:  # ArduPilot says why it failed
+        v.statustext(f"No such mode {number}", d.MAV_SEVERITY_WARNING)
+    return result
 
 
 def _cmd_takeoff(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
@@ -126,7 +135,7 @@ def _cmd_takeoff(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     elif v.personality.takeoff_alt_is_amsl:
         rel = alt - v.home_geodetic[2]
     else:
-        rel = alt if alt > 0 else None
+        rel = alt  # ArduPilot: above home; 0 or below is "taking off downwards" and fails
     return v.takeoff(rel)
 
 
@@ -135,12 +144,23 @@ def _cmd_land(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
 
 
 def _cmd_set_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    answers = v.personality.answers
+    if answers.interval_param3_must_be_zero and p[2] != 0.0:
+        # Reserved in the MAVLink spec ("send 0"); ArduPilot denies anything else, NaN included.
+        v.drop("bad_value", f"SET_MESSAGE_INTERVAL param3 {p[2]} (reserved: 0)")
+        return DENIED
     if not _finite(p[0], p[1]):
         v.drop("bad_value", f"SET_MESSAGE_INTERVAL params {p[:2]}")
         return DENIED
     msgid, interval_us = int(p[0]), p[1]
     if msgid not in telemetry.BUILDERS or msgid == d.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-        return UNSUPPORTED
+        return answers.unknown_stream
+    if interval_us < 0 and interval_us != -1 and answers.only_minus_one_stops:
+        return DENIED
+    if not v.fleet.boot.ready(v.fleet.now):
+        # ArduPilot acks it but sets up its streams from SRn_ parameters on its first send
+        # after start-up, which overwrites any interval set before "ArduPilot Ready" (measured).
+        return ACCEPTED
     if interval_us < 0:
         hz = 0.0
     elif interval_us == 0:
@@ -166,10 +186,10 @@ def _cmd_get_message_interval(v: Vehicle, p: list[float], msg: Message, addr: Ad
 def _send_once(v: Vehicle, msgid: int, addr: Addr) -> int:
     builder = telemetry.BUILDERS.get(msgid)
     if builder is None:
-        return UNSUPPORTED
+        return v.personality.answers.unknown_request
     m = builder(v)
-    if m is None:
-        return DENIED
+    if m is None:  # e.g. home before the EKF origin
+        return v.personality.answers.unavailable_request
     v.send(m, addr)
     return ACCEPTED
 
@@ -186,6 +206,8 @@ def _cmd_autopilot_capabilities(v: Vehicle, p: list[float], msg: Message, addr: 
 
 
 def _cmd_get_home(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    if telemetry.home_position(v) is None:
+        return v.personality.answers.refused  # ArduPilot: FAILED until home is set
     return _send_once(v, d.MAVLINK_MSG_ID_HOME_POSITION, addr)
 
 
@@ -221,12 +243,14 @@ def _command_int(v: Vehicle, msg: Message, addr: Addr) -> None:
 
 
 def _set_mode_msg(v: Vehicle, msg: Message, addr: Addr) -> None:
-    """Legacy SET_MODE (MAVProxy, old GCSs): ArduPilot answers it with a COMMAND_ACK too."""
+    """Legacy SET_MODE (MAVProxy, old GCSs). ArduPilot 4.7 changes the mode without a
+    COMMAND_ACK (the client sees it in the next HEARTBEAT); our PX4 personality acks it."""
     if msg.target_system not in (0, v.sysid):
         return
     spec = v.personality.mode_by_custom(msg.custom_mode)
-    result = DENIED if spec is None else v.set_mode(spec)
-    _ack(v, msg, addr, d.MAVLINK_MSG_ID_SET_MODE, result)
+    result = _no_such_mode(v, msg.custom_mode) if spec is None else v.set_mode(spec)
+    if v.personality.answers.set_mode_message_acked:
+        _ack(v, msg, addr, d.MAVLINK_MSG_ID_SET_MODE, result)
 
 
 # ---------------------------------------------------------------------------- params

@@ -28,6 +28,7 @@ from plmarl_sitl.mission import Origin
 from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.model.vehicle import Limits
 from plmarl_sitl.sitl.autopilot import handlers, telemetry
+from plmarl_sitl.sitl.autopilot.boot import Boot, boot_timeline
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.fleet import Fleet
 from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
@@ -76,7 +77,8 @@ class AutopilotHost:
 
     `home_offsets_ned[i]` is where vehicle i's home (and local NED origin) sits in the
     mission frame, whose geodetic origin is `origin`. `streams` overrides the default
-    telemetry rates (message name or id -> Hz of sim time; 0 disables).
+    telemetry rates (message name or id -> Hz of sim time; 0 disables). `boot` is "instant"
+    (home and position at once) or "real" (the personality's measured start-up timeline).
     """
 
     def __init__(
@@ -94,6 +96,7 @@ class AutopilotHost:
         physics_hz: float = 50.0,
         streams: Mapping[str | int, float] | None = None,
         sysids: Sequence[int] | None = None,
+        boot: str = "instant",
     ) -> None:
         if count < 1:
             raise ValueError("count must be >= 1")
@@ -119,7 +122,9 @@ class AutopilotHost:
         rates = dict(telemetry.DEFAULT_RATES)
         for k, hz in (streams or {}).items():
             rates[telemetry.message_id(k)] = float(hz)
-        self.fleet = Fleet(count, Limits.ground_to_ceiling(self.model), rates)
+        self.boot = boot
+        self.fleet = Fleet(count, Limits.ground_to_ceiling(self.model), rates,
+                           Boot(boot_timeline(self.personality, boot)))
         self.vehicles = [
             Vehicle(
                 self.fleet, i, sysids[i], self.personality, self.model,
@@ -246,6 +251,7 @@ class AutopilotHost:
                 f.unwatch(i)
         for i in f.setpoints_lost():
             self.vehicles[i].check_setpoint_loss(f.now)
+        self._boot_events()
         due: dict[int, list[int]] = {}
         for vi, msgid in f.streams.pop_due(f.now):
             due.setdefault(vi, []).append(msgid)
@@ -253,3 +259,17 @@ class AutopilotHost:
             v = self.vehicles[vi]
             if v.peers or self.gcs is not None:
                 v.send_bundle([telemetry.BUILDERS[msgid](v) for msgid in ids])
+
+    def _boot_events(self) -> None:
+        """Start-up on the real timeline: its STATUSTEXTs, and home and origin sent unasked
+        when the EKF sets its origin (as ArduPilot does)."""
+        boot, now = self.fleet.boot, self.fleet.now
+        if boot.timeline is None:
+            return
+        texts = boot.due_texts(now)
+        origin = boot.origin_just_set(now)
+        for v in self.vehicles:
+            for text in texts:
+                v.statustext(text)
+            if origin:
+                v.send_bundle([telemetry.home_position(v), telemetry.gps_global_origin(v)])

@@ -54,10 +54,13 @@ def _ms(v: Vehicle) -> int:
 
 
 def heartbeat(v: Vehicle) -> Message:
-    base = d.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+    base = v.personality.base_mode_flags
     if v.armed:
         base |= d.MAV_MODE_FLAG_SAFETY_ARMED
-    status = d.MAV_STATE_ACTIVE if v.armed else d.MAV_STATE_STANDBY
+    if not v.fleet.boot.ready(v.fleet.now):
+        status = d.MAV_STATE_BOOT
+    else:
+        status = d.MAV_STATE_ACTIVE if v.armed else d.MAV_STATE_STANDBY
     return v.codec.mav.heartbeat_encode(
         d.MAV_TYPE_QUADROTOR, v.personality.autopilot, base, v.custom_mode, status, 3
     )
@@ -84,7 +87,9 @@ def extended_sys_state(v: Vehicle) -> Message:
     return v.codec.mav.extended_sys_state_encode(d.MAV_VTOL_STATE_UNDEFINED, v.landed_state)
 
 
-def home_position(v: Vehicle) -> Message:
+def home_position(v: Vehicle) -> Message | None:
+    if not v.fleet.boot.origin(v.fleet.now):
+        return None  # no home before the EKF has an origin
     lat, lon, alt = v.home_geodetic
     return v.codec.mav.home_position_encode(
         int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
@@ -92,7 +97,9 @@ def home_position(v: Vehicle) -> Message:
     )
 
 
-def gps_global_origin(v: Vehicle) -> Message:
+def gps_global_origin(v: Vehicle) -> Message | None:
+    if not v.fleet.boot.origin(v.fleet.now):
+        return None
     lat, lon, alt = v.home_geodetic
     return v.codec.mav.gps_global_origin_encode(int(lat * 1e7), int(lon * 1e7), int(alt * 1000))
 
@@ -105,13 +112,17 @@ def attitude(v: Vehicle) -> Message:
     return v.codec.mav.attitude_encode(_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0)
 
 
-def local_position_ned(v: Vehicle) -> Message:
+def local_position_ned(v: Vehicle) -> Message | None:
+    if not v.fleet.boot.position(v.fleet.now):
+        return None  # the EKF does not use GPS yet
     x, y, z = v.nav_position()
     vx, vy, vz = v.velocity()
     return v.codec.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
 
 
-def global_position_int(v: Vehicle) -> Message:
+def global_position_int(v: Vehicle) -> Message | None:
+    if not v.fleet.boot.position(v.fleet.now):
+        return None
     lat, lon, alt = v.geodetic()
     _, _, z = v.nav_position()
     vx, vy, vz = v.velocity()

@@ -317,12 +317,19 @@ class Vehicle:
         return self.personality.offboard_from_ground or not (self.on_ground() and not self.taking_off)
 
     # ------------------------------------------------------------------ actions
+    def _position_ok(self) -> bool:
+        """Whether the navigation filter has a position (late on the real boot timeline)."""
+        return self.fleet.boot.position(self.fleet.now)
+
     def set_mode(self, spec: ModeSpec) -> int:
         if spec.behaviour == Behaviour.TAKEOFF:
             return self.takeoff(None)
         if spec.behaviour == Behaviour.OFFBOARD and self.personality.offboard_needs_stream:
             if self._setpoint_stale():
                 return TEMP_REJECTED
+        if self.armed and spec.needs_position and not self._position_ok():
+            self.statustext(f"Flight mode change failed: {spec.name} requires position", d.MAV_SEVERITY_WARNING)
+            return self.personality.answers.refused
         self.mode_spec = spec
         self.taking_off = False
         self.setpoint_timed_out = False
@@ -339,37 +346,47 @@ class Vehicle:
     def arm(self, force: bool) -> int:
         if self.armed:
             return ACCEPTED
+        refused = self.personality.answers.refused
         if not force and not self.on_ground():
-            return DENIED
+            return refused
         if not force and self.behaviour == Behaviour.LAND:
-            return DENIED
+            return refused
+        # ArduPilot runs these checks even with ARMING_CHECK 0 or a forced arm.
+        if not self.fleet.boot.attitude(self.fleet.now):
+            self.statustext("Arm: AHRS: EKF3 not started", d.MAV_SEVERITY_CRITICAL)
+            return refused
+        if self.mode_spec.needs_position and not self._position_ok():
+            self.statustext("Arm: Need Position Estimate", d.MAV_SEVERITY_CRITICAL)
+            return refused
         self.armed = True
         if self.behaviour == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
             self._apply_setpoint()
         else:
             self._hold_here()
-        self.statustext("Armed")
+        self.statustext(self.personality.arm_texts[0])
         return ACCEPTED
 
     def disarm(self, force: bool) -> int:
         if not self.armed:
             return ACCEPTED
         if not force and not self.on_ground():
-            return DENIED
+            return self.personality.answers.refused
         self.armed = False
         self.taking_off = False
         self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
-        self.statustext("Disarmed")
+        self.statustext(self.personality.arm_texts[1])
         return ACCEPTED
 
     def takeoff(self, alt_rel_m: float | None) -> int:
         """Climb to `alt_rel_m` above home (None: the takeoff-altitude parameter)."""
         p = self.personality
         if not self.armed or not self.on_ground():
-            return DENIED
+            return p.answers.refused
         if p.takeoff_needs_offboard_mode and self.behaviour != Behaviour.OFFBOARD:
-            return DENIED
+            return p.answers.refused
         alt = self.params["takeoff_alt_m"] if alt_rel_m is None else alt_rel_m
+        if alt <= self.altitude():  # ArduPilot: "can't takeoff downwards"
+            return p.answers.refused
         if not 0.5 <= alt <= self.model.max_alt_m:
             self.drop("bad_value", f"takeoff altitude {alt:g} m")
             return DENIED
@@ -384,7 +401,7 @@ class Vehicle:
 
     def land(self) -> int:
         if not self.armed:
-            return DENIED
+            return self.personality.answers.refused
         self.mode_spec = self.personality.mode(self.personality.land_mode)
         self.taking_off = False
         self._start_land()
@@ -442,7 +459,7 @@ class Vehicle:
         self.armed = False  # PX4 and ArduPilot both disarm after landing
         self.fleet.guide(self.index, Kind.IDLE)
         if was_armed:
-            self.statustext("Landed, disarmed")
+            self.statustext(self.personality.arm_texts[1])
 
     def _takeoff_done(self) -> None:
         self.taking_off = False
