@@ -245,7 +245,7 @@ def train(args: Args, progress=None) -> dict:
         return cov
 
     if val_sets:
-        select(0)
+        best["after_warm_start"] = select(0)
     curve_path = out / "curve.jsonl"
     curve_f = curve_path.open("w")
     t_start = time.time()

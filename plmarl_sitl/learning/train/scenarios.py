@@ -41,3 +41,19 @@ def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs
     users = dataclasses.replace(users, count=c * users.cluster_size, layout="random", cluster_centers=())
     # Scripted failures and events name UAV indices of the base mission: the curriculum's own failures replace them.
     return dataclasses.replace(base, n_uavs=n, users=users, failures=(), events=())
+
+
+def describe_distribution(general: bool, tup_choices: tuple[int, ...], failure: dict, args: ScenarioArgs = ScenarioArgs()) -> dict:
+    """The training distribution as the policy card records it."""
+    if not general:
+        return {"scenarios": "the mission as given, from its launch line", "tup_s": list(tup_choices), "failure": failure}
+    return {
+        "scenarios": "per rollout batch: N uniform in n_uavs, C clusters of 60 uniform in [max(2, N - 2), min(8, N + 2)] on "
+                     "the twin's random connected layout (a new layout per environment); the mission itself with "
+                     "probability mission_share",
+        **{k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(args).items()},
+        "launch": "a random line centre and orientation per environment (CoverageEnv(random_launch=True))",
+        "mobility": "mixed: Gauss-Markov, Random Waypoint, RPGM per environment",
+        "tup_s": list(tup_choices),
+        "failure": failure,
+    }
