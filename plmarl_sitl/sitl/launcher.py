@@ -223,7 +223,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             on_metrics=on_metrics,
         )
         script = LauncherEvents(schedule, fleet, gate, record_event)
-        world.host.record_tlogs(out / "tlogs")
+        world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                            monitor.on_bus, name="launcher-bus")
@@ -246,7 +246,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         await fleet.stop()
         if world is not None:
             world.stop()
-            world.host.close()
+            world.vehicles.close()
         if gate is not None:
             await gate.close()
         if broker is not None:
