@@ -221,7 +221,7 @@ class ExternalVehicles:
                     v.mode = spec.name if spec is not None else str(hb.custom_mode)
                     v.armed = bool(hb.base_mode & 128)
                 while homes.queued:
-                    self._place(v, homes.queued.popleft())
+                    self.place(v, homes.queued.popleft())
                 if m is None:
                     continue
                 v.local = (m.x, m.y, m.z, m.vx, m.vy, m.vz)
@@ -245,7 +245,8 @@ class ExternalVehicles:
             log.debug("vehicle sysid %d: %s %d: %s", link.sysid, how, msgid, exc)
             return False
 
-    def _place(self, v: ExternalVehicle, home: Any) -> None:
+    def place(self, v: ExternalVehicle, home: Any) -> None:
+        """Vehicle v's local frame in the mission frame, from a HOME_POSITION (as the agent's)."""
         o = self.mission.origin
         local = (home.x, home.y, home.z)
         if not all(math.isfinite(x) for x in local):  # no local frame reported: it starts at home

@@ -134,6 +134,7 @@ def test_a_short_mission_on_two_real_arducopters_completes(tmp_path: Path) -> No
         assert (out / "agents" / f"agent{i}.stats.json").exists()
         agent_log = (out / "agents" / f"agent{i}.log").read_text()
         assert "in GUIDED at" in agent_log and "stopped: vehicle in BRAKE" in agent_log, agent_log
+        assert " DEBUG " not in agent_log  # swarm agents are not verbose unless asked (-v)
         assert (out / "tlogs" / f"vehicle{i}.tlog").stat().st_size > 10_000
         assert (out / "arducopter" / f"vehicle{i}" / "eeprom.bin").exists()
     # The world followed the vehicles' clocks and gave each agent t0 on its own clock.
