@@ -14,7 +14,7 @@ examples:
   plmarl swarm up missions/paper_urban.yaml --speedup 10
   plmarl swarm up missions/node_failure.yaml --speedup 10 --headless --out runs/failure
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
-  plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \
+  plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
       --speedup 5 --headless    # one real ArduCopter SITL per UAV
 
 The mission clock starts once every vehicle is airborne under its agent. Ctrl-C stops

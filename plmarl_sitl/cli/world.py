@@ -26,7 +26,7 @@ examples:
 then one agent per vehicle:
   plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
 vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SITLs, SERIAL1):
-  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 \
+  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 \\
       --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5"""
 
 
