@@ -14,6 +14,8 @@ examples:
   plmarl swarm up missions/paper_urban.yaml --speedup 10
   plmarl swarm up missions/node_failure.yaml --speedup 10 --headless --out runs/failure
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
+  plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
+      --speedup 5 --headless    # one real ArduCopter SITL per UAV
 
 The mission clock starts once every vehicle is airborne under its agent. Ctrl-C stops
 everything cleanly. Afterwards: plmarl report RUN_DIR draws the plots."""
@@ -43,12 +45,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
     add_seed(up, default=None)
     up.add_argument("--policy", type=Path, default=None, metavar="DIR", help="policy directory (default policies/pl-marl)")
-    up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4", help="autopilot personality (default px4)")
+    up.add_argument("--autopilot", type=autopilot_arg, default=("emulator", None), metavar="emulator|arducopter=PATH",
+                    help="the autopilots: emulator (the point-mass emulator in the world's process, default) or "
+                    "arducopter=PATH (one real ArduCopter SITL process per UAV, PATH the `arducopter` binary built from "
+                    "ArduPilot's source; its home at the mission's launch slot, its clock sped up by --speedup)")
+    up.add_argument("--copter-parm", type=Path, default=None, metavar="FILE",
+                    help="with arducopter: ArduPilot's copter.parm (default: Tools/autotest/default_params/copter.parm "
+                    "in the ArduPilot tree the binary was built in)")
+    up.add_argument("--instance", type=int, default=None, metavar="I",
+                    help="with arducopter: UAV i runs as ArduPilot SITL instance -I I+i, ports 5760 + 10 (I+i) "
+                    "(default: the first instances whose ports are free)")
+    up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
+                    help="with the emulator: autopilot personality (default px4)")
     up.add_argument("--boot", choices=["instant", "real"], default="instant",
                     help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
+    up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
     up.set_defaults(func=run_up)
 
     st = ssub.add_parser(
@@ -64,6 +78,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     st.set_defaults(func=run_status)
 
 
+def autopilot_arg(text: str) -> tuple[str, Path | None]:
+    """`emulator` or `arducopter=PATH`."""
+    kind, eq, path = text.partition("=")
+    if kind == "emulator" and not eq:
+        return "emulator", None
+    if kind == "arducopter" and path:
+        return "arducopter", Path(path).expanduser()
+    raise argparse.ArgumentTypeError(f"{text!r}: expected emulator or arducopter=PATH (the arducopter binary)")
+
+
 def run_up(args: argparse.Namespace) -> int:
     from plmarl_sitl.errors import UserError
     from plmarl_sitl.sitl.autopilot.boot import check_boot
@@ -73,12 +97,18 @@ def run_up(args: argparse.Namespace) -> int:
     if args.speedup <= 0:
         raise UserError("--speedup must be > 0")
     check_boot(args.personality, args.boot)
+    autopilot, binary = args.autopilot
+    if autopilot == "emulator" and (args.copter_parm is not None or args.instance is not None):
+        raise UserError("--copter-parm and --instance are for --autopilot arducopter=PATH")
+    if args.instance is not None and args.instance < 0:
+        raise UserError("--instance must be >= 0")
     if args.duration is not None and args.duration < 1:
         raise UserError("--duration must be >= 1 s")
     opts = UpOptions(
         mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
-        personality=args.personality, boot=args.boot, swarm=args.swarm_name,
+        personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
+        copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
     )
     try:
         summary = launch(opts)

@@ -2,8 +2,9 @@
 
 Hosts N emulated autopilots (vehicle i on udp 127.0.0.1:base_port + i, home at the
 twin's launch position i on the ground), the ground users, the link emulator and the
-swarm metrics, all on one clock (--speedup). Agents connect with
-`plmarl agent --id I --connect udpout://127.0.0.1:PORT --broker URL`.
+swarm metrics, all on one clock (--speedup); or, with --external, runs the mission on
+vehicles that already fly elsewhere (one MAVLink URL each), following their clocks.
+Agents connect with `plmarl agent --id I --connect udpout://127.0.0.1:PORT --broker URL`.
 """
 
 from __future__ import annotations
@@ -23,7 +24,10 @@ examples:
   plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --speedup 10
   plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --episode 200
 then one agent per vehicle:
-  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883"""
+  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
+vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SITLs, SERIAL1):
+  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 \\
+      --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,6 +42,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
     p.add_argument("--swarm", default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
+    p.add_argument("--external", default=None, metavar="URL[,URL...]",
+                   help="vehicles that run elsewhere, one MAVLink URL per UAV in order (tcpout://HOST:PORT, "
+                   "udpin://BIND:PORT, udpout://HOST:PORT): no emulated autopilots; positions, modes and clocks "
+                   "from these links (a link of the world's own: ArduPilot SITL SERIAL1, a MAVLink router output)")
     p.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
@@ -65,9 +73,27 @@ def run(args: argparse.Namespace) -> int:
     if not 0 <= args.loss <= 1:
         raise UserError("--loss must be in [0, 1]")
     mission = load_mission(args.mission)
+    args.external = _external_urls(args.external)
+    if args.external:
+        n = args.n_uavs or mission.n_uavs
+        if len(args.external) != n:
+            raise UserError(f"--external: {len(args.external)} URL(s) for {n} UAVs (one per UAV; or set --n-uavs)")
+        from plmarl_sitl.deploy.mavlink.connect import parse_url
+
+        for url in args.external:
+            parse_url(url)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
     return asyncio.run(_main(args, mission))
+
+
+def _external_urls(text: str | None) -> tuple[str, ...]:
+    if text is None:
+        return ()
+    urls = tuple(u.strip() for u in text.split(",") if u.strip())
+    if not urls:
+        raise UserError("--external: expected URL[,URL...]")
+    return urls
 
 
 async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
@@ -88,6 +114,7 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         latency_s=args.latency,
         episode_s=args.episode,
         n_uavs=args.n_uavs,
+        external=args.external,
     )
     broker = None
     if args.embedded_broker:
@@ -104,10 +131,14 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, world.stop)
-    ports = world.host.ports
+    if world.host is not None:
+        ports = world.host.ports
+        vehicles = f"{world.n} {args.personality} vehicle(s) on udp 127.0.0.1:{ports[0]}-{ports[-1]}"
+    else:
+        vehicles = f"{world.n} external vehicle(s) on {', '.join(args.external)} (waiting for their telemetry)"
     print(
-        f"plmarl world: {world.n} {args.personality} vehicle(s) on udp 127.0.0.1:{ports[0]}-{ports[-1]}, "
-        f"broker {args.broker}{' (embedded)' if broker else ''}, swarm {args.swarm!r}, speedup {args.speedup:g}",
+        f"plmarl world: {vehicles}, broker {args.broker}{' (embedded)' if broker else ''}, swarm {args.swarm!r}, "
+        f"speedup {args.speedup:g}",
         flush=True,
     )
     try:

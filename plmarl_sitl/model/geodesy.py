@@ -29,3 +29,14 @@ def geodetic_to_ned(
     north = math.radians(lat_deg - lat0_deg) * EARTH_RADIUS_M
     east = math.radians(lon_deg - lon0_deg) * EARTH_RADIUS_M * math.cos(math.radians(lat0_deg))
     return north, east, -(alt_m - alt0_m)
+
+
+def local_frame_origin(
+    lat0_deg: float, lon0_deg: float, alt0_m: float, home: tuple[float, float, float], home_local: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Where a vehicle's local NED frame has its origin, in NED metres from (lat0, lon0, alt0),
+    from its home known both geodetically (`home`: lat, lon, alt) and in the local frame
+    (`home_local`: x, y, z of HOME_POSITION; ArduPilot's EKF origin need not be the home).
+    A position p in the vehicle's local frame is then at origin + p."""
+    h = geodetic_to_ned(lat0_deg, lon0_deg, alt0_m, *home)
+    return h[0] - home_local[0], h[1] - home_local[1], h[2] - home_local[2]

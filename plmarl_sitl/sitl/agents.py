@@ -82,13 +82,16 @@ class AgentFleet:
         extra: list[str] | None = None,
         trace: bool = True,
         stats: bool = True,
+        verbose: bool = False,
     ) -> AgentProc:
         self.workdir.mkdir(parents=True, exist_ok=True)
         trace_path = self.workdir / f"agent{uav_id}.trace.jsonl" if trace else None
         stats_path = self.workdir / f"agent{uav_id}.stats.json" if stats else None
         log_path = self.workdir / f"agent{uav_id}.log"
         cmd = ["--id", str(uav_id), "--connect", connect_url,
-               "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm, "-v"]
+               "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm]
+        if verbose:  # DEBUG for the plmarl loggers: only when asked for
+            cmd.append("-v")
         if n_uavs is not None:
             cmd += ["--n-uavs", str(n_uavs)]
         if tup_s is not None:

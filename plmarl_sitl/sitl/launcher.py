@@ -3,7 +3,9 @@
 This process starts the broker (amqtt in a child process, unless an external one is
 given; behind a `BrokerGate` when the mission has a broker outage) and hosts the SITL
 world (`SitlWorld`: autopilots, users, link emulator); it forks one `plmarl agent` per
-UAV (`sitl.forked`) and watches them. The world starts mission time once every vehicle
+UAV (`sitl.forked`) and watches them. With `--autopilot arducopter=PATH` the autopilots
+are real: one ArduCopter SITL process per UAV (`sitl.arducopter`), each agent on its
+SERIAL0, the world following each vehicle on its SERIAL1 (`sitl.external`). The world starts mission time once every vehicle
 flies under its agent; the mission's events fire on that clock, from one schedule
 (`model.events`): the world applies those in its own process, the launcher those that
 touch the processes it manages (`LauncherEvents`: agent kills, the broker gate).
@@ -13,12 +15,14 @@ Everything is recorded in the run directory:
     metrics.jsonl     one row per mission second: t, coverage, lambda2, messages, uavs
     events.jsonl      every event as it fired
     summary.json      coverage mean/min, duration, speedup, events, node-failure recovery
-    tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer)
+    tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer; ArduCopter:
+                      the world's SERIAL1 link, both ways)
+    arducopter/vehicleI/  ArduCopter's working directory: arducopter.log, plmarl.parm, logs/
     agents/agentI.log     each agent's log (and its P-AoI trace)
     launcher.log      world, bus and launcher log
 
 Shutdown (mission end, Ctrl-C, SIGTERM or a failed component) stops the agents (SIGTERM,
-then SIGKILL), the world and the broker, so no process is left behind.
+then SIGKILL), the world, the ArduCopters and the broker, so no process is left behind.
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
+from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.broker import AmqttProcess, free_udp_ports
@@ -76,7 +81,20 @@ class UpOptions:
     personality: str = "px4"
     boot: str = "instant"  # emulated autopilots' start-up: instant or real (measured timeline)
     swarm: str = "sitl"
-    start_timeout_s: float = 120.0  # wall seconds for every vehicle to get airborne
+    start_timeout_s: float | None = None  # wall s for every vehicle to get airborne (None: 120; ArduCopter: more)
+    # The autopilots: "emulator" (in the world's process, `personality`, `boot`) or
+    # "arducopter" (a real ArduCopter SITL process per UAV, the binary `arducopter`).
+    autopilot: str = "emulator"
+    arducopter: Path | None = None
+    copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
+    instance_base: int | None = None  # first ArduPilot SITL instance -I (None: the first free ones)
+    verbose: bool = False  # agents log DEBUG too
+
+    def start_timeout(self) -> float:
+        """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
+        if self.start_timeout_s is not None:
+            return self.start_timeout_s
+        return 120.0 if self.autopilot == "emulator" else max(120.0, 60.0 + 150.0 / self.speedup)
 
 
 def resolve_mission(opts: UpOptions) -> Mission:
@@ -160,6 +178,13 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
     console = console or Console()
     mission = resolve_mission(opts)
+    real = opts.autopilot == "arducopter"
+    copter_parm = None
+    if real:
+        assert opts.arducopter is not None
+        copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
+        if EventSchedule.of(mission).has("gnss_noise"):
+            raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
     if opts.broker != "embedded":
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if not (opts.policy / "card.yaml").exists():
@@ -183,7 +208,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         events_f.flush()
         monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
 
-    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs, {duration} s at {opts.speedup:g}x, "
+    autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
+    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
@@ -195,6 +221,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
     script: LauncherEvents | None = None
+    copters: ArduCopterFleet | None = None
     last_headless = [-10.0]
 
     def on_metrics(m: dict) -> None:
@@ -216,24 +243,37 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if gate is not None:
             await gate.start()
             bus_url = gate.url
-        base_port = free_udp_ports(n)
-        world = SitlWorld(
-            WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot, speedup=opts.speedup,
-                        base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule),
-            on_metrics=on_metrics,
-        )
+        if real:
+            assert opts.arducopter is not None and copter_parm is not None
+            copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
+            copters.start()
+            console.print(copters.ports_line(), highlight=False)
+            log.info("%s", copters.ports_line())
+            try:
+                await copters.wait_listening()
+            except RuntimeError as exc:
+                raise ComponentFailed(str(exc)) from exc
+            agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
+            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
+                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs))
+        else:
+            base_port = free_udp_ports(n)
+            agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
+            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
+                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule)
+        world = SitlWorld(cfg, on_metrics=on_metrics)
         script = LauncherEvents(schedule, fleet, gate, record_event)
-        world.host.record_tlogs(out / "tlogs")
+        world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                            monitor.on_bus, name="launcher-bus")
         for i in range(n):
-            await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", bus_url, mission=mission_file,
-                              policy=opts.policy, swarm=opts.swarm, extra=["--autopilot", opts.personality])
+            await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
+                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
-            watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout_s), name="watchdog")
+            watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout(), copters), name="watchdog")
             view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
             await world_task
             for t in (bus_task, watch, view):
@@ -246,7 +286,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         await fleet.stop()
         if world is not None:
             world.stop()
-            world.host.close()
+            world.vehicles.close()
+        if copters is not None:
+            await copters.stop()
         if gate is not None:
             await gate.close()
         if broker is not None:
@@ -258,19 +300,28 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     if not rows:
         raise ComponentFailed(f"the mission never started (see {out / 'launcher.log'})")
     summary = summarize(rows, events, opts.speedup)
-    summary["timeliness"] = timeliness([ap.trace() for ap in fleet.procs.values()], world.t0 if world else None)
+    t0s = world.t0_by_uav if world is not None and world.t0_by_uav is not None else world.t0 if world else None
+    traces = [ap.trace() for ap in fleet.procs.values()]
+    summary["timeliness"] = timeliness(traces, [t0s[i] for i in fleet.procs] if isinstance(t0s, list) else t0s)
+    summary["autopilot"] = "arducopter" if real else f"emulator ({opts.personality})"
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
 
 
-async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float) -> None:
-    """Fail fast, with a one-line reason, when an agent dies unasked or nothing takes off."""
+async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float,
+                 copters: ArduCopterFleet | None = None) -> None:
+    """Fail fast, with a one-line reason, when an agent or an ArduCopter dies unasked or
+    nothing takes off."""
     loop = asyncio.get_running_loop()
     t_start = loop.time()
     while True:
         await asyncio.sleep(0.5)
+        gone = copters.exited() if copters is not None else None
+        if gone is not None:
+            raise ComponentFailed(f"arducopter {gone.index} exited with code {gone.proc.returncode}: {gone.tail()} "
+                                  f"(log: {gone.log_path})")
         for i, ap in fleet.procs.items():
             rc = ap.proc.returncode
             if rc is not None and i not in script.killed:

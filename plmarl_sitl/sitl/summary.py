@@ -61,13 +61,16 @@ def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> d
     }
 
 
-def timeliness(traces: Sequence[Sequence[dict]], t0_boot_s: float | None) -> dict:
+def timeliness(traces: Sequence[Sequence[dict]], t0_boot_s: float | Sequence[float] | None) -> dict:
     """Did the SITL swarm keep up with its speedup? From the agents' traces:
     - decision_delay_s: vehicle seconds from mission second t to the moment the agent
       acted on it (the twin acts at t exactly); bus and CPU latency, x the speedup;
     - sensing_age_s: t minus the second of the users that decision saw.
-    Each as {"p50", "p95", "max"} over all decisions (None without decisions)."""
-    decisions = [r for rows in traces for r in rows if r.get("decided")]
+    Each as {"p50", "p95", "max"} over all decisions (None without decisions). `t0_boot_s` is
+    the mission start on the agents' vehicle clock: one for all (a shared SITL clock), or one
+    per trace (vehicles with clocks of their own)."""
+    t0s = [t0_boot_s] * len(traces) if t0_boot_s is None or isinstance(t0_boot_s, (int, float)) else list(t0_boot_s)
+    decisions = [(r, t0) for rows, t0 in zip(traces, t0s, strict=True) for r in rows if r.get("decided")]
 
     def stats(xs: list[float]) -> dict | None:
         if not xs:
@@ -75,6 +78,6 @@ def timeliness(traces: Sequence[Sequence[dict]], t0_boot_s: float | None) -> dic
         a = np.asarray(xs, dtype=float)
         return {k: round(float(v), 3) for k, v in (("p50", np.median(a)), ("p95", np.quantile(a, 0.95)), ("max", a.max()))}
 
-    delays = [r["boot_s"] - (t0_boot_s + r["t"]) for r in decisions if t0_boot_s is not None and "boot_s" in r]
-    ages = [r["t"] - r["sense_t"] for r in decisions if r.get("sense_t") is not None]
+    delays = [r["boot_s"] - (t0 + r["t"]) for r, t0 in decisions if t0 is not None and "boot_s" in r]
+    ages = [r["t"] - r["sense_t"] for r, _ in decisions if r.get("sense_t") is not None]
     return {"decisions": len(decisions), "decision_delay_s": stats(delays), "sensing_age_s": stats(ages)}

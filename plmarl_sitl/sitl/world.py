@@ -2,7 +2,11 @@
 
 `SitlWorld` hosts the autopilot emulator's vehicles in-process (`AutopilotHost`) and owns
 simulated time: wall time x speedup, advanced in chunks that land exactly on every whole
-second, where the twin's per-second work happens with the twin's code:
+second. Or, with `WorldConfig.external` (one MAVLink URL per vehicle), it runs the mission
+on autopilots that fly elsewhere (real ArduCopter SITLs, real drones) and follows their
+clocks instead (`sitl.external`): a second is processed once every live vehicle has
+reported it. Either way (`sitl.vehicles.WorldVehicles`), at every whole second the twin's
+per-second work happens with the twin's code:
 
 * ground users step once per mission second (`world.users.step_users`, same generator
   seeding as `CoverageEnv(mission, 1, seed)`, so the same seed gives the same users);
@@ -26,10 +30,11 @@ hears j now (`bus.linkemu.LinkEmulator`: R_comm and SINR >= Gamma, cuts, loss), 
 optional latency in sim time.
 
 Mission time starts when every vehicle is flying under its agent (armed, in the offboard
-mode, at takeoff altitude): the world then announces `t0` (a whole boot second, a margin
-ahead) on the retained `start` topic. Agents count mission seconds from t0 on their own
-vehicle clock, so the twin's t = 0 (the launch line at takeoff altitude) is the same
-instant on both sides.
+mode, at takeoff altitude; external vehicles: and no longer climbing): the world then
+announces `t0` (a whole second, a margin ahead) on the retained `start` topic, and, for
+vehicles with clocks of their own, that instant on each one's clock (`t0_boot_s_by_uav`).
+Agents count mission seconds from t0 on their own vehicle clock, so the twin's t = 0 (the
+launch line at takeoff altitude) is the same instant on both sides.
 
 Mission events come from the mission's one schedule (`model.events.EventSchedule`, the
 twin's too), given as `WorldConfig.events`: at each mission second the world applies the
@@ -42,6 +47,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import heapq
 import itertools
 import logging
@@ -53,7 +59,6 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from plmarl_sitl.deploy.mavlink.personality import Behaviour
 from plmarl_sitl.deploy.mqtt.demand import encode_demand
 from plmarl_sitl.deploy.mqtt.schema import (
     INSTANT_WAIT_MIN_S,
@@ -73,7 +78,9 @@ from plmarl_sitl.model.events import EventSchedule, end_second
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+from plmarl_sitl.sitl.external import ExternalVehicles
 from plmarl_sitl.sitl.network.link_emulator import LinkEmulator
+from plmarl_sitl.sitl.vehicles import EmulatedVehicles, WorldVehicles
 from plmarl_sitl.twin.env import launch_positions
 
 if TYPE_CHECKING:
@@ -82,6 +89,8 @@ if TYPE_CHECKING:
 log = logging.getLogger("plmarl.world")
 
 CHUNK_S = 0.08  # sim seconds per host.advance between yields (4 substeps at 50 Hz)
+FOLLOW_POLL_S = 0.1  # wall: external vehicles silent this long: check the instants and the queue anyway
+WAIT_LOG_EVERY_S = 30  # vehicle s: how often the world says what it waits for before the start
 
 
 @dataclass(frozen=True)
@@ -104,6 +113,9 @@ class WorldConfig:
     n_uavs: int | None = None  # override mission.n_uavs (tests)
     publish_sense: bool = True  # False: no sensing publisher (a vehicle without the sensor)
     events: EventSchedule | None = None  # mission events to apply (the launcher's run); None: none
+    # MAVLink URLs of vehicles that fly elsewhere, one per UAV (then no emulated autopilots:
+    # personality, boot and base_port do not apply); empty: the emulator in this process.
+    external: tuple[str, ...] = ()
 
 
 @dataclass
@@ -142,17 +154,23 @@ class SitlWorld:
         vm = m.vehicle_model()
         self.vehicle_model = vm
         self.takeoff_alt = min(max(vm.takeoff_alt_m, vm.min_alt_m), vm.max_alt_m)  # the twin's start altitude
-        homes = launch_positions(m, 0.0)
-        homes[:, 2] = 0.0
-        self.host = AutopilotHost(
-            self.n,
-            personality_name=cfg.personality,
-            vehicle=m.vehicle,
-            origin=m.origin,
-            home_offsets_ned=[tuple(map(float, h)) for h in homes],
-            base_port=cfg.base_port,
-            boot=cfg.boot,
-        )
+        self.host: AutopilotHost | None = None  # the emulated autopilots, if they are
+        self.vehicles: WorldVehicles
+        if cfg.external:
+            self.vehicles = ExternalVehicles(m, list(cfg.external), cfg.speedup)
+        else:
+            homes = launch_positions(m, 0.0)
+            homes[:, 2] = 0.0
+            self.host = AutopilotHost(
+                self.n,
+                personality_name=cfg.personality,
+                vehicle=m.vehicle,
+                origin=m.origin,
+                home_offsets_ned=[tuple(map(float, h)) for h in homes],
+                base_port=cfg.base_port,
+                boot=cfg.boot,
+            )
+            self.vehicles = EmulatedVehicles(self.host)
         self.radius = CoverageRadius(m.channel, m.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
         seed = m.seed if cfg.seed is None else cfg.seed
         self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
@@ -166,7 +184,8 @@ class SitlWorld:
         self.bus.publish(self.topics.ctl, b"", sticky=True)
         self.bus.publish(self.topics.demand, b"", sticky=True)
         self.summary = WorldSummary()
-        self.t0: float | None = None  # boot second of mission t = 0
+        self.t0: float | None = None  # boot second of mission t = 0 (external vehicles: on the reference clock)
+        self.t0_by_uav: list[float] | None = None  # ... on each vehicle's own clock, if they differ
         self.mission_t: int | None = None  # last whole mission second processed
         self.tup_s = m.signalling.tup_s
         self._pending: list[tuple[float, int, str, bytes]] = []  # (due sim s, tiebreak, topic, payload)
@@ -179,6 +198,7 @@ class SitlWorld:
         self._stop = asyncio.Event()
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
+        self._sim0: float | None = None  # the vehicles' clock when the run began (sim_s is counted from it)
 
     # ------------------------------------------------------------------ events
     def apply_events(self, second: int) -> None:
@@ -198,16 +218,16 @@ class SitlWorld:
             elif ev.type == "gnss_noise":
                 std = schedule.gnss_std_m(second)
                 for u in schedule.uavs_of(ev):
-                    self.host.set_gnss_noise(u, std[u])
+                    self.vehicles.set_gnss_noise(u, std[u])
 
     def kill(self, i: int) -> None:
         """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""
-        self.host.kill(i)
-        log.warning("event: vehicle %d killed at boot %.1f s", i, self.host.now)
+        self.vehicles.kill(i)
+        log.warning("event: vehicle %d killed at boot %.1f s", i, self.now)
 
     def cut_links(self, pairs: list[tuple[int, int]] | None, duration_s: float) -> None:
         """Cut some links (None: all) for `duration_s` sim seconds."""
-        self.links.cut(pairs, self.host.now + duration_s)
+        self.links.cut(pairs, self.now + duration_s)
         log.warning("event: links %s cut for %.1f s", "all" if pairs is None else pairs, duration_s)
 
     def set_tup(self, tup_s: int) -> None:
@@ -222,17 +242,22 @@ class SitlWorld:
         """Stop the clock, close the vehicles' sockets and stop `fleet`'s agents (whatever
         state the run is in; safe to call twice)."""
         self.stop()
-        self.host.close()
+        self.vehicles.close()
         if fleet is not None:
             await fleet.stop()
 
     # ------------------------------------------------------------------ state
+    @property
+    def now(self) -> float:
+        """The vehicles' clock, boot seconds (the emulator's, or the external vehicles' reference)."""
+        return self.vehicles.now
+
     def alive(self) -> torch.Tensor:
-        return torch.tensor([not v.killed for v in self.host.vehicles])
+        return self.vehicles.alive()
 
     def positions(self) -> torch.Tensor:
         """(N, 3) float32 mission-frame positions (what the twin's coverage code takes)."""
-        return self.host.mission_positions().to(torch.float32)
+        return self.vehicles.positions().to(torch.float32)
 
     # ------------------------------------------------------------------ bus
     def _on_message(self, topic: str, payload: bytes) -> None:
@@ -245,9 +270,9 @@ class SitlWorld:
         if sender is None or msg.sender != sender or not 0 <= sender < self.n:
             self.links.counters.malformed += 1
             return
-        pos = self.host.mission_positions()
+        pos = self.vehicles.positions()
         alive = self.alive()
-        receivers = self.links.receivers(sender, pos, alive, self.host.now)  # decided at arrival
+        receivers = self.links.receivers(sender, pos, alive, self.now)  # decided at arrival
         if msg.t_s <= self._closed_upto:  # late for its instant: deliver it on its own
             for i in receivers:
                 self._send_after_latency(self.topics.rx(i), payload)
@@ -262,7 +287,7 @@ class SitlWorld:
 
     def _send_after_latency(self, topic: str, payload: bytes) -> None:
         if self.cfg.latency_s > 0:
-            heapq.heappush(self._pending, (self.host.now + self.cfg.latency_s, next(self._tiebreak), topic, payload))
+            heapq.heappush(self._pending, (self.now + self.cfg.latency_s, next(self._tiebreak), topic, payload))
         else:
             self.bus.publish(topic, payload)
 
@@ -283,46 +308,48 @@ class SitlWorld:
         updates must reach them before they give up waiting."""
         if not self._instants or self.t0 is None:
             return
-        now_t = self.host.now - self.t0
+        now_t = self.now - self.t0
         wait = max(INSTANT_WAIT_MIN_S, 0.5 * INSTANT_WAIT_WALL_S * self.cfg.speedup)
         for t_s in [t for t in self._instants if now_t >= t + wait]:
             self._close_instant(t_s)
 
     def _deliver_due(self) -> None:
-        while self._pending and self._pending[0][0] <= self.host.now:
+        while self._pending and self._pending[0][0] <= self.now:
             _, _, topic, payload = heapq.heappop(self._pending)
             self.bus.publish(topic, payload)
 
     # ------------------------------------------------------------------ per-second work
     def not_ready(self) -> list[str]:
         """Why the mission cannot start yet: one entry per vehicle not flying under its agent."""
-        out = []
-        for v in self.host.vehicles:
-            if v.killed:
-                continue
-            ok = v.armed and v.behaviour == Behaviour.OFFBOARD and not getattr(v, "taking_off", False)
-            if not ok or v.altitude() < self.takeoff_alt - 1.0:
-                out.append(f"{v.index} ({v.mode}, {'armed' if v.armed else 'disarmed'}, {v.altitude():.1f} m)")
-        return out
+        return self.vehicles.not_ready(self.takeoff_alt)
 
     def _ready(self) -> bool:
         return not self.not_ready()
 
-    def _maybe_start(self) -> None:
+    def _maybe_start(self, second: float) -> None:
         if self.t0 is not None:
             return
-        if int(self.host.now) % 30 == 0:
-            log.info("waiting for vehicles: %s", ", ".join(self.not_ready()) or "none")
-        if self._ready() or self.host.now >= self.cfg.start_timeout_s:
+        if int(second) % WAIT_LOG_EVERY_S == 0:
+            log.info("waiting for every vehicle to fly under its agent (armed, %s, at %.0f m%s): not yet %s",
+                     "in the offboard mode" if self.host is not None else "in its offboard mode (ArduPilot GUIDED)",
+                     self.takeoff_alt, "" if self.host is not None else ", climb over",
+                     ", ".join(self.not_ready()) or "none")
+        now = self.now
+        if self._ready() or now >= self.cfg.start_timeout_s:
             if not self._ready():
                 log.warning("start timeout: starting the mission with the vehicles that are ready")
             margin = max(self.cfg.start_margin_s, self.cfg.start_margin_wall_s * self.cfg.speedup)
-            self.t0 = float(math.ceil(self.host.now + margin))
+            self.t0 = float(math.ceil(now + margin))
             self.summary.t0_boot_s = self.t0
             self._next_second = self.t0
-            self.bus.publish(self.topics.start, encode_json({"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}), sticky=True)
+            self.t0_by_uav = self.vehicles.start_times(self.t0)
+            start = {"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}
+            if self.t0_by_uav is not None:
+                start["t0_boot_s_by_uav"] = self.t0_by_uav
+            self.bus.publish(self.topics.start, encode_json(start), sticky=True)
             self.publish_map(0, self.users)  # the users stay at their t = 0 positions until t0
-            log.info("mission starts at boot %.0f s (now %.2f s)", self.t0, self.host.now)
+            log.info("mission starts at boot %.0f s (now %.2f s)%s", self.t0, now,
+                     f"; on each vehicle's clock {self.t0_by_uav}" if self.t0_by_uav is not None else "")
 
     def publish_map(self, k: int, users: UserState) -> None:
         """The user-density map of mission second k (users at k) on the retained demand topic."""
@@ -348,12 +375,12 @@ class SitlWorld:
             if is_map_instant(t, m.demand.refresh_s, m.timing.decision_every_s):
                 self.publish_map(t, self.users_ahead[-1])
 
-    def _second(self) -> None:
-        """Work at a whole second: mission second k = now - t0 (or a boot second before t0)."""
+    def _second(self, second: float) -> None:
+        """Work at a whole second: mission second k = second - t0 (or a boot second before t0)."""
         m = self.mission
         k: int | None = None
-        if self.t0 is not None and self.host.now >= self.t0 - 1e-6:
-            k = int(round(self.host.now - self.t0))
+        if self.t0 is not None and second >= self.t0 - 1e-6:
+            k = int(round(second - self.t0))
             self._step_users(k)
             self.mission_t = k
         pos = self.positions()
@@ -374,26 +401,10 @@ class SitlWorld:
                 d = users - pos[i, :2]
                 inside = users[(d * d).sum(-1) <= r2]
                 self.bus.publish(self.topics.sense(i), encode_sense(i, t_ms, inside.tolist()))
-        states = self.host.true_states()
-        offs = self.host.home_offsets
-        uav = []
-        for i, v in enumerate(self.host.vehicles):
-            p = (states[i, :3] + offs[i]).tolist()
-            uav.append(
-                {
-                    "id": i,
-                    "pos": [round(x, 2) for x in p],
-                    "vel": [round(x, 3) for x in states[i, 3:].tolist()],
-                    "alt": round(-p[2], 2),
-                    "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
-                    "mode": v.mode,
-                    "armed": v.armed,
-                    "alive": not v.killed,
-                }
-            )
+        uav = self.vehicles.uav_rows()
         metrics = {
             "t": k,
-            "boot_s": round(self.host.now, 3),
+            "boot_s": round(second, 3),
             "t0_boot_s": self.t0,
             "coverage": cov,
             "lambda2": lam2,
@@ -413,15 +424,49 @@ class SitlWorld:
     # ------------------------------------------------------------------ clock
     def _advance(self, sim_s: float) -> float:
         """Advance up to `sim_s` (stopping at the next whole second); returns what is left."""
-        step = min(sim_s, CHUNK_S, self._next_second - self.host.now)
+        step = min(sim_s, CHUNK_S, self._next_second - self.now)
         if step > 1e-9:
-            self.host.advance(step)
+            self.vehicles.advance(step)
             sim_s -= step
-        if self.host.now >= self._next_second - 1e-9:
-            self._second()
-            self._next_second += 1.0
-            self._maybe_start()
+        if self.now >= self._next_second - 1e-9:
+            self._at_second()
         return sim_s
+
+    def _at_second(self) -> None:
+        second = self._next_second
+        self._second(second)
+        self._next_second += 1.0
+        self._maybe_start(second)
+
+    async def _follow(self) -> None:
+        """External vehicles: process each whole second once every live vehicle has reached
+        it (their clocks, not ours), and the instants and the latency queue between."""
+        assert isinstance(self.vehicles, ExternalVehicles)
+        changed = self.vehicles.changed
+        said = -math.inf
+        joined = False
+        log.info("waiting for the vehicles' telemetry on %s", self.vehicles.describe())
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(FOLLOW_POLL_S):
+                    await changed.wait()
+            changed.clear()
+            now = self.now
+            if not math.isfinite(now):
+                if time.monotonic() - said >= 10.0:
+                    said = time.monotonic()
+                    log.info("no vehicle streams its position yet: %s", ", ".join(self.not_ready()))
+                continue
+            if not joined:  # the vehicles may have been running for a while: start from their second
+                joined = True
+                self._sim0 = now
+                self._next_second = max(1.0, float(math.ceil(now)))
+            while self._next_second <= now + 1e-9 and not self._stop.is_set():
+                self._at_second()
+                self._close_overdue()
+                self._deliver_due()
+            self._close_overdue()
+            self._deliver_due()
 
     async def _clock(self) -> None:
         period = 1.0 / self.cfg.tick_hz
@@ -451,28 +496,29 @@ class SitlWorld:
             log.debug("bus flush timed out with %d messages queued", self.bus.queued)
 
     async def start(self) -> None:
-        """Bind the vehicles' UDP ports (agents may connect from now on)."""
-        await self.host.start()
+        """Bind the emulated vehicles' UDP ports (agents may connect from now on), or start
+        following the external ones."""
+        await self.vehicles.start()
 
     async def run(self, keep_sockets: bool = False) -> WorldSummary:
         """Run until `stop()`, the episode ends, or cancellation; then close the vehicles'
         sockets, unless `keep_sockets`: a launcher that still has agents to stop keeps the
         autopilots answering so each agent can command its hold mode (`host.close()` later)."""
-        if not self.host.started:
+        if not self.vehicles.started:
             await self.start()
         t_wall = time.perf_counter()
-        sim0 = self.host.now
+        self._sim0 = self.now if self.vehicles.owns_clock else None  # external: once they are heard
         self.started_wall = t_wall
         try:
             async with asyncio.TaskGroup() as tg:
                 bus = tg.create_task(self.bus.run(), name="world-bus")
-                await self._clock()
+                await (self._clock() if self.vehicles.owns_clock else self._follow())
                 await self._flush(1.0)
                 bus.cancel()
         finally:
             if not keep_sockets:
-                self.host.close()
+                self.vehicles.close()
             self.summary.wall_s = time.perf_counter() - t_wall
-            self.summary.sim_s = self.host.now - sim0
+            self.summary.sim_s = self.now - self._sim0 if self._sim0 is not None else 0.0
             self.summary.links = self.links.counters.as_dict()
         return self.summary

@@ -90,7 +90,12 @@ class Inbox:
         try:
             obj = decode_json(payload)
             t0 = float(obj["t0_boot_s"])
-        except (Malformed, KeyError, TypeError, ValueError):
+            # Vehicles with clocks of their own (real autopilots, each booted when its agent
+            # connected) get t0 each on their own clock; emulated ones share the host's.
+            by_uav = obj.get("t0_boot_s_by_uav")
+            if by_uav is not None:
+                t0 = float(by_uav[self.me])
+        except (Malformed, KeyError, IndexError, TypeError, ValueError):
             self.rx.bad("start")
             return
         n = obj.get("n_uavs", self.n)

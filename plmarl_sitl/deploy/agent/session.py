@@ -33,7 +33,7 @@ from plmarl_sitl.deploy.agent.stats import LoopStats, rss_mb
 from plmarl_sitl.deploy.mavlink.personality import Personality
 from plmarl_sitl.errors import CommandRejected, LinkLost, UserError, VehicleLost, VehicleTimeout
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.geodesy import EARTH_RADIUS_M, geodetic_to_ned
+from plmarl_sitl.model.geodesy import EARTH_RADIUS_M, geodetic_to_ned, local_frame_origin
 
 log = logging.getLogger("plmarl.agent")
 
@@ -238,12 +238,12 @@ class VehicleSession:
         if err is not None:
             raise err
         o = self.cfg.mission.origin
-        home_mission = geodetic_to_ned(o.lat_deg, o.lon_deg, o.alt_m, lat, lon, alt)
         local = (home.x, home.y, home.z)
         if not all(math.isfinite(v) for v in local):  # no local frame reported: it starts at home
             local = (0.0, 0.0, 0.0)
         self.home_local = tuple(float(v) for v in local)  # type: ignore[assignment]
-        self.origin = torch.tensor([h - v for h, v in zip(home_mission, local, strict=True)], dtype=torch.float32)
+        self.origin = torch.tensor(local_frame_origin(o.lat_deg, o.lon_deg, o.alt_m, (lat, lon, alt), self.home_local),
+                                   dtype=torch.float32)
 
     async def _wait_position(self) -> None:
         bound = self.cfg.bounds.position_s

@@ -13,8 +13,10 @@ import asyncio
 import fcntl
 import math
 import struct
+import time
 from collections import Counter, deque
 from collections.abc import Callable
+from typing import BinaryIO
 
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect, enum_name, param_id_str
 from plmarl_sitl.deploy.mavlink.personality import Personality, personality_for_autopilot
@@ -170,6 +172,9 @@ class VehicleLink:
         # Stamp each message with its datagram's kernel arrival time (`m.rx_ns`, UDP
         # links only): one ioctl per datagram, for latency measurements.
         self.stamp_arrivals = False
+        # Every message received and sent, as a .tlog (8-byte big-endian unix time in us,
+        # then the frame: the format pymavlink and MAVExplorer read); None: not recorded.
+        self.tlog: BinaryIO | None = None
 
     # ------------------------------------------------------------------ lifecycle
     async def open(self, timeout: float = 5.0) -> None:
@@ -245,6 +250,8 @@ class VehicleLink:
     def _deliver(self, m: Message) -> None:
         """One parsed message: the latest of its type, counted, offered to its subscribers."""
         t = m.get_type()
+        if self.tlog is not None:
+            self._record(m.get_msgbuf())
         self.latest[t] = m
         self.counts[t] += 1
         for sub in self._subscriptions.get(t, ()):
@@ -282,8 +289,15 @@ class VehicleLink:
     def send(self, msg: Message) -> None:
         if self._transport is None:
             raise RuntimeError("link not open")
-        self._write(self.codec.encode(msg))
+        data = self.codec.encode(msg)
+        self._write(data)
         self.sent += 1
+        if self.tlog is not None:
+            self._record(data)
+
+    def _record(self, frame: bytes) -> None:
+        assert self.tlog is not None
+        self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + frame)
 
     def send_heartbeat(self) -> None:
         self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))

@@ -17,6 +17,7 @@ import asyncio
 import logging
 import random
 import socket
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -31,6 +32,7 @@ log = logging.getLogger("plmarl.bus")
 logging.getLogger("mqtt").setLevel(logging.ERROR)
 
 OnMessage = Callable[[str, bytes], None]
+UNREACHABLE_REPEAT_S = 30.0  # wall: how often a broker still unreachable is said again
 SEND_BATCH = 256  # most messages handed to the client per write round trip
 
 
@@ -84,6 +86,8 @@ class MqttBus:
         self._sticky: dict[str, bytes] = {}
         self._rng = random.Random()
         self._was_connected = False
+        self._unreachable_since: float | None = None  # monotonic s of the first failure of a streak
+        self._unreachable_logged = 0.0
 
     @property
     def queued(self) -> int:
@@ -117,14 +121,28 @@ class MqttBus:
                 if self._was_connected:
                     log.warning("%s: lost broker %s (%s); reconnecting", self.name, self.url, exc)
                     delay = self.backoff_min_s
+                    self._unreachable_since = None
                 else:
-                    log.debug("%s: cannot reach broker %s (%s)", self.name, self.url, exc)
+                    self._unreachable(str(exc))
             except TimeoutError:
                 self.connected.clear()
-                log.debug("%s: connect to %s timed out", self.name, self.url)
+                self._unreachable("connect timed out")
             # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
             await asyncio.sleep(delay * (0.5 + self._rng.random()))
             delay = min(self.backoff_max_s, delay * 2.0)
+
+    def _unreachable(self, why: str) -> None:
+        """A failed connection attempt: a WARNING the first time (a wrong broker host must not
+        be silent), again every UNREACHABLE_REPEAT_S while it lasts, DEBUG in between."""
+        now = time.monotonic()
+        if self._unreachable_since is None or now - self._unreachable_logged >= UNREACHABLE_REPEAT_S:
+            first = self._unreachable_since is None
+            self._unreachable_since = self._unreachable_since or now
+            self._unreachable_logged = now
+            log.warning("%s: cannot reach the MQTT broker at %s (%s)%s; retrying every %g s at most", self.name, self.url,
+                        why, "" if first else f" for {now - self._unreachable_since:.0f} s", self.backoff_max_s)
+        else:
+            log.debug("%s: cannot reach broker %s (%s)", self.name, self.url, why)
 
     async def _session(self) -> None:
         self._was_connected = False
@@ -168,6 +186,7 @@ class MqttBus:
             await client.publish(topic, payload, qos=0, retain=True)
         self.stats.connects += 1
         self.connected.set()
+        self._unreachable_since = None
         log.info("%s: connected to %s", self.name, self.url)
         # Plain tasks, not a TaskGroup: when the connection breaks while this task is
         # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup

@@ -1,0 +1,136 @@
+"""The vehicles a SITL world runs its mission on, as the world sees them.
+
+Two kinds, one interface (`WorldVehicles`):
+
+* `EmulatedVehicles`: the point-mass autopilot emulator hosted in the world's process
+  (`AutopilotHost`). The world owns their clock and moves it (`advance`), so every vehicle
+  shares one boot clock.
+* `external.ExternalVehicles`: autopilots that run elsewhere (ArduCopter SITL processes,
+  real drones behind a MAVLink router), each on a MAVLink link of the world's own. Each
+  has a clock of its own; the world follows them (`owns_clock` False).
+
+What the world needs of them: their clock, true positions in the mission frame, which are
+alive, what each is doing (the metrics row and the start condition: armed, in the offboard
+mode and at take-off altitude), node failure, and each vehicle's mission start t0 on its
+own clock.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Protocol
+
+import torch
+
+from plmarl_sitl.deploy.mavlink.personality import Behaviour
+from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+
+
+class WorldVehicles(Protocol):
+    owns_clock: bool  # True: the world moves the clock (`advance`); False: it follows `now`
+
+    @property
+    def n(self) -> int: ...
+    @property
+    def now(self) -> float:
+        """The vehicles' clock, boot seconds (external: the slowest live one's, on a common reference)."""
+        ...
+    @property
+    def started(self) -> bool: ...
+    async def start(self) -> None: ...
+    def close(self) -> None: ...
+    def advance(self, dt_s: float) -> None: ...
+    def positions(self) -> torch.Tensor:
+        """(N, 3) float64 true positions in the mission frame."""
+        ...
+    def alive(self) -> torch.Tensor:
+        """(N,) bool: not failed (external: also heard from lately)."""
+        ...
+    def kill(self, i: int) -> None: ...
+    def set_gnss_noise(self, i: int, std_m: float) -> None: ...
+    def uav_rows(self) -> list[dict]:
+        """Per UAV, for the metrics: id, pos, vel, alt, acc (the active setpoint), mode, armed, alive."""
+        ...
+    def not_ready(self, takeoff_alt_m: float) -> list[str]:
+        """One entry per live vehicle not yet flying under its agent, saying why."""
+        ...
+    def start_times(self, t0: float) -> list[float] | None:
+        """Mission start `t0` (on `now`'s clock) on each vehicle's own clock; None if they share `now`'s."""
+        ...
+    def record_tlogs(self, directory: Path) -> list[Path]: ...
+
+
+class EmulatedVehicles:
+    """The emulator's vehicles, hosted in this process (`host`): one shared clock, moved by the world."""
+
+    owns_clock = True
+
+    def __init__(self, host: AutopilotHost) -> None:
+        self.host = host
+
+    @property
+    def n(self) -> int:
+        return self.host.count
+
+    @property
+    def now(self) -> float:
+        return self.host.now
+
+    @property
+    def started(self) -> bool:
+        return self.host.started
+
+    async def start(self) -> None:
+        await self.host.start()
+
+    def close(self) -> None:
+        self.host.close()
+
+    def advance(self, dt_s: float) -> None:
+        self.host.advance(dt_s)
+
+    def positions(self) -> torch.Tensor:
+        return self.host.mission_positions()
+
+    def alive(self) -> torch.Tensor:
+        return torch.tensor([not v.killed for v in self.host.vehicles])
+
+    def kill(self, i: int) -> None:
+        self.host.kill(i)
+
+    def set_gnss_noise(self, i: int, std_m: float) -> None:
+        self.host.set_gnss_noise(i, std_m)
+
+    def uav_rows(self) -> list[dict]:
+        states = self.host.true_states()
+        offs = self.host.home_offsets
+        rows = []
+        for i, v in enumerate(self.host.vehicles):
+            p = (states[i, :3] + offs[i]).tolist()
+            rows.append({
+                "id": i,
+                "pos": [round(x, 2) for x in p],
+                "vel": [round(x, 3) for x in states[i, 3:].tolist()],
+                "alt": round(-p[2], 2),
+                "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
+                "mode": v.mode,
+                "armed": v.armed,
+                "alive": not v.killed,
+            })
+        return rows
+
+    def not_ready(self, takeoff_alt_m: float) -> list[str]:
+        out = []
+        for v in self.host.vehicles:
+            if v.killed:
+                continue
+            ok = v.armed and v.behaviour == Behaviour.OFFBOARD and not v.taking_off
+            if not ok or v.altitude() < takeoff_alt_m - 1.0:
+                out.append(f"{v.index} ({v.mode}, {'armed' if v.armed else 'disarmed'}, {v.altitude():.1f} m)")
+        return out
+
+    def start_times(self, t0: float) -> list[float] | None:
+        return None
+
+    def record_tlogs(self, directory: Path) -> list[Path]:
+        return self.host.record_tlogs(directory)
