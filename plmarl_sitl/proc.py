@@ -3,6 +3,8 @@
 - A child asks the kernel to end it with its parent: used by everything the launcher
   starts (agents, forked or exec'd, and broker children), so that no process outlives
   the launcher, even when it is SIGKILLed (best effort where prctl is unavailable).
+  A child whose parent is not the process it must die with (a forked agent's parent is
+  the forkserver) also watches that process (`sigterm_when_gone`).
 - An agent may lower its priority (SITL) or run under SCHED_FIFO (a companion computer)."""
 
 from __future__ import annotations
@@ -23,6 +25,31 @@ def die_with_parent() -> None:
     """Ask Linux to SIGTERM this process when its parent dies, even by SIGKILL (as a
     `preexec_fn`, or first thing in a forked child)."""
     _prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+
+
+def sigterm_when_gone(pid: int) -> bool:
+    """SIGTERM this process when process `pid` exits, even by SIGKILL, as PR_SET_PDEATHSIG
+    does for a parent: a daemon thread waits on a pidfd (Linux >= 5.3) of `pid`; at once if
+    `pid` is gone already. Returns False where pidfds are unavailable (then nothing
+    watches). Call it after any fork: a forked child has no copy of the thread."""
+    import os
+    import select
+    import threading
+
+    try:
+        pidfd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        os.kill(os.getpid(), signal.SIGTERM)
+        return True
+    except (AttributeError, OSError):  # not Linux, or a kernel before 5.3: best effort
+        return False
+
+    def watch() -> None:
+        select.select([pidfd], [], [])  # readable once `pid` has exited
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, name=f"sigterm-when-{pid}-gone", daemon=True).start()
+    return True
 
 
 def agent_child_setup(nice: int = 0) -> None:

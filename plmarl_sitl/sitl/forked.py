@@ -7,9 +7,14 @@ imports once, and forks each agent from it (copy-on-write, ~20 ms each). Each ch
 still one asyncio process per UAV running `plmarl agent` with the same arguments; only
 the interpreter start-up is shared. A companion computer runs `plmarl agent` itself.
 
-Lifetime: the forkserver exits when the launcher dies (even by SIGKILL: its pipe to the
-launcher closes), and each child asks the kernel for SIGTERM when the forkserver dies,
-so no agent outlives the launcher.
+Lifetime: no agent outlives the launcher, even a SIGKILLed one. Each child gets SIGTERM
+(its normal stop: the vehicle to its stop mode, exit) when the launcher exits, through a
+pidfd of the launcher (`proc.sigterm_when_gone`), and when the forkserver dies
+(PR_SET_PDEATHSIG). The forkserver exits when its "alive" pipe from the launcher has no
+writer left; but multiprocessing hands every forked child a copy of that pipe's write
+end, so the forkserver outlives the launcher until its children are gone. Waiting for
+the forkserver alone therefore left the agents running until their own start-up waits
+timed out (30-120 s); watching the launcher itself does not depend on that pipe.
 """
 
 from __future__ import annotations
@@ -21,7 +26,9 @@ import signal
 import sys
 from multiprocessing.context import ForkServerContext
 
-from plmarl_sitl.proc import agent_child_setup, set_process_name
+import psutil
+
+from plmarl_sitl.proc import agent_child_setup, set_process_name, sigterm_when_gone
 
 # What the forkserver imports once; a forked agent finds these already in sys.modules.
 PRELOAD = ["plmarl_sitl.sitl.forked_child"]
@@ -47,11 +54,15 @@ def warm_up() -> None:
     multiprocessing.forkserver.ensure_running()
 
 
-def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> None:
+def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int, launcher: int) -> None:
     """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
     `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice`
-    is added to its niceness."""
+    is added to its niceness. It stops (SIGTERM) when process `launcher` exits."""
     agent_child_setup(nice)
+    sigterm_when_gone(launcher)  # first, before anything slow (see Lifetime above)
+    if not _forkserver_parent_is(launcher):
+        # The launcher died before the pidfd was opened: its pid may name another process by now.
+        os.kill(os.getpid(), signal.SIGTERM)
     set_process_name(name)  # the command line is the forkserver's
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
     os.dup2(fd, 1)
@@ -63,6 +74,15 @@ def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, ni
     from plmarl_sitl.deploy.agent.program import main
 
     sys.exit(main(argv))
+
+
+def _forkserver_parent_is(pid: int) -> bool:
+    """Whether this child's forkserver is still the child of process `pid` (it is
+    reparented once the launcher that started it is gone)."""
+    try:
+        return psutil.Process(os.getppid()).ppid() == pid
+    except psutil.Error:
+        return False
 
 
 class ForkedProcess:
@@ -96,6 +116,6 @@ class ForkedProcess:
 async def fork_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> ForkedProcess:
     """Fork `plmarl agent ARGV` from the preloaded forkserver (started on first use; its
     imports run in a thread so the caller's event loop keeps serving the vehicles)."""
-    proc = context().Process(target=run_agent, args=(argv, log_path, env, name, nice), name=name)
+    proc = context().Process(target=run_agent, args=(argv, log_path, env, name, nice, os.getpid()), name=name)
     await asyncio.get_running_loop().run_in_executor(None, proc.start)
     return ForkedProcess(proc)
