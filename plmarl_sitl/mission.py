@@ -96,6 +96,15 @@ class Signalling:
 
 
 @dataclass(frozen=True)
+class Demand:
+    """The coarse user-density map the ground network publishes (plmarl_sitl/model/demand.py):
+    user counts on square cells of `cell_m` over the area, refreshed every `refresh_s`."""
+
+    cell_m: float = field(default=100.0, metadata={"min": 1.0})
+    refresh_s: int = field(default=30, metadata={"min": 1})
+
+
+@dataclass(frozen=True)
 class Timing:
     dt_s: float = field(default=1.0, metadata={"min": 0.001})
     decision_every_s: int = field(default=3, metadata={"min": 1})
@@ -194,6 +203,7 @@ class Mission:
     channel: Channel = Channel()
     radii: Radii = Radii()
     signalling: Signalling = Signalling()
+    demand: Demand = Demand()
     timing: Timing = Timing()
     reward: Reward = Reward()
     launch: Launch = Launch()

@@ -19,7 +19,7 @@ from plmarl_sitl.deploy.agent.clock import MissionClock
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
-from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S
+from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S, Topics
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
 
@@ -37,7 +37,7 @@ def main() -> None:
     # started at boot time 0, and the neighbour table; no trace; the users are given below.
     clock = MissionClock(mission.signalling.tup_s, int(mission.timing.decision_every_s), 0.1, INSTANT_WAIT_WALL_S)
     table = NeighbourTable(20, 0, mission.signalling.drop_after_missed)
-    decision = Decision(mission, 0, load_policy("policies/pl-marl", mission), clock, table, LoopStats(), Trace(None), "")
+    decision = Decision(mission, 0, load_policy("policies/pl-marl", mission), clock, table, LoopStats(), Trace(None), Topics())
     decision.warm_up()
     decision.sense_history.append((0.0, torch.rand(40, 2) * 100 + 450))
     decision.ego = torch.tensor([500.0, 500.0, -80.0, 1.0, 0.0, 0.0])

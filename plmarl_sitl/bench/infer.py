@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _modules(method: str, policies: Path):
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.deploy import fuse_tracker
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 
@@ -48,8 +48,8 @@ def _modules(method: str, policies: Path):
 
     torch.manual_seed(0)
     tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR[method]), 10, 1.0)
-    policy = DeployedPolicy(Actor(), 1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
-    return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(fuse_policy(policy), POLICY_ATTRS), "untrained"
+    policy = DeployedPolicy(Actor(), 150.0, 20.0, 5.0, 350.0, 100.0, 60.0)
+    return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(policy, POLICY_ATTRS), "untrained"
 
 
 def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
@@ -66,6 +66,8 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
+    # A published demand map of 4 clusters over 100 m cells: ~16 nonzero cells on the wire.
+    demand = torch.cat([torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
     with torch.inference_mode():
@@ -78,7 +80,7 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
             tracker, policy, _ = mods[m]
             buf, seen = state[m]
             belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
-            policy(ego, belief, mask, sense, fail)
+            policy(ego, belief, mask, sense, fail, demand)
 
         for _ in range(300):  # warm-up (TorchScript's profiling runs)
             for m in mods:

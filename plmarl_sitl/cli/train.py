@@ -41,6 +41,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imitation-tup-chunks", type=int, default=5,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
                    "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
+    p.add_argument("--scenarios", choices=("general", "mission"), default="general",
+                   help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
+                   "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
     p.set_defaults(func=run)
 
 
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
             on_iter=on_iter,
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
-                            "imitation_tup_chunks": args.imitation_tup_chunks}
+                            "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general"}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

@@ -29,6 +29,7 @@ from plmarl_sitl.learning.train.predictor import (
     position_errors,
     train_predictor,
 )
+from plmarl_sitl.learning.train.scenarios import describe_distribution
 from plmarl_sitl.machine import machine_info
 from plmarl_sitl.mission import load_mission
 
@@ -100,6 +101,11 @@ def run_training(
     if res.get("imitation"):
         card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
         card["imitation"] = res["imitation"]
+    card["training"]["distribution"] = describe_distribution(
+        args.general, args.tup_choices,
+        {"from_episode": args.failure_start_episode, "probability": args.failure_prob, "at_s": args.failure_at_s})
+    card["training"]["selection"] = {**res["selection"], "rule": "best mean coverage of the deterministic actor on a "
+                                     "fixed validation set of training-distribution scenarios (training-range seeds)"}
     card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],
                              "machine": machine_info(), "torch_threads": threads})
     card["config"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}

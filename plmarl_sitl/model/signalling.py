@@ -85,3 +85,21 @@ def signalling_update(
     )
     dropped = (was & ~new.neighbour_mask(drop_after_missed)).any(-1)
     return replace(new, lost=h.lost | dropped)
+
+
+def silent_in_range(dropped: torch.Tensor, belief_pos: torch.Tensor, own_pos: torch.Tensor, comm_m: float) -> torch.Tensor:
+    """The failure evidence of one receiver: "predicted in range, yet silent".
+
+    dropped (..., M) bool: neighbours that just left N_i (missed `drop_after_missed`
+    signalling instants in a row); belief_pos (..., M, 3): where the receiver's predictor
+    believes they are now; own_pos (..., 3): the receiver's position. Returns (...) bool:
+    some dropped neighbour is still believed within R_comm. A neighbour that flew out of
+    range is believed out of range and is not evidence of a failure.
+
+    The failure flag f_i latches it: `f_i = f_i | silent_in_range(...)`, at the instant
+    the drop is noticed. The twin's learners (plmarl_sitl.learning.nn.belief.FailureFlags)
+    and the deployed agent's neighbour table apply this same rule.
+    """
+    d = belief_pos - own_pos.unsqueeze(-2)
+    near = (d * d).sum(-1) <= comm_m * comm_m
+    return (dropped & near).any(-1)

@@ -14,6 +14,15 @@ per-second work happens with the twin's code:
   mission-frame positions (vehicle local NED + home offset; homes are the twin's launch
   positions at ground level);
 * each vehicle's sensed users (within R_s of its true position) go to `sense/<id>`;
+* the user-density map (`model.demand.demand_map`, the twin's function) goes to the
+  retained `demand` topic for every map instant (`model.demand.is_map_instant`: where
+  the twin refreshes its map), each computed from the users at its instant. The twin's
+  agents see the map of instant k at k, with no delay; a broker has one (seconds of
+  vehicle time with the in-process amqtt on a loaded machine). The users' motion does not
+  depend on the UAVs, so the world steps them one map period ahead and publishes the
+  map of instant k at k - period (map 0 with the start announcement): it is at the
+  agents long before their decision at k, which never uses a map of a later instant
+  (and still waits, bounded, for a late one);
 * `metrics` carries coverage, lambda_2 and per-UAV truth (JSON).
 
 Signalling is relayed as it arrives: a state on `tx/<j>` goes to `rx/<i>` for every i that
@@ -37,6 +46,7 @@ from the same schedule (a failed node's agent process, the broker gate).
 from __future__ import annotations
 
 import asyncio
+import collections
 import contextlib
 import heapq
 import itertools
@@ -49,6 +59,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from plmarl_sitl.deploy.mqtt.demand import encode_demand
 from plmarl_sitl.deploy.mqtt.schema import (
     INSTANT_WAIT_MIN_S,
     INSTANT_WAIT_WALL_S,
@@ -62,6 +73,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
+from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant, map_period
 from plmarl_sitl.model.events import EventSchedule, end_second
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
@@ -163,11 +175,14 @@ class SitlWorld:
         seed = m.seed if cfg.seed is None else cfg.seed
         self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
         self.users: UserState = init_users(m, 1, self.gen, torch.float32)
+        self.users_ahead: collections.deque[UserState] = collections.deque()  # users of seconds k + 1 .. k + map period
+        self.map_seq = 0
         self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
         self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
         # A retained start (and T_up) of a previous run must not reach this run's agents.
         self.bus.publish(self.topics.start, b"", sticky=True)
         self.bus.publish(self.topics.ctl, b"", sticky=True)
+        self.bus.publish(self.topics.demand, b"", sticky=True)
         self.summary = WorldSummary()
         self.t0: float | None = None  # boot second of mission t = 0 (external vehicles: on the reference clock)
         self.t0_by_uav: list[float] | None = None  # ... on each vehicle's own clock, if they differ
@@ -332,8 +347,33 @@ class SitlWorld:
             if self.t0_by_uav is not None:
                 start["t0_boot_s_by_uav"] = self.t0_by_uav
             self.bus.publish(self.topics.start, encode_json(start), sticky=True)
+            self.publish_map(0, self.users)  # the users stay at their t = 0 positions until t0
             log.info("mission starts at boot %.0f s (now %.2f s)%s", self.t0, now,
                      f"; on each vehicle's clock {self.t0_by_uav}" if self.t0_by_uav is not None else "")
+
+    def publish_map(self, k: int, users: UserState) -> None:
+        """The user-density map of mission second k (users at k) on the retained demand topic."""
+        m = self.mission
+        counts = demand_map(users.xy[0], m.area.north_m, m.area.east_m, m.demand.cell_m)
+        rows, cols = grid_shape(m.area.north_m, m.area.east_m, m.demand.cell_m)
+        payload = encode_demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
+        self.bus.publish(self.topics.demand, payload, sticky=True)
+        self.map_seq += 1
+
+    def _step_users(self, k: int) -> None:
+        """The users at mission second k (stepped earlier), and the seconds ahead up to one
+        map period: a map instant among them has its map published now. One step per
+        second, in order: the generator is used as in the twin."""
+        m = self.mission
+        if k >= 1:
+            self.users = self.users_ahead.popleft()
+        period = map_period(m.demand.refresh_s, m.timing.decision_every_s)
+        while len(self.users_ahead) < period:
+            last = self.users_ahead[-1] if self.users_ahead else self.users
+            self.users_ahead.append(step_users(last, m, m.timing.dt_s, self.gen))
+            t = k + len(self.users_ahead)
+            if is_map_instant(t, m.demand.refresh_s, m.timing.decision_every_s):
+                self.publish_map(t, self.users_ahead[-1])
 
     def _second(self, second: float) -> None:
         """Work at a whole second: mission second k = second - t0 (or a boot second before t0)."""
@@ -341,8 +381,7 @@ class SitlWorld:
         k: int | None = None
         if self.t0 is not None and second >= self.t0 - 1e-6:
             k = int(round(second - self.t0))
-            if k >= 1:
-                self.users = step_users(self.users, m, m.timing.dt_s, self.gen)
+            self._step_users(k)
             self.mission_t = k
         pos = self.positions()
         alive = self.alive()

@@ -21,6 +21,7 @@ import torch
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import SENSING_FEATURES, covered_users, sensing_features
+from plmarl_sitl.model.demand import cell_centres, demand_cells, demand_map
 from plmarl_sitl.model.events import EventSchedule, failure_times
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.reward import RewardTerms, combine, reward_terms
@@ -41,7 +42,8 @@ class Observation:
     nbr_mask: torch.Tensor  # (B, N, N) bool: j in N_i (heard recently enough, alive i)
     nbr_t_rx: torch.Tensor  # (B, N, N) time the held state was received
     sense: torch.Tensor  # (B, N, SENSING_FEATURES) local user sensing
-    fail_flag: torch.Tensor  # (B, N) bool: agent i has dropped a neighbour (its f)
+    fail_flag: torch.Tensor  # (B, N) bool: agent i has dropped a neighbour (raw; learners' f: silent_in_range)
+    demand: torch.Tensor  # (B, K, 3) the published user-density map: [cell centre n, e, count]
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,22 @@ def launch_positions(mission: Mission, alt_m: float) -> torch.Tensor:
     return torch.stack([north, la.east_m + offs, torch.full((n,), -alt_m, dtype=torch.float64)], -1)
 
 
+def random_launch_positions(mission: Mission, batch: int, alt_m: float, gen: torch.Generator) -> torch.Tensor:
+    """(B, N, 3) start lines with a random centre and orientation per environment (the
+    training distribution of issue 12), the mission's spacing, inside the area."""
+    n, spacing = mission.n_uavs, mission.launch.spacing_m
+    half = (n - 1) / 2 * spacing
+    margin = min(half + 50.0, 0.5 * min(mission.area.north_m, mission.area.east_m))
+    u = torch.rand(batch, 3, generator=gen, dtype=torch.float64)
+    centre_n = margin + u[:, 0] * (mission.area.north_m - 2 * margin)
+    centre_e = margin + u[:, 1] * (mission.area.east_m - 2 * margin)
+    heading = torch.pi * u[:, 2]  # direction of the line; 0 = along east, as the mission's launch
+    offs = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * spacing
+    north = centre_n.unsqueeze(-1) + offs * torch.sin(heading).unsqueeze(-1)
+    east = centre_e.unsqueeze(-1) + offs * torch.cos(heading).unsqueeze(-1)
+    return torch.stack([north, east, torch.full_like(north, -alt_m)], -1)
+
+
 class CoverageEnv:
     def __init__(
         self,
@@ -73,6 +91,7 @@ class CoverageEnv:
         failure_prob: float = 0.0,
         failure_at_s: float = 100.0,
         track_lambda2: bool = False,
+        random_launch: bool = False,
     ) -> None:
         self.mission = mission
         self.num_envs = num_envs
@@ -80,6 +99,7 @@ class CoverageEnv:
         self.dtype, self.device = dtype, device
         self.failure_prob, self.failure_at_s = failure_prob, failure_at_s
         self.track_lambda2 = track_lambda2
+        self.random_launch = random_launch  # off: the mission's launch line in every environment
         self.gen = torch.Generator().manual_seed(seed)
         vm = mission.vehicle_model()
         self.vehicle = vm
@@ -103,8 +123,11 @@ class CoverageEnv:
     # ---------------------------------------------------------------- reset
     def reset(self) -> Observation:
         m, b, n = self.mission, self.num_envs, self.n
-        start = launch_positions(m, min(max(self.vehicle.takeoff_alt_m, self.limits.alt_min), self.limits.alt_max))
-        self.pos = start.to(self.dtype).unsqueeze(0).repeat(b, 1, 1).to(self.device)
+        alt = min(max(self.vehicle.takeoff_alt_m, self.limits.alt_min), self.limits.alt_max)
+        if self.random_launch:
+            self.pos = random_launch_positions(m, b, alt, self.gen).to(self.dtype).to(self.device)
+        else:
+            self.pos = launch_positions(m, alt).to(self.dtype).unsqueeze(0).repeat(b, 1, 1).to(self.device)
         self.vel = torch.zeros_like(self.pos)
         self.alive = torch.ones(b, n, dtype=torch.bool, device=self.device)
         self.users: UserState = init_users(m, b, self.gen, self.dtype, self.device)
@@ -115,6 +138,7 @@ class CoverageEnv:
         self._apply_failures()
         self.run_signalling()
         self.covered = covered_users(self.users.xy, self.pos, self.alive, self.radius(-self.pos[..., 2]))
+        self.demand_t = None
         return self.observe()
 
     # ---------------------------------------------------------------- dynamics
@@ -208,6 +232,17 @@ class CoverageEnv:
         return algebraic_connectivity(weighted_adjacency(rx, sinr), self.alive).to(self.dtype)
 
     # ---------------------------------------------------------------- observations
+    def published_demand(self) -> torch.Tensor:
+        """(B, K, 3) the user-density map as last published: recomputed at t = 0 and then
+        every `demand.refresh_s` seconds (observations come at decisions, so a refresh
+        period that is a multiple of tau lands exactly)."""
+        m = self.mission
+        if self.demand_t is None or self.t - self.demand_t >= m.demand.refresh_s:
+            counts = demand_map(self.users.xy, m.area.north_m, m.area.east_m, m.demand.cell_m)
+            self.demand = demand_cells(counts, cell_centres(m.area.north_m, m.area.east_m, m.demand.cell_m, self.dtype))
+            self.demand_t = self.t
+        return self.demand
+
     def observe(self) -> Observation:
         m = self.mission
         h = self.holdings
@@ -225,6 +260,7 @@ class CoverageEnv:
             nbr_t_rx=h.t_rx,
             sense=sense,
             fail_flag=h.lost & self.alive,
+            demand=self.published_demand(),
         )
 
     def global_state(self) -> torch.Tensor:
@@ -253,4 +289,4 @@ class CoverageEnv:
         self.mission = dataclasses.replace(self.mission, **changes)
 
 
-__all__ = ["CoverageEnv", "Observation", "StepInfo", "SENSING_FEATURES", "launch_positions"]
+__all__ = ["CoverageEnv", "Observation", "StepInfo", "SENSING_FEATURES", "launch_positions", "random_launch_positions"]

@@ -77,6 +77,40 @@ class OracleController:
         hit = (d2 <= self.r * self.r) & live.unsqueeze(-2)
         return hit.any(-1).sum(-1).to(users.dtype)
 
+    def _assign(self, targets: torch.Tensor, e: int, users: torch.Tensor, placements: torch.Tensor) -> None:
+        """Write into targets[e] the placements assigned to environment e's live UAVs with the
+        least total travel (Hungarian); with fewer live UAVs, re-plan for exactly that many."""
+        env = self.env
+        live = torch.nonzero(env.alive[e]).flatten()
+        k = len(live)
+        if k == 0:
+            return
+        places = placements if k == env.n else self.plan(users, k)[0][0]
+        cost = torch.cdist(env.pos[e, live, :2].double(), places.double()).numpy()
+        rows, cols = linear_sum_assignment(cost)
+        targets[e, live[rows]] = places[torch.from_numpy(np.asarray(cols))]
+
+    def act_from_state(self, obs: Observation) -> torch.Tensor:
+        """The Oracle's action from the current state alone, for imitation labels.
+
+        `act` keeps its plan (it re-plans only for more users or a death), so once a
+        student has flown elsewhere `act` still sends every UAV to the slot it was given at
+        launch: a label that no local observation explains. Here today's greedy placements
+        are assigned to the live UAVs where they are now (Hungarian), with no memory.
+        """
+        env = self.env
+        b, n = env.num_envs, env.n
+        targets = env.pos[..., :2].clone()
+        for lo in range(0, b, _CHUNK):
+            sl = slice(lo, min(b, lo + _CHUNK))
+            users = env.users.xy[sl]
+            placements, _ = self.plan(users, n)
+            for j in range(sl.stop - sl.start):
+                self._assign(targets, lo + j, users[j : j + 1], placements[j])
+        target = torch.cat([targets, torch.full((b, n, 1), -self.alt, dtype=env.dtype)], -1)
+        tau = float(env.mission.timing.decision_every_s)
+        return goto_accel(env.pos, env.vel, target, env.limits.max_speed, env.limits.max_accel, time_const=tau)
+
     def act(self, obs: Observation) -> torch.Tensor:
         env = self.env
         b, n = env.num_envs, env.n
@@ -91,16 +125,7 @@ class OracleController:
             current = self._covered_by(users, self.targets[sl], alive[sl])
             replan = (gain > current) | (alive[sl] != self._alive[sl]).any(-1)
             for j in torch.nonzero(replan).flatten().tolist():
-                e = lo + j
-                live = torch.nonzero(alive[e]).flatten()
-                k = len(live)
-                if k == 0:
-                    continue
-                # With fewer live UAVs, re-plan for exactly k placements.
-                places = placements[j] if k == n else self.plan(users[j : j + 1], k)[0][0]
-                cost = torch.cdist(env.pos[e, live, :2].double(), places.double()).numpy()
-                rows, cols = linear_sum_assignment(cost)
-                self.targets[e, live[rows]] = places[torch.from_numpy(np.asarray(cols))]
+                self._assign(self.targets, lo + j, users[j : j + 1], placements[j])
         self._alive = alive.clone()
         target = torch.cat([self.targets, torch.full((b, n, 1), -self.alt, dtype=env.dtype)], -1)
         tau = float(env.mission.timing.decision_every_s)

@@ -41,6 +41,12 @@ def policy_dir(tmp_path_factory: pytest.TempPathFactory, mission: Mission) -> Pa
     return make_untrained_policy(tmp_path_factory.mktemp("policy"), mission)
 
 
+@pytest.fixture(scope="session")
+def v2_policy_dir(tmp_path_factory: pytest.TempPathFactory, mission: Mission) -> Path:
+    """A real policy of input version 2 (demand map, predicted-in-range f), untrained."""
+    return make_untrained_policy(tmp_path_factory.mktemp("policy-v2"), mission)
+
+
 def make_untrained_policy(out: Path, mission: Mission) -> Path:
     from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
     from plmarl_sitl.learning.nn.io import export_policy

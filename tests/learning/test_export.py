@@ -53,10 +53,12 @@ def test_round_trip_equals_eager(tmp_path: Path, mission, kind: str) -> None:
     ego = torch.tensor([300.0, 400.0, -90.0, 1.0, 2.0, 0.0])
     mask = torch.tensor([True, True, False])
     sense = torch.rand(SENSING_FEATURES, generator=gen)
+    demand = torch.tensor([[250.0, 350.0, 40.0], [550.0, 450.0, 7.0], [950.0, 50.0, 60.0]])
     for fail in (False, True):
-        want = policy(ego, e1, mask, sense, torch.tensor(fail))
-        got = loaded.policy(ego, e2, mask, sense, torch.tensor(fail))
-        assert torch.allclose(want, got, atol=1e-6)
+        for d in (demand, None):
+            want = policy(ego, e1, mask, sense, torch.tensor(fail), d)
+            got = loaded.policy(ego, e2, mask, sense, torch.tensor(fail), d)
+            assert torch.allclose(want, got, atol=1e-6)
 
 
 def test_missing_file_is_named(tmp_path: Path, mission) -> None:

@@ -15,10 +15,11 @@ from plmarl_sitl.learning.nn import (
     build_policy_input,
     make_predictor,
 )
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, state_norm
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, ring_edges_sq
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 
-SCALES = (1000.0, 1000.0, 150.0, 20.0, 5.0, 350.0)
+SCALES = (150.0, 20.0, 5.0, 350.0, 100.0, 60.0)  # alt_max, v_max, a_max, r_comm, claim_m, demand_unit
+DEMAND = torch.tensor([[250.0, 250.0, 30.0], [650.0, 400.0, 12.0]])
 
 
 def _inputs(b: int, m: int, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
@@ -36,7 +37,8 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     ego, bel, sense = _inputs(5, m, gen)
     mask = torch.zeros(5, m, dtype=torch.bool)
     mask[:, :n_nbrs] = True
-    ego_x, nbr_x, rel_x, mk = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), state_norm(*SCALES[:4]), 1.0 / SCALES[5])
+    ego_x, nbr_x, rel_x, mk, _, _ = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3),
+                                                 SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq())
     assert ego_x.shape == (5, EGO_FEATURES) and nbr_x.shape == (5, m, NBR_FEATURES) and rel_x.shape == (5, m, 3)
     fusion = AttentionFusion()
     h, msg, alpha = fusion(ego_x, nbr_x, rel_x, mk)
@@ -51,8 +53,8 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     bel2 = bel.clone()
     bel2[:, n_nbrs:] = torch.randn_like(bel2[:, n_nbrs:]) * 1e4
     pol = DeployedPolicy(Actor(), *SCALES)
-    a1 = pol(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool))
-    a2 = pol(ego, bel2, mask, sense, torch.zeros(5, dtype=torch.bool))
+    a1 = pol(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3))
+    a2 = pol(ego, bel2, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3))
     assert torch.equal(a1, a2)
     assert a1.shape == (5, 3) and torch.all(a1.abs() <= 5.0)
 

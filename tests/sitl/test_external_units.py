@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import pytest
 
 from plmarl_sitl.deploy.agent.clock import MissionClock
+from plmarl_sitl.deploy.agent.demand import DemandMaps
 from plmarl_sitl.deploy.agent.inbox import Inbox
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.mqtt.schema import Topics, encode_json
@@ -95,15 +96,17 @@ def test_the_agent_takes_t0_on_its_own_vehicles_clock_from_the_start_message() -
     topics = Topics("sitl")
     for me, want in ((0, 81.0), (1, 80.809)):
         clock = MissionClock(15, 3, 0.1, 0.15)
-        inbox = Inbox(topics, me, 2, NeighbourTable(2, me, 2), clock, deque(), wait_start=True)
+        inbox = Inbox(topics, me, 2, NeighbourTable(2, me, 2), clock, deque(), DemandMaps(two_uavs(), topics.demand),
+                      wait_start=True)
         inbox.on_message(topics.start, encode_json({"t0_boot_s": 81.0, "tup_s": 15, "n_uavs": 2,
                                                     "t0_boot_s_by_uav": [81.0, 80.809]}))
         assert clock.t0 == want
     clock = MissionClock(15, 3, 0.1, 0.15)  # a shared clock: one t0 for all
-    Inbox(topics, 1, 2, NeighbourTable(2, 1, 2), clock, deque(), wait_start=True).on_message(
+    Inbox(topics, 1, 2, NeighbourTable(2, 1, 2), clock, deque(), DemandMaps(two_uavs(), topics.demand), wait_start=True).on_message(
         topics.start, encode_json({"t0_boot_s": 81.0, "tup_s": 15, "n_uavs": 2}))
     assert clock.t0 == 81.0
-    inbox = Inbox(topics, 3, 4, NeighbourTable(4, 3, 2), MissionClock(15, 3, 0.1, 0.15), deque(), wait_start=True)
+    inbox = Inbox(topics, 3, 4, NeighbourTable(4, 3, 2), MissionClock(15, 3, 0.1, 0.15), deque(),
+                  DemandMaps(two_uavs(), topics.demand), wait_start=True)
     inbox.on_message(topics.start, encode_json({"t0_boot_s": 81.0, "t0_boot_s_by_uav": [81.0]}))  # too short
     assert inbox.rx.as_dict().get("malformed_start") == 1
 

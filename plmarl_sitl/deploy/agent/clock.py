@@ -112,26 +112,30 @@ class MissionClock:
             self.next_pub_k += self.tup
         return due
 
-    def second_due(self, k: int, tm: float, awaiting_sensing: bool, delivered: Callable[[int], bool]) -> bool:
+    def second_due(self, k: int, tm: float, awaiting_sensing: bool, delivered: Callable[[int], bool],
+                   awaiting_demand: bool = False) -> bool:
         """Second k can be processed at mission time tm: at once, except
         - at a signalling instant, which waits until every neighbour expected to deliver has
-          (`delivered(k)`) or the SITL link emulator says the instant is closed, and
+          (`delivered(k)`) or the SITL link emulator says the instant is closed,
         - at the first decision, which waits for a first sensing message
           (`awaiting_sensing`: is there a sensing publisher at all?); later decisions take
           the newest sensing there is, as a wait for second k's would delay every action
-          by the bus's round trip,
-        both bounded by `settle_max_s` of vehicle time, so late messages still count."""
+          by the bus's round trip, and
+        - at a decision whose demand map is due and not here yet (`awaiting_demand`: the
+          twin's decision at k sees the map of k),
+        all bounded by `settle_max_s` of vehicle time, so late messages still count."""
         if tm < k - EPS:
             return False
         instant = k % self.tup == 0
         first_sensing = self.is_decision(k) and awaiting_sensing
-        if not instant and not first_sensing:
+        demand = self.is_decision(k) and awaiting_demand
+        if not instant and not first_sensing and not demand:
             return True
         if instant and tm < k + self.settle_min_s:
             return False
         if tm >= k + self.settle_max_s():
             return True
-        if first_sensing:
+        if first_sensing or demand:
             return False
         if self.closed_t >= k:
             return True

@@ -81,9 +81,9 @@ class Agent:
         self.clock = MissionClock(int(cfg.tup_s or m.signalling.tup_s), int(m.timing.decision_every_s),
                                   cfg.settle_min_s, cfg.settle_wall_s)
         self.table = NeighbourTable(self.n, self.me, m.signalling.drop_after_missed)
-        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics.sense(self.me))
+        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics)
         self.inbox = Inbox(self.topics, self.me, self.n, self.table, self.clock, self.decision.sense_history,
-                           wait_start=cfg.wait_start)
+                           self.decision.demand, wait_start=cfg.wait_start)
         self.session = VehicleSession(link, cfg, self.clock, self.decision, self.stats, self.t_proc0, self.on_telemetry)
 
     def on_telemetry(self, m: Any) -> None:
@@ -169,5 +169,7 @@ class Agent:
             "bus": self.bus.stats.as_dict(),
             "dropped": self.table.dropped,
             "reengaged": self.session.reengaged,
-            "fail": self.table.lost,
+            "fail": self.table.lost,  # a neighbour was dropped (input version 1's flag)
+            "f": self.decision.fail,  # the flag the policy got at the last decision
+            "demand": self.decision.demand.counters(),
         })

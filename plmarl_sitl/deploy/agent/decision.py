@@ -4,7 +4,11 @@ At each due second k (see `MissionClock.second_due`): book the misses of the ins
 whose grace has passed (failure state f), advance Algorithm 1's tracker one second
 (`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds run
 `policy.pt` on (ego at the first sample of second k, beliefs, N_i mask, sensing features,
-f) -> an acceleration, held until the next decision. `command()` is what goes to the
+f, demand map) -> an acceleration, held until the next decision. f and the map are the
+twin's: f latches `model.signalling.silent_in_range` on the beliefs of the decision at
+which the twin sees a drop (`failure.FailureFlag`; the twin's controllers use
+`FailureFlags`) and the map is the newest published one not after k (`demand.DemandMaps`). A policy of input version 1 is called as it was trained: without
+the map, with f = "a neighbour was dropped" (`NeighbourTable.lost`). `command()` is what goes to the
 autopilot: before the mission a soft hold where offboard control began, then the
 policy's acceleration through the altitude band guard.
 """
@@ -18,10 +22,13 @@ import math
 import torch
 
 from plmarl_sitl.deploy.agent.clock import EPS, MissionClock
+from plmarl_sitl.deploy.agent.demand import DemandMaps
+from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
+from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
@@ -33,10 +40,15 @@ HOLD_KP, HOLD_KD, HOLD_MAX_ACCEL = 0.3, 1.0, 2.5  # pre-mission hold: soft, so l
 
 class Decision:
     def __init__(self, mission: Mission, me: int, lp: LoadedPolicy, clock: MissionClock, table: NeighbourTable,
-                 stats: LoopStats, trace: Trace, sense_topic: str) -> None:
+                 stats: LoopStats, trace: Trace, topics: Topics) -> None:
         self.mission, self.me, self.n = mission, me, mission.n_uavs
-        self.sense_topic = sense_topic  # where sensing comes from (for the warning when it does not)
+        self.sense_topic = topics.sense(me)  # where sensing comes from (for the warning when it does not)
         self.tracker, self.policy = lp.tracker, lp.policy
+        self.input_version = lp.input_version
+        self.flag = FailureFlag(self.n, clock.tau, float(lp.policy.r_comm))  # f of input version 2
+        self.fail = False  # the f the policy got at the last decision
+        self.demand = DemandMaps(mission, topics.demand)
+        self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
         self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
@@ -64,12 +76,17 @@ class Decision:
         held = torch.zeros(n, 6)
         held[:, 0] = torch.arange(n, dtype=torch.float32) * 40.0
         buf, seen = self.tracker.init_state(held)
+        cells = self.demand.centres[: min(16, len(self.demand.centres))]
+        demand = torch.cat([cells, torch.full((len(cells), 1), 5.0)], -1)
         for t in range(calls * 2):
             t_rx = torch.full((n,), float(t if t % 2 == 0 else t - 1))
             belief, _, buf, seen = self.tracker(float(t), held, t_rx, buf, seen)
             mask = torch.ones(n, dtype=torch.bool)
             mask[self.me] = False
-            self.policy(held[self.me], belief, mask, torch.zeros(SENSING_FEATURES), torch.tensor(t % 4 == 3))
+            args = [held[self.me], belief, mask, torch.zeros(SENSING_FEATURES), torch.tensor(t % 4 == 3)]
+            if self.input_version >= 2:
+                args.append(demand)
+            self.policy(*args)
         sensing_features(held[:1, :3], torch.zeros(3, 2), self.mission.radii.sensing_m, self.mission.users.cluster_size)
 
     def catch_up(self, tm: float) -> bool:
@@ -79,7 +96,8 @@ class Decision:
         for k in range(clock.next_k, math.floor(tm + EPS) + 1):
             self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
         decided = False
-        while clock.second_due(clock.next_k, tm, self.awaiting_sensing(), self.delivered):
+        while clock.second_due(clock.next_k, tm, self.awaiting_sensing(), self.delivered,
+                               awaiting_demand=self.input_version >= 2 and self.demand.awaiting(clock.next_k)):
             k = clock.next_k
             decided |= self.second(k, max(0.0, tm - k))
             clock.next_k = k + 1
@@ -109,8 +127,11 @@ class Decision:
     @torch.inference_mode()
     def _book_misses(self, k: int, sub_s: float) -> None:
         for inst in self.clock.instants_to_book(k, sub_s):
-            for j in self.table.close_instant(float(inst)):
-                log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed); f = 1", j, k, self.table.drop)
+            dropped = self.table.close_instant(float(inst))
+            for j in dropped:
+                log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed)", j, k, self.table.drop)
+            if dropped:
+                self.flag.on_dropped(inst, dropped)
 
     def second(self, k: int, sub_s: float = 0.0) -> bool:
         """Mission second k (processed `sub_s` late): close the instant, advance the
@@ -126,10 +147,22 @@ class Decision:
         for old in [s for s in self.ego_at if s < k]:
             del self.ego_at[old]
         mask = self.table.mask()
+        new_map = None
         if decided:
             sense = self._sense(ego, k)
-            fail = torch.tensor(self.table.lost)
-            a = self.policy(ego, self.belief, mask, sense, fail)
+            if self.input_version >= 2:
+                fail = torch.tensor(self.flag.on_decision(k, self.belief, ego))
+                got = self.demand.for_decision(k)
+                if got is not None and got[0] != self.used_demand_t:
+                    new_map = got[1]
+                self.used_demand_t = None if got is None else got[0]
+                a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
+            else:
+                fail = torch.tensor(self.table.lost)
+                a = self.policy(ego, self.belief, mask, sense, fail)
+            if bool(fail) and not self.fail:
+                log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
+            self.fail = bool(fail)
             self.accel = (float(a[0]), float(a[1]), float(a[2]))
             self.stats.decisions += 1
         if self.trace.active:
@@ -139,12 +172,15 @@ class Decision:
                 "aoi": [round(float(x), 2) for x in self.aoi],
                 "mask": [bool(x) for x in mask],
                 "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
-                "fail": self.table.lost,
+                "fail": self.table.lost,  # a neighbour was dropped
+                "f": self.fail,  # the failure flag the policy got at the last decision
                 "ego": [round(x, 2) for x in ego.tolist()],
                 "accel": [round(x, 3) for x in self.accel],  # the policy's command
                 "cmd": [round(x, 3) for x in self.command()],  # after the band guard
                 "decided": decided,
                 "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
+                "demand_t": self.used_demand_t,  # the snapshot time of the map the last decision saw
+                **({} if new_map is None else {"demand": new_map.tolist()}),  # that map's cells, when first used
             })
         return decided
 

@@ -1,6 +1,6 @@
-"""The agent's bus input: payloads decoded into the neighbour table, the clock and the
-sensing history; anything malformed is counted by reason (`rx`, in the agent's stats) and
-changes nothing."""
+"""The agent's bus input: payloads decoded into the neighbour table, the clock, the
+sensing history and the demand maps; anything malformed is counted by reason (`rx`, in
+the agent's stats: `malformed_<reason>`, `malformed_demand_<reason>`, ...) and changes nothing."""
 
 from __future__ import annotations
 
@@ -10,7 +10,9 @@ from collections import deque
 import torch
 
 from plmarl_sitl.deploy.agent.clock import MissionClock
+from plmarl_sitl.deploy.agent.demand import DemandMaps
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.mqtt.demand import decode_demand
 from plmarl_sitl.deploy.mqtt.schema import (
     Malformed,
     RxCounters,
@@ -29,17 +31,18 @@ SenseHistory = deque[tuple[float, torch.Tensor]]
 
 
 def subscriptions(topics: Topics, me: int, bus_mode: str) -> list[str]:
-    """What agent `me` listens to: its sensing, the mission start and control, and its
-    neighbours' states (relayed by the SITL world, or straight from tx/+ with `direct`)."""
-    subs = [topics.sense(me), topics.start, topics.ctl]
+    """What agent `me` listens to: its sensing, the demand map, the mission start and
+    control, and its neighbours' states (relayed by the SITL world, or straight from tx/+
+    with `direct`)."""
+    subs = [topics.sense(me), topics.demand, topics.start, topics.ctl]
     return subs + ([topics.tx("+")] if bus_mode == "direct" else [topics.rx(me), topics.closed])
 
 
 class Inbox:
     def __init__(self, topics: Topics, me: int, n: int, table: NeighbourTable, clock: MissionClock,
-                 sense_history: SenseHistory, *, wait_start: bool) -> None:
+                 sense_history: SenseHistory, demand: DemandMaps, *, wait_start: bool) -> None:
         self.topics, self.me, self.n = topics, me, n
-        self.table, self.clock, self.sense_history = table, clock, sense_history
+        self.table, self.clock, self.sense_history, self.demand = table, clock, sense_history, demand
         self.wait_start = wait_start  # take t0 from the world's start announcement
         self.rx = RxCounters()
         self.seq_filter = SeqFilter()
@@ -49,6 +52,8 @@ class Inbox:
         t = self.topics
         if topic == t.sense(self.me):
             self._on_sense(payload)
+        elif topic == t.demand:
+            self._on_demand(payload)
         elif topic == t.start:
             self._on_start(payload)
         elif topic == t.closed:
@@ -68,6 +73,16 @@ class Inbox:
             self.rx.bad(f"sense_{exc.reason}")
             return
         self.sense_history.append((msg.t_ms / 1000.0, torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)))
+
+    def _on_demand(self, payload: bytes) -> None:
+        if not payload:
+            return  # the world clears a previous run's retained map with an empty payload
+        try:
+            msg = decode_demand(payload)
+        except Malformed as exc:
+            self.rx.bad(f"demand_{exc.reason}")
+            return
+        self.demand.on_message(msg)
 
     def _on_start(self, payload: bytes) -> None:
         if not payload:

@@ -1,4 +1,4 @@
-"""The signalling wire format (version 1): compact binary state and sensing messages.
+"""The signalling wire format (schema version 2): compact binary state and sensing messages.
 
 docs/SIGNALLING.md is the contract. All integers little-endian. A state message is the
 sparse signalling update of Algorithm 1 (38 bytes); a sensing message lists the users a
@@ -6,7 +6,8 @@ vehicle's payload sensor sees. Decoders never raise anything but `Malformed`, wh
 `reason` feeds the receive counters.
 
 Topics (`Topics(swarm)`): tx/<id> (agent -> link emulator or radio), rx/<id> (what the
-link delivered to <id>), sense/<id>, metrics (JSON), start (JSON, retained), ctl (JSON).
+link delivered to <id>), sense/<id>, demand (binary, retained; codec in `demand.py`),
+metrics (JSON), start (JSON, retained), ctl (JSON).
 """
 
 from __future__ import annotations
@@ -16,6 +17,9 @@ import math
 import struct
 from dataclasses import dataclass, field
 
+# The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12); the
+# messages of version 1 are unchanged and keep their own version byte, VERSION.
+SCHEMA_VERSION = 2
 VERSION = 1
 KIND_STATE = ord("S")
 KIND_SENSE = ord("U")
@@ -160,6 +164,11 @@ class Topics:
 
     def sense(self, i: int | str) -> str:
         return f"{self.root}/sense/{i}"
+
+    @property
+    def demand(self) -> str:
+        """The published user-density map (retained)."""
+        return f"{self.root}/demand"
 
     @property
     def metrics(self) -> str:

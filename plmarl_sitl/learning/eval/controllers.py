@@ -2,7 +2,9 @@
 
 A LearnedController runs exactly what a deployed agent runs: the belief tracker once per
 physics second (replayed up to the observation time, see `Beliefs.catch_up`) and the
-exported policy on the raw physical tensors, batched over the twin's (B, N) agents.
+exported policy on the raw physical tensors, batched over the twin's (B, N) agents; the
+failure flag f by the predicted-in-range rule (`FailureFlags`), the demand map as published.
+A policy of input version 1 gets neither the map nor that rule (its raw flag, as it was trained).
 """
 
 from __future__ import annotations
@@ -10,19 +12,27 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from plmarl_sitl.learning.nn.belief import Beliefs
+from plmarl_sitl.learning.nn.belief import Beliefs, FailureFlags
+from plmarl_sitl.learning.nn.io import input_version
 from plmarl_sitl.twin.env import Observation
 
 
 class LearnedController:
     def __init__(self, tracker: nn.Module, policy: nn.Module) -> None:
         self.beliefs = Beliefs(tracker)
+        self.flags = FailureFlags(float(policy.r_comm))
         self.policy = policy
+        self.version = input_version(policy)  # 1: the policies shipped before issue 12 (no map, raw f)
 
     def reset(self) -> None:
         self.beliefs.reset()
+        self.flags.reset()
 
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
         belief, _ = self.beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)
+        fail = self.flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
+        if self.version < 2:
+            return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)
+        demand = obs.demand.unsqueeze(1).expand(-1, obs.ego.shape[1], -1, -1)  # one map per environment
+        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand)

@@ -174,25 +174,25 @@ def plot_coverage_vs_n(res: dict, scaling: list[str], path: Path) -> bool:
 
 
 def plot_failure_transient(res: dict, path: Path) -> bool:
-    """Fig. 5a: mean C(t) of each method on the failure family's episodes."""
+    """Fig. 5a: mean C(t) of each method on each failure family's episodes (one panel per family)."""
     if not res["transients"]:
         return False
-    t0 = res["transients"][0]
-    fam, tup, fail_s = t0["family"], t0["tup"], t0["failure_at_s"]
-    traces = res["traces"][fam]
+    panels = {(t["family"], t["tup"]): t["failure_at_s"] for t in res["transients"]}
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 3.8))
-    for m in res["methods"]:
-        y = np.array(traces[f"{m}@{tup}"])
-        ax.plot(np.arange(1, y.size + 1), y, label=m, color=COLOURS.get(m), ls="--" if m == "oracle" else "-", lw=1.2)
-    ax.axvline(fail_s, color="k", lw=0.8, ls=":")
-    ax.text(fail_s + 2, 0.05, "node failure", fontsize=8)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("coverage C(t), mean over episodes")
-    ax.set_ylim(0, 1.02)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    ax.set_title(f"Failure transient ({fam}, T_up = {tup} s, {res['episodes']} episodes)", fontsize=10)
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 3.8), squeeze=False)
+    for ax, ((fam, tup), fail_s) in zip(axes[0], panels.items(), strict=True):
+        traces = res["traces"][fam]
+        for m in res["methods"]:
+            y = np.array(traces[f"{m}@{tup}"])
+            ax.plot(np.arange(1, y.size + 1), y, label=m, color=COLOURS.get(m), ls="--" if m == "oracle" else "-", lw=1.2)
+        ax.axvline(fail_s, color="k", lw=0.8, ls=":")
+        ax.text(fail_s + 2, 0.05, "node failure", fontsize=8)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("coverage C(t), mean over episodes")
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        ax.set_title(f"Failure transient ({fam}, T_up = {tup} s, {res['episodes']} episodes)", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

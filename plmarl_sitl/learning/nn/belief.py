@@ -25,6 +25,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from plmarl_sitl.model.signalling import silent_in_range
+
 NEVER = -1.0e9  # t_rx of a neighbour never heard (same sentinel as plmarl_sitl.model.signalling)
 MAX_AOI = 1000.0  # s: P-AoI fed to the predictor is capped (never-heard slots are masked anyway)
 
@@ -116,3 +118,28 @@ class Beliefs:
             self.advance(s, held_state, held_t_rx)
         assert self.belief is not None and self.aoi is not None
         return self.belief, self.aoi
+
+
+class FailureFlags:
+    """The agents' failure flags f in the twin, latched per episode: f_i is set when a
+    neighbour leaves N_i while its belief is still within R_comm of agent i
+    (`plmarl_sitl.model.signalling.silent_in_range`, the rule the deployed agent's
+    neighbour table applies at the instant it drops a neighbour). Call `update` at every
+    observation, with the beliefs of that instant."""
+
+    def __init__(self, comm_m: float) -> None:
+        self.comm_m = comm_m
+        self.was: torch.Tensor | None = None
+        self.flag: torch.Tensor | None = None
+
+    def reset(self) -> None:
+        self.was = self.flag = None
+
+    def update(self, mask: torch.Tensor, belief: torch.Tensor, ego: torch.Tensor, alive: torch.Tensor) -> torch.Tensor:
+        """mask (..., M) bool N_i, belief (..., M, 6), ego (..., 6), alive (...) -> f (...) bool."""
+        if self.was is None or self.flag is None:
+            self.was, self.flag = torch.zeros_like(mask), torch.zeros_like(alive)
+        dropped = self.was & ~mask
+        self.flag = self.flag | silent_in_range(dropped, belief[..., 0:3], ego[..., 0:3], self.comm_m)
+        self.was = mask
+        return self.flag & alive

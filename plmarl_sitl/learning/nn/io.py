@@ -6,7 +6,7 @@ A policy directory holds:
                 inside: `forward(t, held_state, held_t_rx, buf, seen_t_rx)` and
                 `init_state(held_state)`;
 * policy.pt     the scripted `DeployedPolicy`: `forward(ego, beliefs, mask, sense,
-                fail_flag) -> accel`, feature normalisation included;
+                fail_flag, demand) -> accel`, input features included (input version 2);
 * card.yaml     method, config, seed, git commit, training wall time, evaluation
                 numbers, the I/O contract constants and each file's sha256.
 
@@ -29,10 +29,14 @@ import yaml
 from torch import nn
 
 from plmarl_sitl.errors import PolicyFileError
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, INPUT_VERSION, STATE_DIM
 from plmarl_sitl.model.coverage import SENSING_FEATURES
+from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
 
-CARD_VERSION = 1
+CARD_VERSION = 2  # 2: policy input version 2 (relative inputs, demand map; issue 12)
+# Card versions that load. Version 1 (input version 1: absolute positions, no demand map,
+# the raw fail flag) still loads so a deployment can fly the policies shipped before issue 12.
+LOADABLE_CARD_VERSIONS = (1, 2)
 FILES = ("predictor.pt", "policy.pt", "card.yaml")
 
 
@@ -51,7 +55,8 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
 
 
 TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
-POLICY_ATTRS = ["area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm"]
+SCALES = ["alt_max", "v_max", "a_max", "r_comm", "claim_m", "demand_unit"]
+POLICY_ATTRS = SCALES + ["input_version"]
 
 
 def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
@@ -70,9 +75,9 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.deploy import fuse_tracker
 
-    tracker, policy = fuse_tracker(tracker), fuse_policy(policy)  # unchanged if not fusable (GRU, hold, scripted)
+    tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
     with quiet_torchscript():
         torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
         torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
@@ -82,13 +87,21 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
         "state_dim": STATE_DIM,
         "sense_dim": SENSING_FEATURES,
         "ego_features": EGO_FEATURES,
+        "input_version": INPUT_VERSION,
+        "demand_cell_fields": DEMAND_CELL_FIELDS,
         "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
         "dt_s": float(tracker.dt),  # type: ignore[arg-type]
-        "scales": {k: float(getattr(policy, k)) for k in ("area_n", "area_e", "alt_max", "v_max", "a_max", "r_comm")},
+        "scales": {k: float(getattr(policy, k)) for k in SCALES},
     }
     card["sha256"] = {f: sha256(out / f) for f in ("predictor.pt", "policy.pt")}
     (out / "card.yaml").write_text(yaml.safe_dump(card, sort_keys=False))
     return out
+
+
+def input_version(policy: nn.Module | torch.jit.ScriptModule) -> int:
+    """The policy's input version (docs/POLICY_IO.md): 2 is called with the demand map and
+    the predicted-in-range fail flag; 1 (files without the attribute) with neither."""
+    return int(getattr(policy, "input_version", 1))
 
 
 @dataclass(frozen=True)
@@ -97,6 +110,10 @@ class LoadedPolicy:
     tracker: torch.jit.ScriptModule
     policy: torch.jit.ScriptModule
     card: dict
+
+    @property
+    def input_version(self) -> int:
+        return input_version(self.policy)
 
 
 def _load_card(path: Path) -> dict:
@@ -111,8 +128,8 @@ def _load_card(path: Path) -> dict:
     for key in ("method", "card_version", "io", "sha256"):
         if key not in card:
             raise PolicyFileError(str(path), f"corrupt: missing key {key!r}")
-    if card["card_version"] != CARD_VERSION:
-        raise PolicyFileError(str(path), f"card_version {card['card_version']} is not supported (expected {CARD_VERSION})")
+    if card["card_version"] not in LOADABLE_CARD_VERSIONS:
+        raise PolicyFileError(str(path), f"card_version {card['card_version']} is not supported (expected one of {LOADABLE_CARD_VERSIONS})")
     return card
 
 
@@ -147,6 +164,9 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
         buffer_len, scales = int(tracker.buffer_len), {k: float(getattr(policy, k)) for k in io["scales"]}
     except (AttributeError, RuntimeError) as exc:
         raise PolicyFileError(str(d / "policy.pt"), f"mismatched: not a PL-MARL policy/tracker ({exc})") from exc
+    version = input_version(policy)
+    if version != io.get("input_version", 1):
+        raise PolicyFileError(str(d / "policy.pt"), f"mismatched: input version {version}, card.yaml says {io.get('input_version', 1)}")
     if buffer_len != io["buffer_len"]:
         raise PolicyFileError(str(d / "predictor.pt"), f"mismatched: buffer length {buffer_len}, card.yaml says {io['buffer_len']}")
     for k, v in scales.items():
@@ -155,7 +175,7 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
     if mission is not None:
         from plmarl_sitl.learning.nn.features import FeatureScales
 
-        ms = FeatureScales.from_mission(mission)._asdict()
+        ms = FeatureScales.from_mission(mission)._asdict() | {"area_n": mission.area.north_m, "area_e": mission.area.east_m}  # v1: area
         for k, v in scales.items():
             if abs(v - ms[k]) > 1e-6:
                 raise PolicyFileError(str(d / "policy.pt"), f"mismatched with mission {mission.name!r}: {k} = {v}, mission has {ms[k]}")
@@ -168,9 +188,10 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
             held = torch.zeros(2, STATE_DIM)
             buf, seen = tracker.init_state(held)
             belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
-            policy(
-                torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)
-            )
+            args = [torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)]
+            if version >= 2:
+                args.append(torch.zeros(1, DEMAND_CELL_FIELDS))
+            policy(*args)
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc
     return LoadedPolicy(d, tracker, policy, card)

@@ -15,11 +15,21 @@ A_max * clip(u, -1, 1) per axis, then the physics clips the norm to A_max.
 
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
 from torch import nn
 from torch.nn import functional as F
 
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, REL_FEATURES, build_policy_input, state_norm
+from plmarl_sitl.learning.nn.features import (
+    EGO_FEATURES,
+    INPUT_VERSION,
+    NBR_FEATURES,
+    REL_FEATURES,
+    TOKEN_FEATURES,
+    build_policy_input,
+    ring_edges_sq,
+)
 
 
 def _ortho(layer: nn.Linear, gain: float = 2**0.5) -> nn.Linear:
@@ -66,26 +76,47 @@ class AttentionFusion(nn.Module):
         return h, m, alpha
 
 
+class DemandAttention(nn.Module):
+    """Scaled dot-product attention of the agent over the demand cells (tokens): the query
+    comes from the ego embedding h_i, so the agent can point at one cell and read its exact
+    offset back from the pooled value. Any number of cells; no cells -> a zero vector."""
+
+    def __init__(self, d: int = 32) -> None:
+        super().__init__()
+        self.tok_enc = _ortho(nn.Linear(TOKEN_FEATURES, d))
+        self.query = _ortho(nn.Linear(d, d, bias=False), 1.0)
+        self.key = _ortho(nn.Linear(d, d, bias=False), 1.0)
+        self.scale = 1.0 / d**0.5
+
+    def forward(self, h: torch.Tensor, tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.Tensor:
+        v = torch.tanh(self.tok_enc(tok_x))  # (..., K, d)
+        e = (self.key(v) @ self.query(h).unsqueeze(-1)).squeeze(-1) * self.scale  # (..., K)
+        alpha = torch.softmax(torch.where(tok_mask, e, -1.0e9), -1)
+        alpha = torch.where(tok_mask, alpha, 0.0)
+        return F.elu((alpha.unsqueeze(-2) @ v).squeeze(-2))
+
+
 class Actor(nn.Module):
     def __init__(self, d: int = 32, hidden: int = 64, log_std_init: float = -0.5) -> None:
         super().__init__()
         self.fusion = AttentionFusion(EGO_FEATURES, d)
+        self.demand = DemandAttention(d)
         self.trunk = nn.Sequential(
-            _ortho(nn.Linear(2 * d + EGO_FEATURES, hidden)), nn.Tanh(), _ortho(nn.Linear(hidden, hidden)), nn.Tanh()
+            _ortho(nn.Linear(3 * d + EGO_FEATURES, hidden)), nn.Tanh(), _ortho(nn.Linear(hidden, hidden)), nn.Tanh()
         )
         self.mu = _ortho(nn.Linear(hidden, 3), 0.01)
         self.log_std = nn.Parameter(torch.full((3,), log_std_init))
 
-    def forward(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def forward(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor,
+                tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.Tensor:
         """Mean of the normalised action u (..., 3), in (-1, 1)."""
         h, m, _ = self.fusion(ego_x, nbr_x, rel_x, mask)
-        return torch.tanh(self.mu(self.trunk(torch.cat([h, m, ego_x], -1))))
+        md = self.demand(h, tok_x, tok_mask)
+        return torch.tanh(self.mu(self.trunk(torch.cat([h, m, md, ego_x], -1))))
 
-    def act(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return self.forward(ego_x, nbr_x, rel_x, mask)
-
-    def dist(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor) -> torch.distributions.Normal:
-        mean = self.forward(ego_x, nbr_x, rel_x, mask)
+    def dist(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor,
+             tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.distributions.Normal:
+        mean = self.forward(ego_x, nbr_x, rel_x, mask, tok_x, tok_mask)
         return torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
 
 
@@ -110,17 +141,19 @@ class DeployedPolicy(nn.Module):
     """What `policy.pt` is: raw physical inputs -> deterministic acceleration (m/s^2, NED).
 
     forward(ego (..., 6), beliefs (..., M, 6), mask (..., M) bool, sense (..., S),
-    fail_flag (...) bool) -> accel (..., 3). Normalisation constants are attributes, so
-    the file carries them (see docs/POLICY_IO.md).
+    fail_flag (...) bool, demand (..., K, 3) or None) -> accel (..., 3). `demand` is None
+    before the first map arrives (the descriptor is then zero, as for an empty map). The feature constants are
+    attributes, so the file carries them (see docs/POLICY_IO.md, input version 2).
     """
 
-    def __init__(self, actor: Actor, area_n: float, area_e: float, alt_max: float, v_max: float, a_max: float, r_comm: float) -> None:
+    def __init__(self, actor: Actor, alt_max: float, v_max: float, a_max: float, r_comm: float, claim_m: float,
+                 demand_unit: float) -> None:
         super().__init__()
         self.actor = actor
-        self.area_n, self.area_e, self.alt_max = float(area_n), float(area_e), float(alt_max)
-        self.v_max, self.a_max, self.r_comm = float(v_max), float(a_max), float(r_comm)
-        self.register_buffer("norm", state_norm(self.area_n, self.area_e, self.alt_max, self.v_max))
-        self.inv_r_comm = 1.0 / self.r_comm
+        self.alt_max, self.v_max, self.a_max, self.r_comm = float(alt_max), float(v_max), float(a_max), float(r_comm)
+        self.claim_m, self.demand_unit = float(claim_m), float(demand_unit)
+        self.input_version = INPUT_VERSION
+        self.register_buffer("edges_sq", ring_edges_sq())
 
     def forward(
         self,
@@ -129,6 +162,11 @@ class DeployedPolicy(nn.Module):
         mask: torch.Tensor,
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
+        demand: Optional[torch.Tensor] = None,  # noqa: UP045 - TorchScript needs Optional
     ) -> torch.Tensor:
-        ego_x, nbr_x, rel_x, m = build_policy_input(ego, beliefs, mask, sense, fail_flag, self.norm, self.inv_r_comm)
-        return self.actor(ego_x, nbr_x, rel_x, m) * self.a_max  # tanh mean: already inside (-1, 1)
+        if demand is None:  # no map received yet: no demand known beyond the own sensing
+            demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
+        ego_x, nbr_x, rel_x, m, tok_x, tok_m = build_policy_input(
+            ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max, self.r_comm, self.claim_m,
+            self.demand_unit, self.edges_sq)
+        return self.actor(ego_x, nbr_x, rel_x, m, tok_x, tok_m) * self.a_max  # tanh mean: already inside (-1, 1)

@@ -24,9 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
-from plmarl_sitl.learning.nn.features import FeatureScales, build_policy_input
+from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
+from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
 from plmarl_sitl.learning.nn.policy import Actor
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv
@@ -47,6 +48,19 @@ class ImitationArgs:
     # each round's episodes are split into k batches whose T_up walk through a shuffled
     # cycle of tup_choices, so every T_up is imitated equally often.
     tup_chunks: int = 1
+    # True: every batch draws its scenario (N, clusters, layout) and random launch lines
+    # (plmarl_sitl.learning.train.scenarios); False: the mission as given.
+    general: bool = True
+
+
+INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
+
+
+def cat_slots(parts: list[torch.Tensor]) -> torch.Tensor:
+    """Concatenate samples of different swarm sizes: (S_k, M_k, ...) -> (sum S_k, max M_k, ...),
+    padded with zeros / False (masked neighbour slots, ignored by the policy)."""
+    m = max(x.shape[1] for x in parts)
+    return torch.cat([torch.cat([x, x.new_zeros((x.shape[0], m - x.shape[1]) + tuple(x.shape[2:]))], 1) for x in parts])
 
 
 def imitate_oracle(
@@ -54,10 +68,9 @@ def imitate_oracle(
 ) -> dict:
     """Train `actor` in place; returns {"episodes", "samples", "wall_s", "final_mse"}."""
     scales = FeatureScales.from_mission(mission)
-    norm = scales.norm()
     rng = np.random.default_rng(args.seed)
     opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
-    data: dict[str, list[torch.Tensor]] = {"ego": [], "nbr": [], "rel": [], "mask": [], "u": []}
+    data: dict[str, list[torch.Tensor]] = {k: [] for k in (*INPUTS, "u")}
     t0 = time.time()
     mse = float("nan")
     episodes = 0
@@ -73,35 +86,37 @@ def imitate_oracle(
                        for c in range(args.tup_chunks)]
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
-            m = dataclasses.replace(mission, signalling=dataclasses.replace(mission.signalling, tup_s=tup))
-            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob)
+            m = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+            m = m.with_tup(tup)
+            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
+                              random_launch=args.general)
             teacher = OracleController(env)
             beliefs = Beliefs(tracker)
+            flags = FailureFlags(scales.r_comm)
             obs = env.reset()
             teacher.reset()
             use_teacher = torch.from_numpy(rng.random(n_eps) < beta).view(-1, 1, 1)
             with torch.no_grad():
                 while not env.done:
                     belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                    ego_x, nbr_x, rel_x, mask = build_policy_input(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm)
-                    a_teacher = teacher.act(obs)
+                    fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
+                    x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
+                    a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
                     live = obs.alive
-                    data["ego"].append(ego_x[live])
-                    data["nbr"].append(nbr_x[live])
-                    data["rel"].append(rel_x[live])
-                    data["mask"].append(mask[live])
+                    for k, v in zip(INPUTS, x, strict=True):
+                        data[k].append(v[live])
                     data["u"].append(u[live])
-                    a_student = actor(ego_x, nbr_x, rel_x, mask) * scales.a_max
+                    a_student = actor(*x) * scales.a_max
                     obs, _, _ = env.step(torch.where(use_teacher, a_teacher, a_student))
             episodes += n_eps
-        ds = {k: torch.cat(v) for k, v in data.items()}
+        ds = {k: torch.cat(v) if k in ("ego", "u") else cat_slots(v) for k, v in data.items()}
         n = ds["u"].shape[0]
         for _ in range(args.epochs):
             perm = torch.randperm(n)
             for lo in range(0, n, args.batch):
                 idx = perm[lo : lo + args.batch]
-                pred = actor(ds["ego"][idx], ds["nbr"][idx], ds["rel"][idx], ds["mask"][idx])
+                pred = actor(*(ds[k][idx] for k in INPUTS))
                 loss = ((pred - ds["u"][idx]) ** 2).sum(-1).mean()
                 opt.zero_grad()
                 loss.backward()

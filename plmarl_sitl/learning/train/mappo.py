@@ -32,13 +32,22 @@ import numpy as np
 import torch
 from torch import nn
 
-from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, NBR_FEATURES, FeatureScales, build_policy_input
+from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
+from plmarl_sitl.learning.nn.features import (
+    DEMAND_BINS,
+    EGO_FEATURES,
+    FeatureScales,
+    demand_descriptor,
+    policy_input,
+    ring_edges_sq,
+)
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
+from plmarl_sitl.model.demand import cell_centres, demand_cells, demand_map
 from plmarl_sitl.twin.env import CoverageEnv
 
 METHOD_PREDICTOR = {"pl-marl": "mlp", "gru": "gru", "tag-mappo": "hold", "dead-reckoning": "cv"}
@@ -71,9 +80,10 @@ class Args:
     failure_at_s: float = 100.0
     tup_choices: tuple[int, ...] = (5, 10, 15, 20, 25, 30, 35, 40, 45, 50)
     mixed_mobility: bool = True
-    # Exploring starts: this share of rollouts starts the swarm at random positions instead
-    # of the launch line (the twin has no start-position argument yet; see scatter_start).
-    random_start_frac: float = 0.0
+    # Issue 12's training distribution: per rollout a scenario (N 3..8, random connected
+    # layouts of 2..8 clusters; plmarl_sitl.learning.train.scenarios) and per environment a
+    # random launch line. False: the mission as given, from its launch line.
+    general: bool = True
     # Oracle-imitation warm start (plmarl_sitl.learning.train.imitation), 0 rounds = MAPPO from scratch.
     imitation_rounds: int = 6
     imitation_episodes_per_round: int = 40
@@ -84,6 +94,13 @@ class Args:
     out: str = "runs/pl-marl"
     threads: int = 1
     checkpoint_every: int = 10  # iterations
+    # Model selection: every `validate_every` iterations (and after the warm start) the
+    # deterministic actor flies a fixed validation set of training-distribution scenarios
+    # (seeds of the training range, never an evaluation seed); the best one is exported.
+    # 0: export the last actor.
+    validate_every: int = 8
+    validation_batches: int = 4
+    validation_envs: int = 6
     extra: dict = field(default_factory=dict)
 
 
@@ -131,25 +148,53 @@ def make_tracker(method: str, mission: Mission, predictor_state: str | None) -> 
     return BeliefTracker(pred, sig.buffer_len, mission.timing.dt_s)
 
 
-def scatter_start(env: CoverageEnv, gen: torch.Generator, margin_m: float = 150.0) -> None:
-    """Move every UAV of a freshly reset twin to a random position at launch altitude.
+CRITIC_EXTRA = DEMAND_BINS + 3  # uncovered-user descriptor, C(t), t / T, global f
 
-    A workaround until CoverageEnv.reset takes start positions: it redoes the t = 0
-    signalling instant and coverage with the new positions (uses the twin's private
-    _signal; the state is otherwise exactly a reset one).
-    """
-    from plmarl_sitl.model.coverage import covered_users
-    from plmarl_sitl.model.signalling import Holdings
 
+def critic_input(env: CoverageEnv, ego_x: torch.Tensor, scales: FeatureScales) -> torch.Tensor:
+    """(B, N, EGO_FEATURES + CRITIC_EXTRA): the agent-specific global state of MAPPO (Yu et
+    al. 2022) with a size independent of N and of the clusters: agent i's own policy
+    features, plus (training-time knowledge only) the users NOT covered right now, binned
+    around agent i like the demand map, the coverage C(t), the episode time and f."""
     m = env.mission
-    b, n = env.num_envs, env.n
-    r = torch.rand(b, n, 2, generator=gen)
-    north = margin_m + r[..., 0] * (m.area.north_m - 2 * margin_m)
-    east = margin_m + r[..., 1] * (m.area.east_m - 2 * margin_m)
-    env.pos = torch.stack([north, east, env.pos[..., 2]], -1).to(env.dtype)
-    env.holdings = Holdings.empty((b,), n, env.dtype, env.device)
-    env.run_signalling()
-    env.covered = covered_users(env.users.xy, env.pos, env.alive, env.radius(-env.pos[..., 2]))
+    counts = demand_map(env.users.xy, m.area.north_m, m.area.east_m, m.demand.cell_m, user_valid=~env.covered)
+    cells = demand_cells(counts, cell_centres(m.area.north_m, m.area.east_m, m.demand.cell_m, env.dtype))
+    cells = cells.unsqueeze(1).expand(-1, env.n, -1, -1)
+    no_claims = torch.zeros(env.num_envs, env.n, 1, dtype=torch.bool)
+    desc = demand_descriptor(env.pos, cells, env.pos.unsqueeze(-2), no_claims, scales.claim_m, scales.demand_unit, ring_edges_sq())
+    tail = torch.stack([env.covered.to(env.dtype).mean(-1), torch.full((env.num_envs,), env.t / env.horizon),
+                        env.failed.to(env.dtype)], -1)
+    return torch.cat([ego_x, desc[..., :DEMAND_BINS], tail.unsqueeze(1).expand(-1, env.n, -1)], -1)
+
+
+def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
+    """Fixed (scenario, twin seed) pairs drawn like training rollouts, from their own stream."""
+    rng = np.random.default_rng(args.seed + 7_777)
+    tups = [int(x) for x in np.linspace(min(args.tup_choices), max(args.tup_choices), args.validation_batches)]
+    out = []
+    for j, tup in enumerate(tups):
+        scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+        out.append((scenario.with_tup(tup), training_twin_seed(args.seed * 100_003 + 90_000 + j)))
+    return out
+
+
+@torch.no_grad()
+def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: list[tuple[Mission, int]], envs: int,
+             general: bool) -> float:
+    """Mean coverage of the deterministic actor over the validation set (no failures)."""
+    beliefs, flags, covs = Beliefs(tracker), FailureFlags(scales.r_comm), []
+    for m, seed in sets:
+        env = CoverageEnv(m, envs, seed, random_launch=general)
+        obs = env.reset()
+        beliefs.reset()
+        flags.reset()
+        while not env.done:
+            belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
+            fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
+            u = actor(*policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand))
+            obs, _, info = env.step(action_to_accel(u, scales.a_max))
+            covs.append(info.coverage.mean())
+    return float(torch.stack(covs).mean())
 
 
 def linear(start: float, end: float, frac: float) -> float:
@@ -167,13 +212,12 @@ def train(args: Args, progress=None) -> dict:
     base = load_mission(args.mission)
     mission = mixed_mobility(base) if args.mixed_mobility else base
     scales = FeatureScales.from_mission(mission)
-    norm = scales.norm()
-    env = CoverageEnv(mission, args.num_envs, training_twin_seed(args.seed), failure_at_s=args.failure_at_s)
-    B, N = args.num_envs, env.n
-    T = math.ceil(env.horizon / mission.timing.decision_every_s)  # decisions per episode
-    G = env.global_state_dim()
+    B = args.num_envs
+    T = math.ceil(mission.timing.episode_s / mission.timing.dt_s / mission.timing.decision_every_s)  # decisions per episode
+    G = EGO_FEATURES + CRITIC_EXTRA
     tracker = make_tracker(args.method, mission, args.predictor_state)
     beliefs = Beliefs(tracker)
+    flags = FailureFlags(scales.r_comm)
     actor = Actor(args.embed_dim, log_std_init=args.log_std_init)
     critic = Critic(G)
     vnorm = ValueNorm()
@@ -184,27 +228,24 @@ def train(args: Args, progress=None) -> dict:
         warm = imitate_oracle(
             actor, tracker, mission,
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
-                          tup_chunks=args.imitation_tup_chunks),
+                          tup_chunks=args.imitation_tup_chunks, general=args.general),
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
     opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)
     iterations = math.ceil(args.episodes / B)
     rng = np.random.default_rng(args.seed)
-    torch_gen = torch.Generator().manual_seed(args.seed)
 
-    # ------------------------------------------------------------------ rollout buffers
-    ego_b = torch.zeros(T, B, N, EGO_FEATURES)
-    nbr_b = torch.zeros(T, B, N, N, NBR_FEATURES)
-    rel_b = torch.zeros(T, B, N, N, 3)
-    mask_b = torch.zeros(T, B, N, N, dtype=torch.bool)
-    act_b = torch.zeros(T, B, N, 3)
-    logp_b = torch.zeros(T, B, N)
-    live_b = torch.zeros(T, B, N, dtype=torch.bool)
-    gs_b = torch.zeros(T, B, G)
-    val_b = torch.zeros(T, B)  # normalised values
-    rew_b = torch.zeros(T, B)
-    cov_b = torch.zeros(T, B)
+    val_sets = validation_set(args, mission) if args.validate_every > 0 else []
+    best = {"coverage": -1.0, "episodes": 0, "actor": None}
 
+    def select(episodes: int) -> float:
+        cov = validate(actor, tracker, scales, val_sets, args.validation_envs, args.general)
+        if cov > best["coverage"]:
+            best.update(coverage=cov, episodes=episodes, actor={k: v.clone() for k, v in actor.state_dict().items()})
+        return cov
+
+    if val_sets:
+        best["after_warm_start"] = select(0)
     curve_path = out / "curve.jsonl"
     curve_f = curve_path.open("w")
     t_start = time.time()
@@ -221,26 +262,35 @@ def train(args: Args, progress=None) -> dict:
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
-        env = CoverageEnv(mission.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
-                          failure_at_s=args.failure_at_s)
+        scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+        env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
+                          failure_at_s=args.failure_at_s, random_launch=args.general)
+        N = env.n
+
+        # -------------------------------------------------------------- rollout buffers (N varies per rollout)
+        inputs_b: list[tuple[torch.Tensor, ...]] = []  # the actor's inputs per step (policy_input)
+        act_b = torch.zeros(T, B, N, 3)
+        logp_b = torch.zeros(T, B, N)
+        live_b = torch.zeros(T, B, N, dtype=torch.bool)
+        gs_b = torch.zeros(T, B, N, G)
+        val_b = torch.zeros(T, B, N)  # normalised values, one per agent (shared reward)
+        rew_b = torch.zeros(T, B)
+        cov_b = torch.zeros(T, B)
 
         # -------------------------------------------------------------- rollout
         obs = env.reset()
-        if rng.random() < args.random_start_frac:
-            scatter_start(env, torch_gen)
-            obs = env.observe()
         beliefs.reset()
+        flags.reset()
         cov_last = []
         with torch.no_grad():
             for step in range(T):
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                ego_x, nbr_x, rel_x, mask = build_policy_input(
-                    obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag, norm, 1.0 / scales.r_comm
-                )
-                gs = env.global_state()
-                dist = actor.dist(ego_x, nbr_x, rel_x, mask)
+                fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
+                x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
+                gs = critic_input(env, x[0], scales)
+                dist = actor.dist(*x)
                 u = dist.sample()
-                ego_b[step], nbr_b[step], rel_b[step], mask_b[step] = ego_x, nbr_x, rel_x, mask
+                inputs_b.append(x)
                 act_b[step], logp_b[step] = u, dist.log_prob(u).sum(-1)
                 live_b[step], gs_b[step], val_b[step] = obs.alive, gs, critic(gs)
                 obs, reward, info = env.step(action_to_accel(u, scales.a_max))
@@ -251,26 +301,25 @@ def train(args: Args, progress=None) -> dict:
 
             # ---------------------------------------------------------- GAE (terminal at T)
             values = vnorm.denormalize(val_b)
-            adv = torch.zeros(T, B)
-            last = torch.zeros(B)
+            adv = torch.zeros(T, B, N)
+            last = torch.zeros(B, N)
             for step in reversed(range(T)):
-                next_v = values[step + 1] if step + 1 < T else torch.zeros(B)
-                delta = rew_b[step] + args.gamma * next_v - values[step]
+                next_v = values[step + 1] if step + 1 < T else torch.zeros(B, N)
+                delta = rew_b[step].unsqueeze(-1) + args.gamma * next_v - values[step]
                 last = delta + args.gamma * args.gae_lambda * last
                 adv[step] = last
             returns = adv + values
-            vnorm.update(returns.flatten())
+            vnorm.update(returns[live_b])
             ret_n = vnorm.normalize(returns)
         episodes_done += B
 
         # -------------------------------------------------------------- flatten, death mask
         live = live_b.flatten()
         idx_all = torch.nonzero(live).flatten()
-        f_ego, f_nbr, f_rel, f_mask = ego_b.flatten(0, 2), nbr_b.flatten(0, 2), rel_b.flatten(0, 2), mask_b.flatten(0, 2)
+        f_inputs = [torch.stack(parts).flatten(0, 2) for parts in zip(*inputs_b, strict=True)]
         f_act, f_logp = act_b.flatten(0, 2), logp_b.flatten(0, 2)
-        env_of = torch.arange(T * B).repeat_interleave(N)  # agent sample -> (step, env) row
-        f_adv = adv.flatten()[env_of]
-        f_gs, f_val, f_ret = gs_b.flatten(0, 1), val_b.flatten(), ret_n.flatten()
+        f_adv = adv.flatten()
+        f_gs, f_val, f_ret = gs_b.flatten(0, 2), val_b.flatten(), ret_n.flatten()
 
         # -------------------------------------------------------------- PPO update
         stats = {"pg": [], "v": [], "ent": [], "kl": [], "clipfrac": []}
@@ -280,8 +329,8 @@ def train(args: Args, progress=None) -> dict:
                 mb = perm[lo : lo + args.minibatch_size]
                 if len(mb) < 2:
                     continue
-                rows = env_of[mb]
-                dist = actor.dist(f_ego[mb], f_nbr[mb], f_rel[mb], f_mask[mb])
+                rows = mb  # per-agent critic: the same sample row
+                dist = actor.dist(*(x[mb] for x in f_inputs))
                 logp = dist.log_prob(f_act[mb]).sum(-1)
                 ratio = (logp - f_logp[mb]).exp()
                 a = f_adv[mb]
@@ -319,6 +368,8 @@ def train(args: Args, progress=None) -> dict:
             "charts/coverage": float(cov_b.mean()),
             "charts/coverage_steady": float(torch.stack(cov_last).mean()) if cov_last else float("nan"),
             "charts/tup": tup,
+            "charts/n_uavs": N,
+            "charts/clusters": env.mission.users.n_clusters,
             "charts/failure_prob": p_fail,
             "charts/lr_actor": args.lr_actor * lr_mult,
             "charts/ent_coef": ent_coef,
@@ -330,6 +381,8 @@ def train(args: Args, progress=None) -> dict:
             "losses/approx_kl": float(np.mean(stats["kl"])),
             "losses/clipfrac": float(np.mean(stats["clipfrac"])),
         }
+        if val_sets and ((it + 1) % args.validate_every == 0 or it == iterations - 1):
+            row["charts/validation_coverage"] = select(episodes_done)
         curve_f.write(json.dumps(row) + "\n")
         curve_f.flush()
         summary = row
@@ -342,5 +395,8 @@ def train(args: Args, progress=None) -> dict:
                 out / "checkpoint.pt",
             )
     curve_f.close()
-    return {"actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
+    selection = {k: v for k, v in best.items() if k != "actor"}
+    if best["actor"] is not None:
+        actor.load_state_dict(best["actor"])  # the exported actor is the validated best
+    return {"selection": selection, "actor": actor, "critic": critic, "tracker": tracker, "wall_s": time.time() - t_start,
             "episodes": episodes_done, "last": summary, "curve": str(curve_path), "imitation": warm}
