@@ -209,7 +209,10 @@ def test_an_autopilot_hanging_up_ends_the_agent_at_once(policy_dir: Path) -> Non
     run, took, port = asyncio.run(main())
     _no_traceback(run.err)
     assert run.code == EXIT_VEHICLE
-    assert run.errors() == [f"plmarl agent: error: vehicle 1: link lost (tcp 127.0.0.1:{port}: the autopilot closed the connection)"]
+    # A hang-up is an EOF, or a reset when our requests were still unread in the peer's buffer.
+    [line] = run.errors()
+    assert re.fullmatch(rf"plmarl agent: error: vehicle 1: link lost \(tcp 127\.0\.0\.1:{port}: the autopilot "
+                        r"(closed|reset) the connection\)", line), line
     assert took < 3.0  # hang-up to the error line; a telemetry timeout alone would be 5 s (the
     # process's own teardown after the line is not what this test is about, and takes seconds under load)
 

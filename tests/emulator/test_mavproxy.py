@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import asyncio
-import shutil
+import importlib.util
 import sys
 
 import pytest
@@ -13,16 +13,17 @@ pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 
 
 def test_mavproxy_connects_loads_params_and_arms(tmp_path) -> None:
-    exe = shutil.which("mavproxy.py")
-    if exe is None:
-        pytest.skip("mavproxy.py not installed (pip install mavproxy)")
+    # Run MAVProxy as a module of this interpreter: the `mavproxy.py` found on PATH may be a
+    # shell shim (pyenv) or belong to another Python (a venv with system site packages).
+    if importlib.util.find_spec("MAVProxy") is None:
+        pytest.skip("MAVProxy not installed (pip install mavproxy)")
     lines: list[str] = []
 
     async def main() -> None:
         async with running_host(2, personality_name="ardupilot") as host:
             vehicle = host.vehicle(1)
             proc = await asyncio.create_subprocess_exec(
-                sys.executable, exe, f"--master=udpout:127.0.0.1:{host.ports[1]}", "--non-interactive",
+                sys.executable, "-m", "MAVProxy.mavproxy", f"--master=udpout:127.0.0.1:{host.ports[1]}", "--non-interactive",
                 "--no-state", "--cmd=arm throttle",
                 stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT,
                 cwd=tmp_path,

@@ -137,7 +137,9 @@ class TcpLink(_StreamMixin, VehicleLink):
             while data := await reader.read(4096):
                 self._on_stream(data)
             reason = "the autopilot closed the connection"
-        except OSError as exc:  # reset by the peer
+        except ConnectionResetError:  # a close with our unread requests in its buffer is a reset (RST)
+            reason = "the autopilot reset the connection"
+        except OSError as exc:
             reason = str(exc) or type(exc).__name__
         self._lose(f"tcp {self.addr[0]}:{self.addr[1]}: {reason}")
 

@@ -107,6 +107,13 @@ def _plt():  # noqa: ANN202
     return plt
 
 
+def _save(fig, path: Path) -> None:  # noqa: ANN001 - a matplotlib Figure
+    """Every suite figure: tight layout, 110 dpi PNG, then free it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _plt().close(fig)
+
+
 def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     """Fig. 3b per family: coverage (95% CI band) against T_up, one panel per family."""
     plt = _plt()
@@ -132,9 +139,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
         ax.axis("off")
     axes.flat[0].legend(fontsize=7)
     fig.suptitle(f"Held-out suite: coverage vs T_up (t > {res['from_s']} s, {res['episodes']} episodes)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def plot_coverage_vs_n(res: dict, scaling: list[str], path: Path) -> bool:
@@ -167,9 +172,7 @@ def plot_coverage_vs_n(res: dict, scaling: list[str], path: Path) -> bool:
         ax.grid(alpha=0.3)
     a1.legend(fontsize=7)
     fig.suptitle(f"Zero-shot scaling ({', '.join(f['name'] for f in fams)}), T_up = {tup} s", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -193,9 +196,7 @@ def plot_failure_transient(res: dict, path: Path) -> bool:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         ax.set_title(f"Failure transient ({fam}, T_up = {tup} s, {res['episodes']} episodes)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -221,9 +222,7 @@ def plot_lambda2(res: dict, path: Path) -> None:
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=7)
     ax.set_title("Algebraic connectivity of the comm graph (T_up = 15 s where run)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def write_outputs(res: dict, scaling: list[str], out: Path) -> dict[str, str]:
