@@ -33,7 +33,7 @@ def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[f
 
     lp = load_policy(policy_dir, mission)
     env = CoverageEnv(mission, 1, seed)
-    ctl = LearnedController(lp.tracker, lp.policy)
+    ctl = LearnedController(lp.tracker, lp.policy, mission)
     ctl.reset()
     obs = env.observe()
     trace: list[torch.Tensor] = []

@@ -38,7 +38,7 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
     lp = load_policy(policy_dir, m)
     n, tau, topics = m.n_uavs, m.timing.decision_every_s, Topics()
     env = CoverageEnv(m, 1, seed, failure_prob=1.0, failure_at_s=fail_at)
-    ctl = LearnedController(lp.tracker, lp.policy)
+    ctl = LearnedController(lp.tracker, lp.policy, m)
     ctl.reset()
     agents = []
     for i in range(n):
@@ -101,6 +101,10 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 t_map, cells = dec.demand.for_decision(t)
                 want = obs.demand[0][obs.demand[0, :, 2] > 0]
                 assert t_map == t - t % map_period(m.demand.refresh_s, tau) and torch.equal(cells, want), (t, i)
+            if lp.takes_plan:  # the team plan's point: the same from the agent's messages as in the twin
+                assert ctl.plan is not None and ctl.plan.last is not None
+                assert torch.equal(dec.target, ctl.plan.last[0, i]), (t, i, dec.target, ctl.plan.last[0, i])
+                seen["plan"] = seen.get("plan", 0) + 1
             assert torch.allclose(torch.tensor(dec.accel), accel[0, i], atol=1e-4), (t, i, dec.accel, accel[0, i])
             assert inbox.rx.malformed == 0
             seen["decisions"] += 1
@@ -112,12 +116,13 @@ def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy_di
     """Input version 2: a node fails at t = 10 s on the launch line (its neighbours still
     believe it in range: f = 1) or at t = 70 s; every decision matches the twin's, with
     f raised in some and not in others."""
-    total = {"decisions": 0, "f": 0}
+    total = {"decisions": 0, "f": 0, "plan": 0}
     for seed, fail_at in ((0, 10.0), (1, 70.0)):
         seen = replay(v2_policy_dir, seed, fail_at)
         for k in total:
-            total[k] += seen[k]
+            total[k] += seen.get(k, 0)
     assert total["decisions"] > 180
+    assert total["plan"] == total["decisions"]  # the fixture's policy takes the team plan
     assert 0 < total["f"] < total["decisions"], total
 
 

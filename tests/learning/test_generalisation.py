@@ -162,7 +162,7 @@ def test_learned_controller_runs_on_any_swarm_size():
                                  "users": MISSION.users.__class__(**{**MISSION.users.__dict__, "count": count, "layout": "lattice",
                                                                      "cluster_centers": ()})})
         env = CoverageEnv(m, 2, 0)
-        ctl = LearnedController(tracker, pol)
+        ctl = LearnedController(tracker, pol, m)
         ctl.reset()
         obs = env.observe()
         for _ in range(5):

@@ -4,7 +4,8 @@ At each due second k (see `MissionClock.second_due`): book the misses of the ins
 whose grace has passed (failure state f), advance Algorithm 1's tracker one second
 (`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds run
 `policy.pt` on (ego at the first sample of second k, beliefs, N_i mask, sensing features,
-f, demand map) -> an acceleration, held until the next decision. f and the map are the
+f, demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
+takes it) -> an acceleration, held until the next decision. f and the map are the
 twin's: f latches `model.signalling.silent_in_range` on the beliefs of the decision at
 which the twin sees a drop (`failure.FailureFlag`; the twin's controllers use
 `FailureFlags`) and the map is the newest published one not after k (`demand.DemandMaps`). A policy of input version 1 is called as it was trained: without
@@ -27,6 +28,7 @@ from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.agent.plan import AgentPlan
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.learning.nn.io import LoadedPolicy
@@ -49,6 +51,8 @@ class Decision:
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
+        self.plan = AgentPlan(mission, me) if lp.takes_plan else None  # the team plan's point (model/service.py)
+        self.target: torch.Tensor | None = None  # that point at the last decision
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
         self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
@@ -156,7 +160,11 @@ class Decision:
                 if got is not None and got[0] != self.used_demand_t:
                     new_map = got[1]
                 self.used_demand_t = None if got is None else got[0]
-                a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
+                if self.plan is None:
+                    a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
+                else:
+                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got)
+                    a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1], self.target)
             else:
                 fail = torch.tensor(self.table.lost)
                 a = self.policy(ego, self.belief, mask, sense, fail)
@@ -180,6 +188,7 @@ class Decision:
                 "decided": decided,
                 "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
                 "demand_t": self.used_demand_t,  # the snapshot time of the map the last decision saw
+                **({} if self.target is None else {"target": [round(x, 1) for x in self.target.tolist()]}),
                 **({} if new_map is None else {"demand": new_map.tolist()}),  # that map's cells, when first used
             })
         return decided

@@ -13,13 +13,17 @@ import torch
 from torch import nn
 
 from plmarl_sitl.learning.nn.belief import Beliefs, FailureFlags
-from plmarl_sitl.learning.nn.io import input_version
+from plmarl_sitl.learning.nn.io import input_version, takes_plan
+from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.twin.env import Observation
 
 
 class LearnedController:
-    def __init__(self, tracker: nn.Module, policy: nn.Module) -> None:
+    def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None) -> None:  # noqa: ANN001 - Mission
         self.beliefs = Beliefs(tracker)
+        if takes_plan(policy) and mission is None:
+            raise ValueError("a policy that takes the team plan needs the mission (its plan grid)")
+        self.plan = ServiceTargets.of(mission) if takes_plan(policy) else None
         self.flags = FailureFlags(float(policy.r_comm))
         self.policy = policy
         self.version = input_version(policy)  # 1: the policies shipped before issue 12 (no map, raw f)
@@ -27,6 +31,8 @@ class LearnedController:
     def reset(self) -> None:
         self.beliefs.reset()
         self.flags.reset()
+        if self.plan is not None:
+            self.plan.reset()
 
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
@@ -35,4 +41,24 @@ class LearnedController:
         if self.version < 2:
             return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)
         demand = obs.demand.unsqueeze(1).expand(-1, obs.ego.shape[1], -1, -1)  # one map per environment
-        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand)
+        if self.plan is None:
+            return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand)
+        target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
+
+
+class ServiceController:
+    """Not learnt: every agent flies to its point of the team plan (model/service.py) at the
+    altitude of the largest coverage radius. What implicit coordination alone achieves."""
+
+    def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
+        self.mission = mission
+        self.targets = ServiceTargets.of(mission)
+
+    def reset(self) -> None:
+        self.targets.reset()
+
+    @torch.no_grad()
+    def act(self, obs: Observation) -> torch.Tensor:
+        xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+        return self.targets.accel(obs.ego, xy)

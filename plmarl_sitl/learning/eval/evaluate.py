@@ -26,7 +26,7 @@ from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
-ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic")
+ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic", "service")
 
 
 @dataclass
@@ -53,14 +53,18 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.twin.heuristic import HeuristicController
 
         return lambda env: HeuristicController(env.mission)
+    if method == "service":
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        return lambda env: ServiceController(env.mission)
     if method == "dead-reckoning":
         pol = loaded["pl-marl"].policy
         buffer_len = int(loaded["pl-marl"].card["io"]["buffer_len"])
         cv = script(dead_reckoning_tracker(buffer_len))
-        return lambda env: LearnedController(cv, pol)
+        return lambda env: LearnedController(cv, pol, env.mission)
     if method in LEARNT:
         lp = loaded[method]
-        return lambda env: LearnedController(lp.tracker, lp.policy)
+        return lambda env: LearnedController(lp.tracker, lp.policy, env.mission)
     raise UserError(f"unknown method {method!r} (choose from {', '.join(ALL_METHODS)})")
 
 

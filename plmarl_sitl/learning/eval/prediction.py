@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> None:
         except Exception as exc:  # noqa: BLE001 - report and continue with what exists
             print(f"skipping {m}: {exc}")
     pl = load_policy(f"{a.policies}/pl-marl", mission)
-    ctl = LearnedController(pl.tracker, pl.policy)
+    ctl = LearnedController(pl.tracker, pl.policy, mission)
     ctl.reset()
     sets = {"pl-marl policy": record(mission.with_tup(15), "policy", a.episodes, a.seed, policy=ctl.act)[0]}
     for k, c in enumerate(CONTROLLERS):

@@ -14,6 +14,8 @@ y east, z down; m/s), see docs/POLICY_IO.md (input version 2):
 * fail_flag (...) bool: the agent's failure state f (`plmarl_sitl.model.signalling.silent_in_range`, latched)
 * demand (..., K, 3): the published user-density map, [cell centre north, east, user count]
   (`plmarl_sitl.model.demand`); any K, empty or padding cells with count 0 add nothing
+* target (..., 2): the agent's point of the team plan (`plmarl_sitl.model.service`), north and
+  east in the mission frame, and target_known (...) bool (False: no plan yet)
 
 Nothing the policy sees is an absolute horizontal position, so it cannot memorise sites,
 and no size depends on N, on the number of clusters or on the area (issue 12):
@@ -25,7 +27,9 @@ and no size depends on N, on the number of clusters or on the area (issue 12):
   a neighbour (cells within `claim_m` of a neighbour's BELIEVED position, i.e. the
   predictor's output), each bin log1p(count / demand_unit);
 * neighbours (Encoder input): relative position / R_comm and relative velocity / V_max;
-* PE input: relative displacement p_hat_j - p_i / R_comm.
+* PE input: relative displacement p_hat_j - p_i / R_comm;
+* plan (in ego): the offset to the agent's plan point / R_comm, the same / PLAN_NEAR_M clamped
+  to +-1 (fine near the point), and whether a plan is known.
 """
 
 from __future__ import annotations
@@ -42,7 +46,9 @@ DEMAND_SECTORS = 8
 DEMAND_RING_EDGES_M = (100.0, 300.0, 600.0)  # rings: < 100 m (own cell), 100-300, 300-600, beyond
 DEMAND_BINS = DEMAND_SECTORS * (len(DEMAND_RING_EDGES_M) + 1)
 DEMAND_FEATURES = 2 * DEMAND_BINS  # all users, unclaimed users
-EGO_FEATURES = 4 + SENSING_FEATURES + 1 + DEMAND_FEATURES  # altitude, velocity, sensing, f, demand
+PLAN_FEATURES = 5  # the offset to the agent's team-plan point: / R_comm, / PLAN_NEAR_M clamped to +-1, known
+PLAN_NEAR_M = 50.0
+EGO_FEATURES = 4 + SENSING_FEATURES + 1 + DEMAND_FEATURES + PLAN_FEATURES  # altitude, velocity, sensing, f, demand, plan
 NBR_FEATURES = 6  # relative belief state (Encoder input)
 TOKEN_FEATURES = 5  # one demand cell as an attention token (demand_tokens)
 REL_FEATURES = 3  # relative displacement / R_comm (PE input)
@@ -147,6 +153,8 @@ def build_policy_input(
     claim_m: float,
     demand_unit: float,
     edges_sq: torch.Tensor,
+    target: torch.Tensor,
+    target_known: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool,
     tok_x (..., K, TOKEN_FEATURES), tok_mask (..., K) bool).
@@ -157,7 +165,10 @@ def build_policy_input(
     """
     alt = ego[..., 2:3] * (-2.0 / alt_max) - 1.0
     desc = demand_descriptor(ego[..., 0:3], demand, beliefs[..., 0:3], mask, claim_m, demand_unit, edges_sq)
-    ego_x = torch.cat([alt, ego[..., 3:6] / v_max, sense, fail_flag.unsqueeze(-1).to(ego.dtype), desc], -1)
+    known = target_known.unsqueeze(-1).to(ego.dtype)
+    off = (target - ego[..., 0:2]) * known
+    plan = torch.cat([off / r_comm, torch.clamp(off / 50.0, -1.0, 1.0), known], -1)  # 50 m = PLAN_NEAR_M
+    ego_x = torch.cat([alt, ego[..., 3:6] / v_max, sense, fail_flag.unsqueeze(-1).to(ego.dtype), desc, plan], -1)
     rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) / r_comm
     nbr_x = torch.cat([rel_x, (beliefs[..., 3:6] - ego[..., 3:6].unsqueeze(-2)) / v_max], -1)
     tok_x, tok_mask = demand_tokens(ego[..., 0:3], demand, beliefs[..., 0:3], mask, r_comm, demand_unit)
@@ -166,12 +177,15 @@ def build_policy_input(
 
 def policy_input(
     scales: FeatureScales, ego: torch.Tensor, beliefs: torch.Tensor, mask: torch.Tensor, sense: torch.Tensor,
-    fail_flag: torch.Tensor, demand: torch.Tensor,
+    fail_flag: torch.Tensor, demand: torch.Tensor, target: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """`build_policy_input` with a mission's constants (the trainers' form); `demand` may be
-    one map per environment (B, K, 3) for ego (B, N, 6)."""
+    one map per environment (B, K, 3) for ego (B, N, 6); `target` (B, N, 2), None: no plan."""
     if demand.dim() == ego.dim():
         demand = demand.unsqueeze(-3).expand(*ego.shape[:-1], *demand.shape[-2:])
     s = scales
+    known = torch.full(ego.shape[:-1], target is not None, dtype=torch.bool)
+    if target is None:
+        target = torch.zeros(ego.shape[:-1] + (2,), dtype=ego.dtype)
     return build_policy_input(ego, beliefs, mask, sense, fail_flag, demand, s.alt_max, s.v_max, s.r_comm, s.claim_m,
-                              s.demand_unit, ring_edges_sq())
+                              s.demand_unit, ring_edges_sq(), target, known)

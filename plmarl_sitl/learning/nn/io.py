@@ -56,13 +56,13 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
 
 TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
 SCALES = ["alt_max", "v_max", "a_max", "r_comm", "claim_m", "demand_unit"]
-POLICY_ATTRS = SCALES + ["input_version"]
+POLICY_ATTRS = SCALES + ["input_version", "takes_plan"]
 
 
 def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
     """Script and freeze (weights and attributes become constants: fewer interpreter ops
     per call, which is most of the cost at these sizes), keeping the public API `keep`."""
-    keep = keep + [a for a in ("deploy_form",) if hasattr(module, a)]
+    keep = [a for a in keep if hasattr(module, a)] + [a for a in ("deploy_form",) if hasattr(module, a)]
     with quiet_torchscript():
         return torch.jit.freeze(torch.jit.script(module.eval()), preserved_attrs=keep)
 
@@ -88,6 +88,7 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
         "sense_dim": SENSING_FEATURES,
         "ego_features": EGO_FEATURES,
         "input_version": INPUT_VERSION,
+        "takes_plan": takes_plan(policy),
         "demand_cell_fields": DEMAND_CELL_FIELDS,
         "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
         "dt_s": float(tracker.dt),  # type: ignore[arg-type]
@@ -104,6 +105,12 @@ def input_version(policy: nn.Module | torch.jit.ScriptModule) -> int:
     return int(getattr(policy, "input_version", 1))
 
 
+def takes_plan(policy: nn.Module | torch.jit.ScriptModule) -> bool:
+    """True: the policy takes the team-plan target as a 7th input (model/service.py; input
+    version 2 from issue 12's T_up-50 work). Version-2 files without the attribute take six."""
+    return bool(getattr(policy, "takes_plan", False))
+
+
 @dataclass(frozen=True)
 class LoadedPolicy:
     directory: Path
@@ -114,6 +121,10 @@ class LoadedPolicy:
     @property
     def input_version(self) -> int:
         return input_version(self.policy)
+
+    @property
+    def takes_plan(self) -> bool:
+        return takes_plan(self.policy)
 
 
 def _load_card(path: Path) -> dict:
@@ -191,6 +202,8 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
             args = [torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)]
             if version >= 2:
                 args.append(torch.zeros(1, DEMAND_CELL_FIELDS))
+            if takes_plan(policy):
+                args.append(torch.zeros(2))
             policy(*args)
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc

@@ -141,7 +141,7 @@ class DeployedPolicy(nn.Module):
     """What `policy.pt` is: raw physical inputs -> deterministic acceleration (m/s^2, NED).
 
     forward(ego (..., 6), beliefs (..., M, 6), mask (..., M) bool, sense (..., S),
-    fail_flag (...) bool, demand (..., K, 3) or None) -> accel (..., 3). `demand` is None
+    fail_flag (...) bool, demand (..., K, 3) or None, target (..., 2) or None) -> accel (..., 3). `demand` is None
     before the first map arrives (the descriptor is then zero, as for an empty map). The feature constants are
     attributes, so the file carries them (see docs/POLICY_IO.md, input version 2).
     """
@@ -153,6 +153,7 @@ class DeployedPolicy(nn.Module):
         self.alt_max, self.v_max, self.a_max, self.r_comm = float(alt_max), float(v_max), float(a_max), float(r_comm)
         self.claim_m, self.demand_unit = float(claim_m), float(demand_unit)
         self.input_version = INPUT_VERSION
+        self.takes_plan = True  # called with the team-plan target (files without it: six inputs)
         self.register_buffer("edges_sq", ring_edges_sq())
 
     def forward(
@@ -163,10 +164,14 @@ class DeployedPolicy(nn.Module):
         sense: torch.Tensor,
         fail_flag: torch.Tensor,
         demand: Optional[torch.Tensor] = None,  # noqa: UP045 - TorchScript needs Optional
+        target: Optional[torch.Tensor] = None,  # noqa: UP045
     ) -> torch.Tensor:
         if demand is None:  # no map received yet: no demand known beyond the own sensing
             demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
+        known = torch.full(ego.shape[:-1], target is not None, dtype=torch.bool, device=ego.device)
+        if target is None:  # no plan yet (no map yet)
+            target = torch.zeros(ego.shape[:-1] + (2,), dtype=ego.dtype, device=ego.device)
         ego_x, nbr_x, rel_x, m, tok_x, tok_m = build_policy_input(
             ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max, self.r_comm, self.claim_m,
-            self.demand_unit, self.edges_sq)
+            self.demand_unit, self.edges_sq, target, known)
         return self.actor(ego_x, nbr_x, rel_x, m, tok_x, tok_m) * self.a_max  # tanh mean: already inside (-1, 1)

@@ -26,6 +26,7 @@ import torch
 
 from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
+from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.learning.nn.policy import Actor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
@@ -51,6 +52,10 @@ class ImitationArgs:
     # True: every batch draws its scenario (N, clusters, layout) and random launch lines
     # (plmarl_sitl.learning.train.scenarios); False: the mission as given.
     general: bool = True
+    # The teacher: "oracle" = the Oracle's action from the current global state
+    # (OracleController.act_from_state); "plan" = fly to the agent's own team-plan point
+    # (model/service.py), a teacher that uses only what the student has.
+    teacher: str = "plan"
 
 
 INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
@@ -91,6 +96,7 @@ def imitate_oracle(
             env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
                               random_launch=args.general)
             teacher = OracleController(env)
+            plan = ServiceTargets.of(m)
             beliefs = Beliefs(tracker)
             flags = FailureFlags(scales.r_comm)
             obs = env.reset()
@@ -100,8 +106,12 @@ def imitate_oracle(
                 while not env.done:
                     belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                     fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                    x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
-                    a_teacher = teacher.act_from_state(obs)
+                    target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+                    x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target)
+                    if args.teacher == "plan":
+                        a_teacher = plan.accel(obs.ego, target)
+                    else:
+                        a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)
                     live = obs.alive
                     for k, v in zip(INPUTS, x, strict=True):

@@ -41,6 +41,7 @@ from plmarl_sitl.learning.nn.features import (
     policy_input,
     ring_edges_sq,
 )
+from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
@@ -188,10 +189,12 @@ def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: 
         obs = env.reset()
         beliefs.reset()
         flags.reset()
+        plan = ServiceTargets.of(m)
         while not env.done:
             belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
             fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-            u = actor(*policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand))
+            target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+            u = actor(*policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target))
             obs, _, info = env.step(action_to_accel(u, scales.a_max))
             covs.append(info.coverage.mean())
     return float(torch.stack(covs).mean())
@@ -281,12 +284,14 @@ def train(args: Args, progress=None) -> dict:
         obs = env.reset()
         beliefs.reset()
         flags.reset()
+        plan = ServiceTargets.of(scenario)
         cov_last = []
         with torch.no_grad():
             for step in range(T):
                 belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
                 fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand)
+                target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+                x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target)
                 gs = critic_input(env, x[0], scales)
                 dist = actor.dist(*x)
                 u = dist.sample()

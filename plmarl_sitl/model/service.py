@@ -1,0 +1,156 @@
+"""Service points: a team plan every agent computes alone from information they all share.
+
+Why: with 50-s-old beliefs an agent cannot tell which cluster its teammates are heading
+for, so learnt policies send two UAVs to one cluster and leave another empty (issue 12,
+T_up 50). Every agent does receive the same things: the ground network's demand map
+(model/demand.py, the same message for all) and, at the first signalling instant (t = 0,
+everyone on the launch line), the launch states of its teammates. A deterministic plan
+computed from those alone is the same in every agent, without any further message:
+
+1. `ServiceGrid.place`: N service points greedily on the demand map (each on the candidate
+   point of a 25 m grid that serves the most still-unserved users, within `link_frac` R_comm
+   of a point already placed so the plan is connected, and 2 d_safe apart from them). The
+   map's users are spread over `SUB` x `SUB` sub-points per cell; the gains are integer
+   sums, so every agent gets the same points whatever its batch shape.
+2. `launch_line`: the team's launch positions, by identity, fitted as a line through the
+   ones the agent heard at t = 0 (a launch is a line of equally spaced UAVs; a large swarm's
+   line is longer than R_comm, so not everyone hears everyone).
+3. `assign`: the points to identities with the least total travel (Hungarian) from there.
+4. At every new map: re-place; the new points replace the old only when they serve more
+   users (hysteresis), matched to the old points with the least total shift, so each
+   identity keeps the nearest successor of its point (`TeamPlan.on_map`).
+
+An agent's target is the point of its own identity. It is an input of the policy (its
+offset), computed by this module in the twin's controllers and in the deployed agent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+
+from plmarl_sitl.model.demand import cell_centres, grid_shape
+
+SUB = 4  # sub-points per cell side: a cell's users are spread evenly over SUB x SUB points
+GRID_M = 25.0  # candidate service points: the Oracle's grid
+LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
+REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more
+
+
+class ServiceGrid:
+    """The mission's constants of the plan (area, cells, coverage radius, R_comm, d_safe)."""
+
+    def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> None:
+        self.cell_m = cell_m
+        self.rows, self.cols = grid_shape(area_n, area_e, cell_m)
+        n_axis = np.arange(0.0, area_n + 1e-9, GRID_M)
+        e_axis = np.arange(0.0, area_e + 1e-9, GRID_M)
+        self.cands = np.stack(np.meshgrid(n_axis, e_axis, indexing="ij"), -1).reshape(-1, 2)  # (C, 2)
+        centres = cell_centres(area_n, area_e, cell_m, torch.float64).numpy()  # (K, 2)
+        offs = (np.arange(SUB) + 0.5) / SUB * cell_m - 0.5 * cell_m
+        sub = np.stack(np.meshgrid(offs, offs, indexing="ij"), -1).reshape(-1, 2)  # (SUB^2, 2)
+        self.subpts = (centres[:, None, :] + sub[None]).reshape(-1, 2)  # (K * SUB^2, 2), cell-major
+        d2 = ((self.cands[:, None, :] - self.subpts[None]) ** 2).sum(-1)
+        self.r2 = cover_r * cover_r
+        self.cover = (d2 <= self.r2).astype(np.float64)  # (C, S)
+        cd = np.sqrt(((self.cands[:, None, :] - self.cands[None]) ** 2).sum(-1))
+        self.link_ok = cd <= LINK_FRAC * comm_m
+        self.apart_ok = cd >= 2.0 * safe_m
+
+    def _weights(self, counts: np.ndarray) -> np.ndarray:
+        """(B, K) user counts -> (B, S) users per sub-point, in units of 1 / SUB^2 user (integers)."""
+        return np.repeat(np.asarray(counts, dtype=np.float64), SUB * SUB, axis=-1)
+
+    def place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Greedy service points for maps counts (B, K): -> (points (B, n, 2), served (B,) users)."""
+        w = self._weights(counts)
+        b = w.shape[0]
+        unserved = np.ones_like(w)
+        allowed = np.ones((b, self.cands.shape[0]), dtype=bool)
+        near = np.zeros_like(allowed)
+        apart = np.ones_like(allowed)
+        chosen = []
+        for _ in range(n):
+            gain = (w * unserved) @ self.cover.T  # (B, C) exact: integer sums
+            gain = np.where(allowed, gain, -1.0)
+            best = gain.argmax(-1)  # ties: lowest candidate index
+            chosen.append(best)
+            unserved = unserved * (1.0 - self.cover[best])
+            near = near | self.link_ok[best]
+            apart = apart & self.apart_ok[best]
+            allowed = near & apart
+        idx = np.stack(chosen, -1)
+        return self.cands[idx], (w * (1.0 - unserved)).sum(-1) / (SUB * SUB)
+
+    def served(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(B,) users the points (B, n, 2) serve on maps counts (B, K)."""
+        w = self._weights(counts)
+        d2 = ((points[:, :, None, :] - self.subpts[None, None]) ** 2).sum(-1)  # (B, n, S)
+        hit = (d2 <= self.r2).any(1)
+        return (w * hit).sum(-1) / (SUB * SUB)
+
+
+def grid_counts(cells: np.ndarray, grid: ServiceGrid) -> np.ndarray:
+    """(K,) counts on the grid's cells from map rows cells (R, 3) [centre north, centre east,
+    count] (the nonzero cells a message carries, or the whole map)."""
+    r = np.clip(np.floor(cells[:, 0] / grid.cell_m), 0, grid.rows - 1).astype(np.int64)
+    c = np.clip(np.floor(cells[:, 1] / grid.cell_m), 0, grid.cols - 1).astype(np.int64)
+    out = np.zeros(grid.rows * grid.cols)
+    np.add.at(out, r * grid.cols + c, cells[:, 2])
+    return out
+
+
+def launch_line(ids: np.ndarray, pos: np.ndarray, n: int) -> np.ndarray:
+    """(n, 2) launch positions of identities 0..n-1 fitted as p = a + b id through the
+    heard ones (ids (H,), pos (H, 2), the agent itself included); one heard -> all there."""
+    ids = np.asarray(ids, dtype=np.float64)
+    pos = np.asarray(pos, dtype=np.float64)
+    if len(ids) < 2:
+        return np.repeat(pos[:1], n, 0)
+    design = np.stack([np.ones_like(ids), ids], -1)
+    coef, *_ = np.linalg.lstsq(design, pos, rcond=None)  # (2, 2)
+    return np.stack([np.ones(n), np.arange(n, dtype=np.float64)], -1) @ coef
+
+
+def assign(sources: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(n,) point index of each source (n, 2) with the least total distance (Hungarian)."""
+    cost = np.sqrt(((sources[:, None, :] - points[None]) ** 2).sum(-1))
+    rows, cols = linear_sum_assignment(cost)
+    out = np.empty(len(sources), dtype=np.int64)
+    out[rows] = cols
+    return out
+
+
+class TeamPlans:
+    """Copies of the team plan for B teams x A agents (the twin: A = N; a deployed agent: B = A = 1).
+    Everything in a plan is common knowledge (the maps and the launch line), so the agents of
+    a team compute the same points, and the same slots unless their launch fits differ."""
+
+    def __init__(self, grid: ServiceGrid, n: int) -> None:
+        self.grid, self.n = grid, n
+        self.points: np.ndarray | None = None  # (B, n, 2) the plan's points
+        self.slot: np.ndarray | None = None  # (B, A, n) point index of each identity, per agent's copy
+
+    def start(self, launch: np.ndarray, counts: np.ndarray) -> None:
+        """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
+        self.points = self.grid.place(counts, self.n)[0]
+        self.slot = np.stack([np.stack([assign(la, pts) for la in team]) for team, pts in zip(launch, self.points, strict=True)])
+
+    def on_map(self, counts: np.ndarray) -> None:
+        """A new map (B, K): re-place; a team keeps its plan unless the new one serves more users."""
+        assert self.points is not None and self.slot is not None
+        new, served = self.grid.place(counts, self.n)
+        old = self.grid.served(counts, self.points)
+        for b in np.nonzero(served > old + REPLAN_MARGIN)[0]:
+            moved = assign(self.points[b], new[b])  # old point k -> new point moved[k]
+            self.points[b], self.slot[b] = new[b], moved[self.slot[b]]
+
+    def targets(self, idents: np.ndarray) -> np.ndarray:
+        """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy."""
+        assert self.points is not None and self.slot is not None
+        own = np.take_along_axis(self.slot, np.asarray(idents).reshape(1, -1, 1), -1)[..., 0]  # (B, A)
+        return np.take_along_axis(self.points, own[..., None].repeat(2, -1), 1)
+
+
+__all__ = ["GRID_M", "LINK_FRAC", "REPLAN_MARGIN", "SUB", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line"]
