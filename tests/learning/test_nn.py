@@ -38,7 +38,8 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     mask = torch.zeros(5, m, dtype=torch.bool)
     mask[:, :n_nbrs] = True
     ego_x, nbr_x, rel_x, mk, _, _ = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3),
-                                                 SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq())
+                                                 SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq(),
+                                                 torch.zeros(5, 2), torch.zeros(5, dtype=torch.bool))
     assert ego_x.shape == (5, EGO_FEATURES) and nbr_x.shape == (5, m, NBR_FEATURES) and rel_x.shape == (5, m, 3)
     fusion = AttentionFusion()
     h, msg, alpha = fusion(ego_x, nbr_x, rel_x, mk)
