@@ -175,3 +175,36 @@ def test_tiny_training_run_on_the_scenario_distribution(tmp_path):
                      imitation_tup_chunks=2, critic_warmup_iters=0, out=str(tmp_path / "mappo")))
     assert res["episodes"] == 8 and np.isfinite(res["last"]["losses/value_loss"])
     assert 3 <= res["last"]["charts/n_uavs"] <= 8
+
+
+def test_plan_input_is_relative_and_absent_before_a_plan():
+    """The team-plan features are the offset to the target: a translated agent and target
+    give the same input; without a target they are zero (and say so)."""
+    scales = FeatureScales.from_mission(MISSION)
+    gen = torch.Generator().manual_seed(3)
+    ego, bel, mask, sense, demand = _scenario(gen, 3, 5)
+    fail = torch.tensor(False)
+    target = ego[:2] + torch.tensor([120.0, -40.0])
+    shift = torch.tensor([37.0, -210.0])
+    sh3 = torch.cat([shift, torch.zeros(1)])
+    a = policy_input(scales, ego, bel, mask, sense, fail, demand, target)[0]
+    b = policy_input(scales, ego + torch.cat([sh3, torch.zeros(3)]), bel + torch.cat([sh3, torch.zeros(3)]), mask, sense, fail,
+                     demand + torch.cat([shift, torch.zeros(1)]), target + shift)[0]
+    assert torch.allclose(a, b, atol=1e-5)
+    none = policy_input(scales, ego, bel, mask, sense, fail, demand)[0]
+    assert torch.equal(none[-5:], torch.zeros(5)) and a[-1] == 1.0
+
+
+def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
+    """policies/general/* were exported before the team plan: the twin calls them without it."""
+    from plmarl_sitl.learning.nn.io import load_policy
+
+    lp = load_policy("policies/general/tag-mappo")
+    assert lp.input_version == 2 and not lp.takes_plan
+    ctl = LearnedController(lp.tracker, lp.policy, MISSION)
+    assert ctl.plan is None
+    env = CoverageEnv(MISSION, 2, 0)
+    ctl.reset()
+    obs = env.observe()
+    for _ in range(3):
+        obs, _, _ = env.step(ctl.act(obs))
