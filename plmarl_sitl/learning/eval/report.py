@@ -66,7 +66,7 @@ def pvalue_table_md(res: dict) -> str:
 
 
 COLOURS = {"pl-marl": "tab:blue", "gru": "tab:orange", "tag-mappo": "tab:green", "dead-reckoning": "tab:red",
-           "oracle": "black", "heuristic": "tab:gray"}
+           "oracle": "black", "heuristic": "tab:gray", "service": "tab:purple"}
 
 
 def plot_coverage_vs_tup(res: dict, path: Path) -> None:

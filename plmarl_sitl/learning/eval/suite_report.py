@@ -10,7 +10,7 @@ import numpy as np
 from plmarl_sitl.learning.eval.report import COLOURS
 from plmarl_sitl.learning.eval.transient import PLATEAU_FRACTION, WINDOW_S
 
-SUMMARY_METHODS = ("pl-marl", "tag-mappo", "gru", "dead-reckoning")
+SUMMARY_METHODS = ("pl-marl", "tag-mappo", "gru", "dead-reckoning", "service")
 
 
 def _pct(row: dict, key: str = "fraction_of_oracle_mean") -> str:
