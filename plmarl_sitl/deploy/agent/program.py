@@ -172,7 +172,15 @@ def run(args: argparse.Namespace) -> int:
 
         use_realtime(args.rt_priority)
         logging.getLogger("plmarl.agent").info("running under SCHED_FIFO, priority %d", args.rt_priority)
-    return asyncio.run(_fly(agent))
+    try:
+        return asyncio.run(_fly(agent))
+    finally:
+        # The stop path has run (vehicle held, stats written); what is left is the interpreter's
+        # exit, which takes a second or more with torch loaded on a busy machine. The closed loop
+        # has put the default signal actions back, so a second SIGTERM there (a launcher stopping
+        # its fleet) would turn a clean exit into "killed by SIGTERM".
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
 
 
 async def _fly(agent) -> int:  # noqa: ANN001 - core.Agent, imported lazily
