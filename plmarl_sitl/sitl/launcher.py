@@ -41,8 +41,10 @@ from pathlib import Path
 import yaml
 
 from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
@@ -89,6 +91,10 @@ class UpOptions:
     copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
     instance_base: int | None = None  # first ArduPilot SITL instance -I (None: the first free ones)
     verbose: bool = False  # agents log DEBUG too
+    # Message authentication (docs/SECURITY.md): a fresh swarm key per run in the run
+    # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
+    auth: bool = True
+    swarm_key: Path | None = None
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -160,6 +166,17 @@ async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
     return None, host, port
 
 
+def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None]:
+    """The run's key file and key: the one given, else a fresh one in the run directory."""
+    if not opts.auth:
+        log.warning("--no-auth: the swarm's messages are unsigned")
+        return None, None
+    if opts.swarm_key is not None:
+        return opts.swarm_key, load_key(opts.swarm_key)
+    path = out / "swarm.key"
+    return path, create_key_file(path)
+
+
 def _setup_logging(out: Path) -> logging.Handler:
     handler = logging.FileHandler(out / "launcher.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
@@ -187,6 +204,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
     if opts.broker != "embedded":
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
+    if opts.swarm_key is not None:
+        load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
@@ -196,11 +215,12 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
     duration = opts.duration_s or mission.timing.episode_s
     n = mission.n_uavs
+    key_path, key = _swarm_key(opts, out)
     metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
     events: list[dict] = []
     rows: list[dict] = []
-    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup)
+    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key))
 
     def record_event(entry: dict) -> None:
         events.append(entry)
@@ -211,6 +231,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+    console.print(f"messages signed with the swarm key {key_path}" if key is not None else
+                  "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
+                  highlight=False)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
     broker, up_host, up_port = await _start_broker(opts.broker)
@@ -255,12 +278,14 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                 raise ComponentFailed(str(exc)) from exc
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
-                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs))
+                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
+                              swarm_key=key)
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule)
+                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
+                              swarm_key=key)
         world = SitlWorld(cfg, on_metrics=on_metrics)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
@@ -269,7 +294,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                            monitor.on_bus, name="launcher-bus")
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose)
+                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,
+                              swarm_key=key_path)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
@@ -361,16 +387,19 @@ def run_up(opts: UpOptions) -> dict:
         raise KeyboardInterrupt from None
 
 
-def status(broker: str, swarm: str, drop_after_missed: int = 2) -> None:
-    """`plmarl swarm status`: attach the live view to a running swarm over MQTT."""
+def status(broker: str, swarm: str, drop_after_missed: int = 2, key: SwarmKey | None = None,
+           credentials: tuple[str, str] | None = None) -> None:
+    """`plmarl swarm status`: attach the live view to a running swarm over MQTT (the
+    signalling of a signed swarm is shown only with its key)."""
     from rich.console import Console
     from rich.live import Live
 
     async def main() -> None:
         parse_broker_url(broker)  # UserError on a malformed URL
-        monitor = SwarmMonitor(swarm, 15, drop_after_missed)
+        monitor = SwarmMonitor(swarm, 15, drop_after_missed, wire=Wire(key))
         t = monitor.topics
-        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus, name="status-bus")
+        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus,
+                      name="status-bus", credentials=credentials)
         console = Console()
         async with asyncio.TaskGroup() as tg:
             tg.create_task(bus.run())
