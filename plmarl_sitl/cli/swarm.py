@@ -40,7 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
     up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time)")
     up.add_argument("--duration", type=int, default=None, metavar="S", help="mission seconds to fly (default: the mission's episode length)")
-    up.add_argument("--broker", default="embedded", metavar="embedded|mqtt://HOST:PORT", help="MQTT broker (default: embedded amqtt)")
+    up.add_argument("--broker", default="embedded", metavar="embedded|mosquitto|mqtt://HOST:PORT",
+                    help="MQTT broker: embedded (amqtt in a child process, default), mosquitto (a mosquitto child), both "
+                    "with a login per process and an ACL; or an external broker by URL (its access control is its own)")
     up.add_argument("--headless", action="store_true", help="no live view: one status line every 10 s of sim time")
     up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
     add_seed(up, default=None)

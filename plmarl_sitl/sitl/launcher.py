@@ -33,6 +33,7 @@ import datetime as _dt
 import json
 import logging
 import signal
+import subprocess
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -52,7 +53,8 @@ from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.monitor import SwarmMonitor
-from plmarl_sitl.sitl.network.broker import AmqttProcess, free_udp_ports
+from plmarl_sitl.sitl.network.access import BrokerAccess
+from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -148,13 +150,23 @@ class LauncherEvents:
                 self.record({"t": t, "type": f"{ev.type}_end"})
 
 
-async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
-    if spec == "embedded":
-        broker = AmqttProcess()
+# What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
+BROKER_GUARANTEES = {
+    "mosquitto": "mosquitto: a login per process (password file), ACL (agent i publishes only tx/i and reads only "
+                 "what is addressed to it; the world its topics; the view reads), login = client id",
+    "embedded": "embedded amqtt: a login per process and topic ACLs (publish, subscribe) are enforced; it cannot bind "
+                "a login to its client id (a valid login can take over another client's session: a denial of "
+                "service, not an impersonation) and has no TLS; use --broker mosquitto for that",
+}
+
+
+async def _start_broker(spec: str, access: BrokerAccess | None) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
+    if spec in ("embedded", "mosquitto"):
+        broker = AmqttProcess(access=access) if spec == "embedded" else MosquittoBroker(access=access)
         try:
-            await asyncio.to_thread(broker.start)
-        except (RuntimeError, TimeoutError) as exc:
-            raise ComponentFailed(f"the embedded amqtt broker did not start: {exc}") from exc
+            await asyncio.to_thread(broker.start, 20.0)  # amqtt imports and hashes passwords first
+        except (RuntimeError, TimeoutError, OSError, subprocess.CalledProcessError) as exc:
+            raise ComponentFailed(f"the {broker.what} broker did not start: {exc}") from exc
         return broker, broker.host, broker.port
     host, port = parse_broker_url(spec)  # UserError on a malformed URL
     try:
@@ -202,7 +214,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
         if EventSchedule.of(mission).has("gnss_noise"):
             raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
-    if opts.broker != "embedded":
+    if opts.broker not in ("embedded", "mosquitto"):
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if opts.swarm_key is not None:
         load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
@@ -236,7 +248,14 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                   highlight=False)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
-    broker, up_host, up_port = await _start_broker(opts.broker)
+    # Our own broker: a login per process and an ACL; an external one: its own business.
+    access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
+    creds = access.write_credentials(out / "credentials") if access is not None else {}
+    broker, up_host, up_port = await _start_broker(opts.broker, access)
+    guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
+                                       "(docs/SECURITY.md has the ACL to give it)")
+    console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
+    log.info("%s", guarantees)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
     schedule = EventSchedule.of(mission)
@@ -279,23 +298,23 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
                               events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
-                              swarm_key=key)
+                              swarm_key=key, broker_credentials=access["world"].credentials if access else None)
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
                               speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
-                              swarm_key=key)
+                              swarm_key=key, broker_credentials=access["world"].credentials if access else None)
         world = SitlWorld(cfg, on_metrics=on_metrics)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
-                           monitor.on_bus, name="launcher-bus")
+                           monitor.on_bus, name="launcher-bus", credentials=access["monitor"].credentials if access else None)
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
                               extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,
-                              swarm_key=key_path)
+                              swarm_key=key_path, credentials=creds.get(f"agent{i}"))
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
