@@ -63,6 +63,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
+    up.add_argument("--broker-credentials", type=Path, default=None, metavar="DIR",
+                    help="with an external broker: the logins it knows this swarm by, DIR/world.cred, DIR/monitor.cred "
+                    "and DIR/agentI.cred (one line USERNAME:PASSWORD each, mode 0600)")
     a = up.add_mutually_exclusive_group()
     a.add_argument("--swarm-key", type=Path, default=None, metavar="FILE",
                    help="sign every message with this key file (64 hex characters, mode 0600; default: a fresh key "
@@ -127,7 +130,7 @@ def run_up(args: argparse.Namespace) -> int:
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
         personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
-        auth=not args.no_auth, swarm_key=args.swarm_key,
+        auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
     )
     try:
         summary = launch(opts)

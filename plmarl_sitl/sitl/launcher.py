@@ -43,6 +43,7 @@ import yaml
 
 from plmarl_sitl.config import REPO_ROOT, to_dict
 from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
+from plmarl_sitl.deploy.mqtt.credentials import load_credentials
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.deploy.mqtt.wire import Wire
@@ -97,6 +98,8 @@ class UpOptions:
     # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
     auth: bool = True
     swarm_key: Path | None = None
+    # An external broker's logins: DIR/world.cred, DIR/monitor.cred, DIR/agentI.cred (None: anonymous).
+    broker_credentials: Path | None = None
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -189,6 +192,17 @@ def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None
     return path, create_key_file(path)
 
 
+def _external_logins(directory: Path | None, n: int) -> dict[str, Path]:
+    """The credentials files an external broker knows this swarm's processes by."""
+    if directory is None:
+        return {}
+    names = ["world", "monitor", *(f"agent{i}" for i in range(n))]
+    paths = {name: directory / f"{name}.cred" for name in names}
+    for path in paths.values():
+        load_credentials(path)  # missing, exposed or malformed: one error before anything starts
+    return paths
+
+
 def _setup_logging(out: Path) -> logging.Handler:
     handler = logging.FileHandler(out / "launcher.log")
     handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
@@ -218,6 +232,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if opts.swarm_key is not None:
         load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
+    if opts.broker_credentials is not None:
+        if opts.broker in ("embedded", "mosquitto"):
+            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
+        _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
@@ -250,7 +268,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
     # Our own broker: a login per process and an ACL; an external one: its own business.
     access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
-    creds = access.write_credentials(out / "credentials") if access is not None else {}
+    creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
+    world_login = load_credentials(creds["world"]) if creds else None
+    monitor_login = load_credentials(creds["monitor"]) if creds else None
     broker, up_host, up_port = await _start_broker(opts.broker, access)
     guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
                                        "(docs/SECURITY.md has the ACL to give it)")
@@ -298,19 +318,19 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
                               events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
-                              swarm_key=key, broker_credentials=access["world"].credentials if access else None)
+                              swarm_key=key, broker_credentials=world_login)
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
                               speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
-                              swarm_key=key, broker_credentials=access["world"].credentials if access else None)
+                              swarm_key=key, broker_credentials=world_login)
         world = SitlWorld(cfg, on_metrics=on_metrics)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
-                           monitor.on_bus, name="launcher-bus", credentials=access["monitor"].credentials if access else None)
+                           monitor.on_bus, name="launcher-bus", credentials=monitor_login)
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
                               extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,

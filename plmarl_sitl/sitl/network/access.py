@@ -58,6 +58,11 @@ class BrokerAccess:
         for i in range(n):
             self.principals[f"agent{i}"] = login(f"agent{i}", [t.tx(i)], [t.rx(i), t.closed, t.sense(i), t.demand, t.start, t.ctl])
 
+    def add(self, name: str, publish: list[str], read: list[str]) -> Principal:
+        """One more login (an operator's tool, or a test's intruder)."""
+        self.principals[name] = Principal(name, secrets.token_hex(16), tuple(publish), tuple(read))
+        return self.principals[name]
+
     def agent(self, i: int) -> Principal:
         return self.principals[f"agent{i}"]
 
