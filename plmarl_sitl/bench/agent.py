@@ -70,6 +70,7 @@ async def _run(args: argparse.Namespace, rt_priority: int, workdir: Path) -> dic
     n = args.n
     base = free_udp_ports(n)
     fleet = AgentFleet(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
     key_path = None if args.no_auth else workdir / "swarm.key"
     key = None if key_path is None else create_key_file(key_path)
     extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
