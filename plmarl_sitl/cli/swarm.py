@@ -40,7 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
     up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time)")
     up.add_argument("--duration", type=int, default=None, metavar="S", help="mission seconds to fly (default: the mission's episode length)")
-    up.add_argument("--broker", default="embedded", metavar="embedded|mqtt://HOST:PORT", help="MQTT broker (default: embedded amqtt)")
+    up.add_argument("--broker", default="embedded", metavar="embedded|mosquitto|mqtt://HOST:PORT",
+                    help="MQTT broker: embedded (amqtt in a child process, default), mosquitto (a mosquitto child), both "
+                    "with a login per process and an ACL; or an external broker by URL (its access control is its own)")
     up.add_argument("--headless", action="store_true", help="no live view: one status line every 10 s of sim time")
     up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
     add_seed(up, default=None)
@@ -61,6 +63,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
+    up.add_argument("--broker-credentials", type=Path, default=None, metavar="DIR",
+                    help="with an external broker: the logins it knows this swarm by, DIR/world.cred, DIR/monitor.cred "
+                    "and DIR/agentI.cred (one line USERNAME:PASSWORD each, mode 0600)")
+    a = up.add_mutually_exclusive_group()
+    a.add_argument("--swarm-key", type=Path, default=None, metavar="FILE",
+                   help="sign every message with this key file (64 hex characters, mode 0600; default: a fresh key "
+                   "in the run directory, swarm.key)")
+    a.add_argument("--no-auth", action="store_true",
+                   help="fly with unsigned messages (anyone who can publish on the broker can steer the swarm)")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
     up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
     up.set_defaults(func=run_up)
@@ -75,7 +86,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     st.add_argument("--broker", required=True, metavar="mqtt://HOST:PORT", help="the swarm's broker")
     st.add_argument("--swarm", default="sitl", help="swarm name (default sitl)")
+    st.add_argument("--swarm-key", default=None, metavar="FILE",
+                    help="the swarm's key file: without it the view shows metrics but no signed signalling")
+    st.add_argument("--broker-credentials", default=None, metavar="FILE",
+                    help="the view's broker login, one line USERNAME:PASSWORD (a SITL run writes credentials/view.cred)")
     st.set_defaults(func=run_status)
+
+    kg = ssub.add_parser("keygen", help="write a fresh random swarm key file (mode 0600)",
+                         description="Write a fresh random 32-byte swarm key, as 64 hexadecimal characters, to FILE "
+                         "with owner-only permissions; give the same file to the world and every agent (--swarm-key).")
+    kg.add_argument("file", type=Path, help="the key file to create (must not exist)")
+    kg.set_defaults(func=run_keygen)
 
 
 def autopilot_arg(text: str) -> tuple[str, Path | None]:
@@ -109,6 +130,7 @@ def run_up(args: argparse.Namespace) -> int:
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
         personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
+        auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
     )
     try:
         summary = launch(opts)
@@ -127,7 +149,24 @@ def run_up(args: argparse.Namespace) -> int:
 
 
 def run_status(args: argparse.Namespace) -> int:
+    from plmarl_sitl.deploy.mqtt.auth import load_key
+    from plmarl_sitl.deploy.mqtt.credentials import load_credentials
     from plmarl_sitl.sitl.launcher import status
 
-    status(args.broker, args.swarm)
+    key = load_key(args.swarm_key) if args.swarm_key else None
+    credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
+    status(args.broker, args.swarm, key=key, credentials=credentials)
+    return 0
+
+
+def run_keygen(args: argparse.Namespace) -> int:
+    from plmarl_sitl.deploy.mqtt.auth import create_key_file
+    from plmarl_sitl.errors import UserError
+
+    if args.file.exists():
+        raise UserError(f"{args.file} exists: a key is not overwritten (remove it first to rotate)")
+    if not args.file.parent.is_dir():
+        raise UserError(f"{args.file}: no such directory {args.file.parent}")
+    key = create_key_file(args.file)
+    print(f"wrote {args.file} (key id {key.key_id:#04x}, mode 600)")
     return 0

@@ -21,13 +21,14 @@ from plmarl_sitl.errors import UserError
 
 EPILOG = """\
 examples:
-  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --speedup 10
-  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --episode 200
-then one agent per vehicle:
-  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
+  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key --speedup 10
+  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --no-auth --episode 200
+then one agent per vehicle, with the same key:
+  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key
 vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SITLs, SERIAL1):
-  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 \\
-      --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5"""
+  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key \\
+      --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5
+a key file (0600): plmarl swarm keygen swarm.key"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +41,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("mission", help="mission YAML (e.g. missions/paper_urban.yaml)")
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
+    p.add_argument("--broker-credentials", default=None, metavar="FILE",
+                   help="the world's broker login: one line USERNAME:PASSWORD, mode 0600 (default: anonymous)")
+    a = p.add_mutually_exclusive_group()
+    a.add_argument("--swarm-key", default=None, metavar="FILE",
+                   help="the swarm key (64 hex characters, mode 0600): relay only authentic states, sign start, ctl, "
+                   "closed, sensing and demand (docs/SECURITY.md). Required unless --no-auth")
+    a.add_argument("--no-auth", action="store_true", help="unsigned version-1 messages (anyone on the broker can steer)")
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
     p.add_argument("--swarm", default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
     p.add_argument("--external", default=None, metavar="URL[,URL...]",
@@ -72,6 +80,11 @@ def run(args: argparse.Namespace) -> int:
     check_boot(args.personality, args.boot)
     if not 0 <= args.loss <= 1:
         raise UserError("--loss must be in [0, 1]")
+    from plmarl_sitl.deploy.mqtt.auth import key_from_flags
+    from plmarl_sitl.deploy.mqtt.credentials import load_credentials
+
+    args.key = key_from_flags(args.swarm_key, args.no_auth)
+    args.credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     mission = load_mission(args.mission)
     args.external = _external_urls(args.external)
     if args.external:
@@ -115,6 +128,8 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         episode_s=args.episode,
         n_uavs=args.n_uavs,
         external=args.external,
+        swarm_key=args.key,
+        broker_credentials=args.credentials,
     )
     broker = None
     if args.embedded_broker:

@@ -83,13 +83,21 @@ class AgentFleet:
         trace: bool = True,
         stats: bool = True,
         verbose: bool = False,
+        swarm_key: Path | None = None,
+        credentials: Path | None = None,
     ) -> AgentProc:
+        """Start agent `uav_id`; it signs its messages with the key file `swarm_key`, or
+        flies unsigned (`--no-auth`) without one, and logs in to the broker with the
+        credentials file `credentials` (None: anonymous)."""
         self.workdir.mkdir(parents=True, exist_ok=True)
         trace_path = self.workdir / f"agent{uav_id}.trace.jsonl" if trace else None
         stats_path = self.workdir / f"agent{uav_id}.stats.json" if stats else None
         log_path = self.workdir / f"agent{uav_id}.log"
         cmd = ["--id", str(uav_id), "--connect", connect_url,
                "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm]
+        cmd += ["--swarm-key", str(swarm_key)] if swarm_key is not None else ["--no-auth"]
+        if credentials is not None:
+            cmd += ["--broker-credentials", str(credentials)]
         if verbose:  # DEBUG for the plmarl loggers: only when asked for
             cmd.append("-v")
         if n_uavs is not None:

@@ -33,6 +33,7 @@ import datetime as _dt
 import json
 import logging
 import signal
+import subprocess
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -41,8 +42,11 @@ from pathlib import Path
 import yaml
 
 from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
+from plmarl_sitl.deploy.mqtt.credentials import load_credentials
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
@@ -50,7 +54,8 @@ from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.monitor import SwarmMonitor
-from plmarl_sitl.sitl.network.broker import AmqttProcess, free_udp_ports
+from plmarl_sitl.sitl.network.access import BrokerAccess
+from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -89,6 +94,12 @@ class UpOptions:
     copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
     instance_base: int | None = None  # first ArduPilot SITL instance -I (None: the first free ones)
     verbose: bool = False  # agents log DEBUG too
+    # Message authentication (docs/SECURITY.md): a fresh swarm key per run in the run
+    # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
+    auth: bool = True
+    swarm_key: Path | None = None
+    # An external broker's logins: DIR/world.cred, DIR/monitor.cred, DIR/agentI.cred (None: anonymous).
+    broker_credentials: Path | None = None
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -142,13 +153,23 @@ class LauncherEvents:
                 self.record({"t": t, "type": f"{ev.type}_end"})
 
 
-async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
-    if spec == "embedded":
-        broker = AmqttProcess()
+# What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
+BROKER_GUARANTEES = {
+    "mosquitto": "mosquitto: a login per process (password file), ACL (agent i publishes only tx/i and reads only "
+                 "what is addressed to it; the world its topics; the view reads), login = client id",
+    "embedded": "embedded amqtt: a login per process and topic ACLs (publish, subscribe) are enforced; it cannot bind "
+                "a login to its client id (a valid login can take over another client's session: a denial of "
+                "service, not an impersonation) and has no TLS; use --broker mosquitto for that",
+}
+
+
+async def _start_broker(spec: str, access: BrokerAccess | None) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
+    if spec in ("embedded", "mosquitto"):
+        broker = AmqttProcess(access=access) if spec == "embedded" else MosquittoBroker(access=access)
         try:
-            await asyncio.to_thread(broker.start)
-        except (RuntimeError, TimeoutError) as exc:
-            raise ComponentFailed(f"the embedded amqtt broker did not start: {exc}") from exc
+            await asyncio.to_thread(broker.start, 20.0)  # amqtt imports and hashes passwords first
+        except (RuntimeError, TimeoutError, OSError, subprocess.CalledProcessError) as exc:
+            raise ComponentFailed(f"the {broker.what} broker did not start: {exc}") from exc
         return broker, broker.host, broker.port
     host, port = parse_broker_url(spec)  # UserError on a malformed URL
     try:
@@ -158,6 +179,28 @@ async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
     except (OSError, TimeoutError) as exc:
         raise ComponentFailed(f"cannot reach the broker at {spec} ({exc.__class__.__name__})") from exc
     return None, host, port
+
+
+def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None]:
+    """The run's key file and key: the one given, else a fresh one in the run directory."""
+    if not opts.auth:
+        log.warning("--no-auth: the swarm's messages are unsigned")
+        return None, None
+    if opts.swarm_key is not None:
+        return opts.swarm_key, load_key(opts.swarm_key)
+    path = out / "swarm.key"
+    return path, create_key_file(path)
+
+
+def _external_logins(directory: Path | None, n: int) -> dict[str, Path]:
+    """The credentials files an external broker knows this swarm's processes by."""
+    if directory is None:
+        return {}
+    names = ["world", "monitor", *(f"agent{i}" for i in range(n))]
+    paths = {name: directory / f"{name}.cred" for name in names}
+    for path in paths.values():
+        load_credentials(path)  # missing, exposed or malformed: one error before anything starts
+    return paths
 
 
 def _setup_logging(out: Path) -> logging.Handler:
@@ -185,8 +228,14 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
         if EventSchedule.of(mission).has("gnss_noise"):
             raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
-    if opts.broker != "embedded":
+    if opts.broker not in ("embedded", "mosquitto"):
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
+    if opts.swarm_key is not None:
+        load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
+    if opts.broker_credentials is not None:
+        if opts.broker in ("embedded", "mosquitto"):
+            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
+        _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
@@ -196,11 +245,12 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
     duration = opts.duration_s or mission.timing.episode_s
     n = mission.n_uavs
+    key_path, key = _swarm_key(opts, out)
     metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
     events: list[dict] = []
     rows: list[dict] = []
-    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup)
+    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key))
 
     def record_event(entry: dict) -> None:
         events.append(entry)
@@ -211,9 +261,21 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+    console.print(f"messages signed with the swarm key {key_path}" if key is not None else
+                  "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
+                  highlight=False)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
-    broker, up_host, up_port = await _start_broker(opts.broker)
+    # Our own broker: a login per process and an ACL; an external one: its own business.
+    access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
+    creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
+    world_login = load_credentials(creds["world"]) if creds else None
+    monitor_login = load_credentials(creds["monitor"]) if creds else None
+    broker, up_host, up_port = await _start_broker(opts.broker, access)
+    guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
+                                       "(docs/SECURITY.md has the ACL to give it)")
+    console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
+    log.info("%s", guarantees)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
     schedule = EventSchedule.of(mission)
@@ -255,21 +317,24 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                 raise ComponentFailed(str(exc)) from exc
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
-                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs))
+                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
+                              swarm_key=key, broker_credentials=world_login)
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule)
+                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
+                              swarm_key=key, broker_credentials=world_login)
         world = SitlWorld(cfg, on_metrics=on_metrics)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
-                           monitor.on_bus, name="launcher-bus")
+                           monitor.on_bus, name="launcher-bus", credentials=monitor_login)
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose)
+                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,
+                              swarm_key=key_path, credentials=creds.get(f"agent{i}"))
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
@@ -361,16 +426,19 @@ def run_up(opts: UpOptions) -> dict:
         raise KeyboardInterrupt from None
 
 
-def status(broker: str, swarm: str, drop_after_missed: int = 2) -> None:
-    """`plmarl swarm status`: attach the live view to a running swarm over MQTT."""
+def status(broker: str, swarm: str, drop_after_missed: int = 2, key: SwarmKey | None = None,
+           credentials: tuple[str, str] | None = None) -> None:
+    """`plmarl swarm status`: attach the live view to a running swarm over MQTT (the
+    signalling of a signed swarm is shown only with its key)."""
     from rich.console import Console
     from rich.live import Live
 
     async def main() -> None:
         parse_broker_url(broker)  # UserError on a malformed URL
-        monitor = SwarmMonitor(swarm, 15, drop_after_missed)
+        monitor = SwarmMonitor(swarm, 15, drop_after_missed, wire=Wire(key))
         t = monitor.topics
-        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus, name="status-bus")
+        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus,
+                      name="status-bus", credentials=credentials)
         console = Console()
         async with asyncio.TaskGroup() as tg:
             tg.create_task(bus.run())

@@ -59,17 +59,18 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from plmarl_sitl.deploy.mqtt.demand import encode_demand
+from plmarl_sitl.deploy.mqtt.auth import AuthError, SwarmKey
 from plmarl_sitl.deploy.mqtt.schema import (
     INSTANT_WAIT_MIN_S,
     INSTANT_WAIT_WALL_S,
+    WINDOW_SLACK_S,
     Malformed,
+    SeqFilter,
     Topics,
-    decode_state,
     encode_json,
-    encode_sense,
 )
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
@@ -116,6 +117,10 @@ class WorldConfig:
     # MAVLink URLs of vehicles that fly elsewhere, one per UAV (then no emulated autopilots:
     # personality, boot and base_port do not apply); empty: the emulator in this process.
     external: tuple[str, ...] = ()
+    # The swarm key: the world relays only states that authenticate and signs what it
+    # sends the agents (start, ctl, closed, sense, demand); None: the unsigned wire.
+    swarm_key: SwarmKey | None = None
+    broker_credentials: tuple[str, str] | None = None  # (username, password) on the broker
 
 
 @dataclass
@@ -178,7 +183,11 @@ class SitlWorld:
         self.users_ahead: collections.deque[UserState] = collections.deque()  # users of seconds k + 1 .. k + map period
         self.map_seq = 0
         self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
-        self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
+        self.wire = Wire(cfg.swarm_key)
+        self.seq_filter = SeqFilter()  # relays each state once: a replay is not relayed again
+        self.ctl_seq = 0
+        self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus",
+                           credentials=cfg.broker_credentials)
         # A retained start (and T_up) of a previous run must not reach this run's agents.
         self.bus.publish(self.topics.start, b"", sticky=True)
         self.bus.publish(self.topics.ctl, b"", sticky=True)
@@ -233,7 +242,9 @@ class SitlWorld:
     def set_tup(self, tup_s: int) -> None:
         """Tell the agents to signal every `tup_s` seconds from now on (ctl topic)."""
         self.tup_s = int(tup_s)
-        self.bus.publish(self.topics.ctl, encode_json({"tup_s": self.tup_s}), sticky=True)
+        self.ctl_seq += 1  # signed: agents apply only a ctl newer than the last (a replay is not)
+        ctl = {"tup_s": self.tup_s, "seq": self.ctl_seq} if self.wire.signed else {"tup_s": self.tup_s}
+        self.bus.publish(self.topics.ctl, self.wire.json("ctl", ctl), sticky=True)
 
     def stop(self) -> None:
         self._stop.set()
@@ -262,13 +273,28 @@ class SitlWorld:
     # ------------------------------------------------------------------ bus
     def _on_message(self, topic: str, payload: bytes) -> None:
         sender = self.topics.id_of(topic)
+        counters = self.links.counters
         try:
-            msg = decode_state(payload)
+            msg = self.wire.read_state(payload)
         except Malformed:
-            self.links.counters.malformed += 1
+            counters.malformed += 1
             return
-        if sender is None or msg.sender != sender or not 0 <= sender < self.n:
-            self.links.counters.malformed += 1
+        except AuthError as exc:
+            setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
+            return
+        if sender is None or not 0 <= sender < self.n:
+            counters.malformed += 1
+            return
+        if msg.sender != sender:
+            counters.misattributed += 1
+            return
+        if self.wire.signed and self.t0 is not None:
+            now_t = self.now - self.t0
+            if not now_t - self.tup_s - WINDOW_SLACK_S <= msg.t_s <= now_t + WINDOW_SLACK_S:
+                counters.out_of_window += 1
+                return
+        if self.seq_filter.check(msg) is not None:
+            counters.replayed += 1
             return
         pos = self.vehicles.positions()
         alive = self.alive()
@@ -300,7 +326,7 @@ class SitlWorld:
         self._closed_upto = max(self._closed_upto, t_s)
         for i, payloads in sorted(self._batches.pop(t_s, {}).items()):
             self._send_after_latency(self.topics.rx(i), b"".join(payloads))
-        self._send_after_latency(self.topics.closed, encode_json({"t_s": t_s}))
+        self._send_after_latency(self.topics.closed, self.wire.json("closed", {"t_s": t_s}))
 
     def _close_overdue(self) -> None:
         """Close every open instant some updates are still missing from after half the
@@ -346,7 +372,7 @@ class SitlWorld:
             start = {"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}
             if self.t0_by_uav is not None:
                 start["t0_boot_s_by_uav"] = self.t0_by_uav
-            self.bus.publish(self.topics.start, encode_json(start), sticky=True)
+            self.bus.publish(self.topics.start, self.wire.json("start", start), sticky=True)
             self.publish_map(0, self.users)  # the users stay at their t = 0 positions until t0
             log.info("mission starts at boot %.0f s (now %.2f s)%s", self.t0, now,
                      f"; on each vehicle's clock {self.t0_by_uav}" if self.t0_by_uav is not None else "")
@@ -356,7 +382,7 @@ class SitlWorld:
         m = self.mission
         counts = demand_map(users.xy[0], m.area.north_m, m.area.east_m, m.demand.cell_m)
         rows, cols = grid_shape(m.area.north_m, m.area.east_m, m.demand.cell_m)
-        payload = encode_demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
+        payload = self.wire.demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
         self.bus.publish(self.topics.demand, payload, sticky=True)
         self.map_seq += 1
 
@@ -400,7 +426,7 @@ class SitlWorld:
                     continue
                 d = users - pos[i, :2]
                 inside = users[(d * d).sum(-1) <= r2]
-                self.bus.publish(self.topics.sense(i), encode_sense(i, t_ms, inside.tolist()))
+                self.bus.publish(self.topics.sense(i), self.wire.sense(i, t_ms, inside.tolist()))
         uav = self.vehicles.uav_rows()
         metrics = {
             "t": k,

@@ -104,4 +104,4 @@ def agent_argv(port_or_url: int | str, broker: str = "mqtt://127.0.0.1:1", *extr
     """One agent of a one-UAV mission on the emulator port (or a URL); with no broker the
     bus retries in the background and nothing else notices."""
     url = port_or_url if isinstance(port_or_url, str) else f"udpout://127.0.0.1:{port_or_url}"
-    return ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker, *extra]
+    return ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker, "--no-auth", *extra]

@@ -23,6 +23,7 @@ from pathlib import Path
 import psutil
 import pytest
 
+from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.sitl.arducopter import instance_free, launch_homes
 from plmarl_sitl.sitl.network.broker import free_port, free_udp_ports
@@ -199,16 +200,18 @@ def test_world_external_runs_a_mission_on_two_separate_autopilot_processes(tmp_p
     def logs() -> str:
         return "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in sorted(tmp_path.glob("*.log")))
 
+    create_key_file(tmp_path / "swarm.key")
     t0 = time.monotonic()
     try:
         world = start(["world", str(mission), "--broker", broker, "--embedded-broker", "--speedup", "5", "--episode", "40",
+                       "--swarm-key", "swarm.key",
                        "--external", ",".join(f"udpout://127.0.0.1:{p}" for p in ports), "--summary-json",
                        str(tmp_path / "world.json"), "-v"], "world")
         for i, (lat, lon, alt, _) in enumerate(launch_homes(m)):
             start(["autopilot", "--count", "1", "--personality", "ardupilot", "--boot", "real", "--speedup", "5",
                    "--base-port", str(ports[i]), "--home", f"{lat:.8f},{lon:.8f},{alt:.2f}"], f"autopilot{i}")
             start(["agent", "--id", str(i), "--connect", f"udpout://127.0.0.1:{ports[i]}", "--broker", broker,
-                   "--mission", str(mission), "--autopilot", "ardupilot"], f"agent{i}")
+                   "--mission", str(mission), "--autopilot", "ardupilot", "--swarm-key", "swarm.key"], f"agent{i}")
         world.wait(timeout=240)
         wall = time.monotonic() - t0
         assert world.returncode == 0, logs()

@@ -91,6 +91,12 @@ class MissionClock:
         assert self.t0 is not None
         return self.boot_s - self.t0
 
+    def mission_now(self) -> float | None:
+        """Mission time at the latest telemetry; None before t0 or any telemetry."""
+        if self.t0 is None or self._rate_ref is None:
+            return None
+        return self.boot_s - self.t0
+
     def is_decision(self, k: int) -> bool:
         return k % self.tau == 0
 

@@ -43,7 +43,8 @@ from plmarl_sitl.deploy.agent.inbox import Inbox
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.session import Link, VehicleSession
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace, process_start_time, write_stats
-from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_state
+from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import reported
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 
@@ -73,6 +74,7 @@ class Agent:
         self.me, self.n = cfg.uav_id, m.n_uavs
         self.topics = Topics(cfg.swarm)
         self.bus = bus
+        self.wire = Wire(cfg.swarm_key)
         self.seq = 0  # of this agent's state messages
         self.stats = LoopStats()
         self.t_proc0 = process_start_time()
@@ -83,7 +85,7 @@ class Agent:
         self.table = NeighbourTable(self.n, self.me, m.signalling.drop_after_missed)
         self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics)
         self.inbox = Inbox(self.topics, self.me, self.n, self.table, self.clock, self.decision.sense_history,
-                           self.decision.demand, wait_start=cfg.wait_start)
+                           self.decision.demand, wait_start=cfg.wait_start, wire=self.wire)
         self.session = VehicleSession(link, cfg, self.clock, self.decision, self.stats, self.t_proc0, self.on_telemetry)
 
     def on_telemetry(self, m: Any) -> None:
@@ -107,7 +109,7 @@ class Agent:
         state = tuple(float(x) for x in self.decision.ego.tolist())
         msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state)  # type: ignore[arg-type]
         self.seq += 1
-        self.bus.publish(self.topics.tx(self.me), encode_state(msg))
+        self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
 
     async def run(self) -> int:
         """Run until `stop_event` is set (signal handler): 0. A failure (the vehicle refuses,

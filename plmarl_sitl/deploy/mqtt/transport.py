@@ -70,6 +70,7 @@ class MqttBus:
         keepalive_s: int = 5,
         queue_size: int = 1024,
         name: str = "bus",
+        credentials: tuple[str, str] | None = None,
     ) -> None:
         self.host, self.port = parse_broker_url(url)
         self.url = url
@@ -80,6 +81,7 @@ class MqttBus:
         self.connect_timeout_s = connect_timeout_s
         self.keepalive_s = keepalive_s
         self.name = name
+        self.credentials = credentials  # (username, password) the broker knows this client by
         self.connected = asyncio.Event()
         self.stats = BusStats()
         self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
@@ -150,6 +152,8 @@ class MqttBus:
             self.host,
             self.port,
             identifier=self.client_id,
+            username=self.credentials[0] if self.credentials else None,
+            password=self.credentials[1] if self.credentials else None,
             keepalive=self.keepalive_s,
             timeout=self.connect_timeout_s,
             clean_session=True,
