@@ -161,6 +161,13 @@ class MqttBus:
         )
         try:
             async with asyncio.timeout(self.connect_timeout_s * 2) as connecting, client:
+                if connecting.expired():
+                    # The deadline fired just as the connection completed (a loaded machine), and
+                    # Python 3.11's asyncio.wait_for inside aiomqtt swallowed its cancellation: the
+                    # timeout cannot be rescheduled any more. A cancellation still pending lands in
+                    # the sleep; either way this attempt ends as timed out and run() retries.
+                    await asyncio.sleep(0)
+                    raise TimeoutError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
                 try:
