@@ -121,6 +121,13 @@ class AgentFleet:
         if p.returncode is None:
             p.kill()
 
+    def retire(self, uav_id: int) -> None:
+        """Ask one agent to stop (SIGTERM): its UAV is out of the mission, its process is not dead."""
+        p = self.procs[uav_id].proc
+        if p.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGTERM)
+
     async def stop(self, grace_s: float = 5.0) -> None:
         live = [ap.proc for ap in self.procs.values() if ap.proc.returncode is None]
         for p in live:
