@@ -54,7 +54,7 @@ OPEN_TIMEOUT_S = 10.0  # wall: one attempt to open a link (then it is tried agai
 ASK_EVERY_S = 2.0  # wall: ask for the home position / the stream again until they come
 SILENT_S = 5.0  # wall: a vehicle not heard this long has no known position (not counted)
 CLIMB_DONE_MPS = 0.5  # |vertical speed| under this at take-off altitude: the climb is over
-STREAM_GAP_S = 1.0  # wall: no LOCAL_POSITION_NED this long (10 Hz asked for): its EKF has no position
+STREAM_GAP_S = 1.0  # vehicle s: no LOCAL_POSITION_NED this long (10 Hz asked for): its EKF has no position
 PARAM_TRIES = 3  # PARAM_SET attempts (2 s each) before a fault is reported unconfirmed
 HOME_POSITION_ID = 242
 LOCAL_POSITION_NED_ID = 32
@@ -380,7 +380,7 @@ class ExternalVehicles:
 
     def position_streams(self, i: int) -> bool:
         v = self.vehicles[i]
-        return v.boot_s is not None and time.perf_counter() - v.wall_s < STREAM_GAP_S
+        return v.boot_s is not None and v.clock_at(time.perf_counter()) - v.boot_s < STREAM_GAP_S
 
     def uav_rows(self) -> list[dict]:
         w = time.perf_counter()
