@@ -177,7 +177,9 @@ def _fault_checks(events: list[dict]) -> None:
     # Applied, and confirmed by the autopilot's echo of the SIM_ parameter.
     gps = reports(1, "param")
     assert [(r["param"], r["set"], r["echo"]) for r in gps] == [("SIM_GPS1_ENABLE", 0.0, 0.0), ("SIM_GPS1_ENABLE", 1.0, 1.0)]
-    assert 30 <= gps[0]["t"] < 31 and 70 <= gps[1]["t"] < 71
+    # Each at its mission second, on the vehicle's own clock (real vehicles: offsets between
+    # clocks are estimated at the start to within ~0.1 s).
+    assert 29.9 <= gps[0]["t"] < 31 and 69.9 <= gps[1]["t"] < 71
     motor = reports(3, "param")
     assert [(r["param"], r["echo"]) for r in motor] == [("SIM_ENGINE_MUL", 0.0), ("SIM_ENGINE_FAIL", 1.0)]
     # Confirmed by the effect: the EKF failsafe lands UAV 1, its position stream stops and
@@ -186,7 +188,8 @@ def _fault_checks(events: list[dict]) -> None:
     assert 37 <= texts1["EKF Failsafe: changed to LAND Mode"] <= 40, texts1
     assert [r["mode"] for r in reports(1, "mode")][:1] == ["LAND"]
     assert [r["position"] for r in reports(1, "position")][:2] == ["stopped", "streaming"]
-    assert any(t.startswith("SIM Hit ground") and 50 < at < 58 for t, at in ((r["text"], r["t"]) for r in reports(3, "text")))
+    hits = [r["t"] for r in reports(3, "text") if r["text"].startswith("SIM Hit ground")]
+    assert hits and 50 < hits[0] < 62, reports(3, "text")  # falling from at most 120 m (the altitude band)
     # Out of the mission at the twin's seconds.
     failed = [(e["t"], e["uav"], e["cause"]) for e in events if e["type"] == "uav_failed"]
     assert failed == [(38.0, 1, "gps_loss"), (50.0, 3, "motor_failure")]
