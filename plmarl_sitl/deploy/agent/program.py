@@ -179,6 +179,7 @@ async def _fly(agent) -> int:  # noqa: ANN001 - core.Agent, imported lazily
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, agent.stop_event.set)
+    loop.add_signal_handler(signal.SIGUSR1, agent.release)
     return await agent.run()
 
 
