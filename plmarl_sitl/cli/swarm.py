@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Start the MQTT broker (embedded amqtt, or an external one), the SITL world "
         "(emulated PX4/ArduPilot autopilots, ground users, link emulator) and one `plmarl agent` "
         "per UAV; wait until every vehicle is airborne; run the mission with its scripted events "
-        "(node_failure, link_blackout, broker_outage, tup_change, gnss_noise); show the live view; "
+        "(node_failure, link_blackout, broker_outage, tup_change, gnss_noise, gps_loss, motor_failure); show the live view; "
         "record .tlogs, metrics.jsonl, events.jsonl, mission.yaml and summary.json; shut down.",
         epilog=UP_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

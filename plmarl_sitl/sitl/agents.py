@@ -129,6 +129,14 @@ class AgentFleet:
         if p.returncode is None:
             p.kill()
 
+    def retire(self, uav_id: int) -> None:
+        """Ask one agent to stop and leave its vehicle to the autopilot (SIGUSR1): its UAV is
+        out of the mission after an autopilot fault, its companion computer is not dead."""
+        p = self.procs[uav_id].proc
+        if p.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGUSR1)
+
     async def stop(self, grace_s: float = 5.0) -> None:
         live = [ap.proc for ap in self.procs.values() if ap.proc.returncode is None]
         for p in live:

@@ -13,7 +13,8 @@ Everything is recorded in the run directory:
 
     mission.yaml      the resolved mission (extends applied, seed filled in)
     metrics.jsonl     one row per mission second: t, coverage, lambda2, messages, uavs
-    events.jsonl      every event as it fired
+    events.jsonl      every event as it fired; autopilot faults also what the vehicle then
+                      said and did ("autopilot" entries) and when it left the mission ("uav_failed")
     summary.json      coverage mean/min, duration, speedup, events, node-failure recovery
     tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer; ArduCopter:
                       the world's SERIAL1 link, both ways)
@@ -121,13 +122,14 @@ def default_out_dir() -> Path:
 
 class LauncherEvents:
     """The launcher's part of the mission's events, from the schedule the SITL world applies
-    too (the world kills the vehicle, cuts the links, sets GNSS noise and T_up): it kills a
-    failed node's agent process, opens and closes the broker gate for an outage, and records
-    every event as it fires."""
+    too (the world kills the vehicle, cuts the links, sets GNSS noise, T_up and autopilot
+    faults): it kills a failed node's agent process, asks the agent of a UAV an autopilot
+    fault took out of the mission to stop (its companion computer lives on), opens and
+    closes the broker gate for an outage, and records every event as it fires."""
 
-    # The ends worth an entry of their own: the outage's and the noise's are switched at
-    # their end second; a blackout's cut expires inside the link emulator.
-    RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise"})
+    # The ends worth an entry of their own: the outage's, the noise's and the GPS's are
+    # switched at their end second; a blackout's cut expires inside the link emulator.
+    RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise", "gps_loss"})
 
     def __init__(self, schedule: EventSchedule, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
         self.schedule, self.fleet, self.gate, self.record = schedule, fleet, gate, record
@@ -151,6 +153,13 @@ class LauncherEvents:
                 self.record(entry)
             elif ev.type in self.RECORDED_ENDS:
                 self.record({"t": t, "type": f"{ev.type}_end"})
+        for uav, ev in self.schedule.fault_failures_at(second):
+            self.killed.add(uav)
+            if uav in self.fleet.procs:
+                self.fleet.retire(uav)
+            entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
+            log.warning("event at t=%.0f s: %s", second, entry)
+            self.record(entry)
 
 
 # What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
@@ -256,7 +265,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         events.append(entry)
         events_f.write(json.dumps(entry) + "\n")
         events_f.flush()
-        monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
+        if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
+            monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
 
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
@@ -325,7 +335,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
                               speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
                               swarm_key=key, broker_credentials=world_login)
-        world = SitlWorld(cfg, on_metrics=on_metrics)
+        world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()

@@ -145,7 +145,8 @@ def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
 
 
 class SitlWorld:
-    def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None) -> None:
+    def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None,
+                 on_event: Callable[[dict], None] | None = None) -> None:
         self.cfg = cfg
         m = cfg.mission
         self.mission = m
@@ -155,6 +156,8 @@ class SitlWorld:
 
             self.mission = m = dataclasses.replace(m, n_uavs=self.n)
         self.on_metrics = on_metrics
+        self.on_event = on_event
+        self.faulted: dict[int, tuple[str, bool, bool]] = {}  # UAVs under an autopilot fault: last (mode, armed, position)
         self.topics = Topics(cfg.swarm)
         vm = m.vehicle_model()
         self.vehicle_model = vm
@@ -228,6 +231,45 @@ class SitlWorld:
                 std = schedule.gnss_std_m(second)
                 for u in schedule.uavs_of(ev):
                     self.vehicles.set_gnss_noise(u, std[u])
+            elif ev.type == "gps_loss":
+                dark = {u for e in schedule.active("gps_loss", second) for u in schedule.uavs_of(e)}
+                for u in schedule.uavs_of(ev):
+                    self._watch_fault(u)
+                    self.vehicles.set_gps(u, u not in dark)  # overlapping losses: dark while any lasts
+            elif ev.type == "motor_failure" and ev.uav is not None:
+                self._watch_fault(ev.uav)
+                self.vehicles.fail_motor(ev.uav)
+        for u, ev in schedule.fault_failures_at(second):
+            self.vehicles.mark_failed(u)
+            log.warning("event: vehicle %d out of the mission at t=%d s (%s): left to its autopilot", u, second, ev.type)
+
+    def _watch_fault(self, i: int) -> None:
+        if i not in self.faulted:
+            row = self.vehicles.uav_rows()[i]
+            self.faulted[i] = (row["mode"], row["armed"], self.vehicles.position_streams(i))
+
+    def _report_faults(self, rows: list[dict]) -> None:
+        """What the vehicles under a fault said and did since the last second, as events."""
+        if self.t0 is None:
+            return
+        reports = self.vehicles.fault_reports()
+        for i, (mode, armed, streams) in self.faulted.items():
+            now = (rows[i]["mode"], rows[i]["armed"], self.vehicles.position_streams(i))
+            if now == (mode, armed, streams):
+                continue
+            self.faulted[i] = now
+            change = {"mode": now[0]} if now[0] != mode else {}
+            change |= {"armed": now[1]} if now[1] != armed else {}
+            change |= {"position": "streaming" if now[2] else "stopped"} if now[2] != streams else {}
+            reports.append({"uav": i, "boot_s": None, **change})
+        for r in reports:
+            i, boot_s = r.pop("uav"), r.pop("boot_s")
+            t0 = self.t0_by_uav[i] if self.t0_by_uav is not None else self.t0
+            t = (boot_s - t0) if boot_s is not None else (self.mission_t or 0)  # None: seen at this second
+            entry = {"t": round(float(t), 2), "type": "autopilot", "uav": i, **r}
+            log.info("autopilot fault report: %s", entry)
+            if self.on_event is not None:
+                self.on_event(entry)
 
     def kill(self, i: int) -> None:
         """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""
@@ -441,6 +483,7 @@ class SitlWorld:
         }
         self.bus.publish(self.topics.metrics, encode_json(metrics))
         if k is not None:
+            self._report_faults(uav)
             self.apply_events(k)
         if self.on_metrics is not None:
             self.on_metrics(metrics)

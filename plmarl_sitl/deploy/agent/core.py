@@ -23,6 +23,8 @@ as the `Bus` and `session.Link` protocols. Flying, mission second k = boot_s - t
 
 A broker outage only stops updates: the tracker keeps predicting, the bus reconnects with
 backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE), exit 0.
+SIGUSR1 stops it too but leaves the vehicle to its autopilot (a SITL world took the UAV out
+of the mission after an autopilot fault: no stop mode is commanded).
 A failure ends the run the same way and is raised as itself (`errors.run_reporting` makes
 it one line and an exit code).
 """
@@ -110,6 +112,11 @@ class Agent:
         msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state)  # type: ignore[arg-type]
         self.seq += 1
         self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
+
+    def release(self) -> None:
+        """Stop without commanding the stop mode: the vehicle is left to its autopilot."""
+        self.session.leave_to_autopilot = True
+        self.stop_event.set()
 
     async def run(self) -> int:
         """Run until `stop_event` is set (signal handler): 0. A failure (the vehicle refuses,

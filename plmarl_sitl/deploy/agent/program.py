@@ -194,16 +194,20 @@ def run(args: argparse.Namespace) -> int:
     finally:
         # The stop path has run (vehicle held, stats written); what is left is the interpreter's
         # exit, which takes a second or more with torch loaded on a busy machine. The closed loop
-        # has put the default signal actions back, so a second SIGTERM there (a launcher stopping
-        # its fleet) would turn a clean exit into "killed by SIGTERM".
-        for sig in (signal.SIGINT, signal.SIGTERM):
+        # has put the default signal actions back, so a second SIGTERM (or SIGUSR1) there (a
+        # launcher stopping its fleet) would turn a clean exit into "killed by a signal".
+        for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)  # stop (hold the vehicle); SIGUSR1: release it
 
 
 async def _fly(agent) -> int:  # noqa: ANN001 - core.Agent, imported lazily
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, agent.stop_event.set)
+    loop.add_signal_handler(signal.SIGUSR1, agent.release)
     return await agent.run()
 
 

@@ -123,6 +123,7 @@ class VehicleSession:
         self.flying = False  # streaming setpoints
         self.last_send_wall = 0.0
         self.reengaged = 0
+        self.leave_to_autopilot = False  # stop without commanding the stop mode (Agent.release)
         self._last_reengage = 0.0
         self._reengage_task: asyncio.Task | None = None
 
@@ -407,9 +408,20 @@ class VehicleSession:
 
     async def hold(self) -> None:
         """Stop: hand a flying vehicle to the personality's stop mode (PX4 AUTO.LOITER,
-        ArduPilot BRAKE)."""
+        ArduPilot BRAKE). A vehicle its autopilot took over (a failsafe left the offboard
+        mode for LAND, say after a GPS loss) or disarmed is left to its autopilot."""
         if self.personality is None or not self.flying:
             return
+        if self.leave_to_autopilot:
+            log.warning("stopped: vehicle left to its autopilot (the UAV is out of the mission)")
+            return
+        hb = self.link.latest.get("HEARTBEAT")
+        if hb is not None and hb.get_srcComponent() == 1:
+            now = self.personality.mode_by_custom(hb.custom_mode)
+            if not hb.base_mode & ARMED or (now is not None and now.name == self.personality.land_mode):
+                log.warning("stopped: vehicle left to its autopilot (%s, %s)", now.name if now else hb.custom_mode,
+                            "armed" if hb.base_mode & ARMED else "disarmed")
+                return
         mode = self.personality.stop_mode
         try:
             async with asyncio.timeout(3.0):

@@ -135,6 +135,7 @@ class AutopilotHost:
         ]
         self._transports: list[asyncio.DatagramTransport] = []
         self._logged_drops: dict[int, int] = {}
+        self._gps_lost: set[int] = set()  # vehicles whose GPS is dark (their EKF reacts as time goes on)
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -222,6 +223,20 @@ class AutopilotHost:
         """GNSS noise: vehicle i's reported position gets Gaussian noise of `std_m` per axis (0: none)."""
         self.vehicles[i].gnss_noise_std_m = float(std_m)
 
+    def set_gps(self, i: int, on: bool) -> None:
+        """gps_loss: vehicle i's GPS receiver goes dark (on=False) or comes back."""
+        v = self.vehicles[i]
+        if on:
+            v.restore_gps()
+            self._gps_lost.discard(i)
+        else:
+            v.lose_gps()
+            self._gps_lost.add(i)
+
+    def fail_motor(self, i: int) -> None:
+        """motor_failure: one of vehicle i's motors stops for good."""
+        self.vehicles[i].fail_motor()
+
     def counters(self) -> list[InputCounters]:
         return [v.counters for v in self.vehicles]
 
@@ -251,6 +266,8 @@ class AutopilotHost:
                 f.unwatch(i)
         for i in f.setpoints_lost():
             self.vehicles[i].check_setpoint_loss(f.now)
+        for i in self._gps_lost:
+            self.vehicles[i].gps_update(f.now)
         self._boot_events()
         due: dict[int, list[int]] = {}
         for vi, msgid in f.streams.pop_due(f.now):

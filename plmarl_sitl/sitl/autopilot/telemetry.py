@@ -113,8 +113,8 @@ def attitude(v: Vehicle) -> Message:
 
 
 def local_position_ned(v: Vehicle) -> Message | None:
-    if not v.fleet.boot.position(v.fleet.now):
-        return None  # the EKF does not use GPS yet
+    if not v.fleet.boot.position(v.fleet.now) or v.aiding_stopped:
+        return None  # the EKF does not use GPS yet, or no more (ArduCopter keeps GLOBAL_POSITION_INT)
     x, y, z = v.nav_position()
     vx, vy, vz = v.velocity()
     return v.codec.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
