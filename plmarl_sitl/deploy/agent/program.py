@@ -144,12 +144,12 @@ def run(args: argparse.Namespace) -> int:
     if args.verbose:
         logging.getLogger("plmarl").setLevel(logging.DEBUG)
     parse_url(args.connect)  # bad URLs fail before anything slow
+    mavlink_key = load_mavlink_key(args.mavlink_key) if args.mavlink_key else None
     swarm_key = key_from_flags(args.swarm_key, args.no_auth)
     if swarm_key is None:
         logging.getLogger("plmarl.agent").warning("--no-auth: messages are unsigned; anyone who can publish on the "
                                                   "broker can steer this agent")
     credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
-    mavlink_key = load_mavlink_key(args.mavlink_key) if args.mavlink_key else None
     mission = load_mission(args.mission)
     if args.n_uavs is not None:
         import dataclasses
