@@ -72,6 +72,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "in the run directory, swarm.key)")
     a.add_argument("--no-auth", action="store_true",
                    help="fly with unsigned messages (anyone who can publish on the broker can steer the swarm)")
+    up.add_argument("--mavlink-sign", action=argparse.BooleanOptionalAction, default=True,
+                    help="MAVLink 2 signing between each autopilot and its agent, and on the world's links (default on: "
+                    "a fresh key per vehicle in RUN_DIR/mavlink/vehicleI.key, 0600; a real ArduCopter gets it by "
+                    "SETUP_SIGNING). Unsigned or badly signed commands and setpoints are then dropped and counted")
+    up.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
+                    help="with --mavlink-sign: use DIR/vehicleI.key (64 hex characters, mode 0600) instead of fresh keys")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
     up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
     up.set_defaults(func=run_up)
@@ -131,6 +137,7 @@ def run_up(args: argparse.Namespace) -> int:
         personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
         auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
+        mavlink_sign=args.mavlink_sign, mavlink_keys=args.mavlink_keys,
     )
     try:
         summary = launch(opts)

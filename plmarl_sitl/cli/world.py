@@ -15,6 +15,7 @@ import json
 import logging
 import signal
 import sys
+from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
 from plmarl_sitl.errors import UserError
@@ -59,6 +60,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    p.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
+                   help="MAVLink 2 signing: vehicle i signs with DIR/vehicleI.key (0600; `plmarl swarm up` writes them "
+                   "to RUN/mavlink) and drops unsigned commands and setpoints; with --external the world's links sign "
+                   "with them (default: unsigned)"),
     p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs")
     p.add_argument("--loss", type=float, default=0.0, help="extra per-delivery loss probability (default 0)")
@@ -86,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
     args.key = key_from_flags(args.swarm_key, args.no_auth)
     args.credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     mission = load_mission(args.mission)
+    if args.mavlink_keys is not None:
+        from plmarl_sitl.deploy.mavlink.keys import load_key_files
+
+        args.mavlink_keys = load_key_files(args.mavlink_keys, args.n_uavs or mission.n_uavs, "--mavlink-keys")
     args.external = _external_urls(args.external)
     if args.external:
         n = args.n_uavs or mission.n_uavs
@@ -130,6 +139,7 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         external=args.external,
         swarm_key=args.key,
         broker_credentials=args.credentials,
+        mavlink_keys=tuple(args.mavlink_keys or ()),
     )
     broker = None
     if args.embedded_broker:

@@ -85,6 +85,7 @@ class AgentFleet:
         verbose: bool = False,
         swarm_key: Path | None = None,
         credentials: Path | None = None,
+        mavlink_key: Path | None = None,
     ) -> AgentProc:
         """Start agent `uav_id`; it signs its messages with the key file `swarm_key`, or
         flies unsigned (`--no-auth`) without one, and logs in to the broker with the
@@ -98,6 +99,8 @@ class AgentFleet:
         cmd += ["--swarm-key", str(swarm_key)] if swarm_key is not None else ["--no-auth"]
         if credentials is not None:
             cmd += ["--broker-credentials", str(credentials)]
+        if mavlink_key is not None:  # sign the link to the autopilot
+            cmd += ["--mavlink-key", str(mavlink_key)]
         if verbose:  # DEBUG for the plmarl loggers: only when asked for
             cmd.append("-v")
         if n_uavs is not None:

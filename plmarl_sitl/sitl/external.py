@@ -114,9 +114,13 @@ class ExternalVehicles:
 
     owns_clock = False
 
-    def __init__(self, mission: Mission, urls: list[str], speedup: float = 1.0) -> None:
+    def __init__(self, mission: Mission, urls: list[str], speedup: float = 1.0,
+                 signing_keys: list[bytes] | None = None) -> None:
         if len(urls) != mission.n_uavs:
             raise UserError(f"{len(urls)} vehicle URL(s) for a mission of {mission.n_uavs} UAVs: give one per UAV")
+        if signing_keys is not None and len(signing_keys) != len(urls):
+            raise UserError(f"{len(signing_keys)} MAVLink signing key(s) for {len(urls)} vehicles")
+        self.signing_keys = signing_keys  # vehicle i's MAVLink signing key (None: unsigned links)
         for url in urls:
             parse_url(url)  # a malformed URL is a UserError now, not a retry loop later
         self.mission = mission
@@ -175,7 +179,8 @@ class ExternalVehicles:
     async def _follow(self, v: ExternalVehicle) -> None:
         """Open the link (again, if it breaks) and follow the vehicle, for ever."""
         while True:
-            link = connect(v.url, sysid=WORLD_SYSID)
+            key = self.signing_keys[v.index] if self.signing_keys is not None else None
+            link = connect(v.url, sysid=WORLD_SYSID, signing_key=key)
             link.tlog = v.tlog
             v.state = f"connecting to {v.url}"
             try:

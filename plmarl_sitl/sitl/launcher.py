@@ -43,6 +43,7 @@ from pathlib import Path
 import yaml
 
 from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.deploy.mavlink.keys import create_key_files, key_file, load_key_files
 from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
 from plmarl_sitl.deploy.mqtt.credentials import load_credentials
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
@@ -101,6 +102,10 @@ class UpOptions:
     swarm_key: Path | None = None
     # An external broker's logins: DIR/world.cred, DIR/monitor.cred, DIR/agentI.cred (None: anonymous).
     broker_credentials: Path | None = None
+    # MAVLink 2 signing between each autopilot and its agent (and the world's links): a fresh
+    # key per vehicle in RUN_DIR/mavlink/vehicleI.key (0600), or DIR/vehicleI.key given.
+    mavlink_sign: bool = True
+    mavlink_keys: Path | None = None
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -201,6 +206,17 @@ def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None
     return path, create_key_file(path)
 
 
+def _mavlink_keys(opts: UpOptions, out: Path, n: int) -> tuple[Path | None, list[bytes]]:
+    """The directory of the vehicles' MAVLink keys and the keys: the one given, else fresh
+    ones in RUN_DIR/mavlink; (None, []) for unsigned links."""
+    if not opts.mavlink_sign:
+        log.warning("--no-mavlink-sign: the MAVLink links are unsigned")
+        return None, []
+    if opts.mavlink_keys is not None:
+        return opts.mavlink_keys, load_key_files(opts.mavlink_keys, n, "--mavlink-keys")
+    return out / "mavlink", create_key_files(out / "mavlink", n)
+
+
 def _external_logins(directory: Path | None, n: int) -> dict[str, Path]:
     """The credentials files an external broker knows this swarm's processes by."""
     if directory is None:
@@ -241,6 +257,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if opts.swarm_key is not None:
         load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
+    if opts.mavlink_keys is not None:
+        if not opts.mavlink_sign:
+            raise UserError("--mavlink-keys with --no-mavlink-sign: choose one")
+        load_key_files(opts.mavlink_keys, mission.n_uavs, "--mavlink-keys")  # fails before anything starts
     if opts.broker_credentials is not None:
         if opts.broker in ("embedded", "mosquitto"):
             raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
@@ -255,6 +275,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     duration = opts.duration_s or mission.timing.episode_s
     n = mission.n_uavs
     key_path, key = _swarm_key(opts, out)
+    mav_dir, mav_keys = _mavlink_keys(opts, out, n)
     metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
     events: list[dict] = []
@@ -274,6 +295,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     console.print(f"messages signed with the swarm key {key_path}" if key is not None else
                   "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
                   highlight=False)
+    console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
+                  "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
+                  "command it", highlight=False)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
     # Our own broker: a login per process and an ACL; an external one: its own business.
@@ -323,18 +347,20 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             log.info("%s", copters.ports_line())
             try:
                 await copters.wait_listening()
+                if mav_keys:
+                    await copters.provision_signing(mav_keys)
             except RuntimeError as exc:
                 raise ComponentFailed(str(exc)) from exc
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
                               events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
-                              swarm_key=key, broker_credentials=world_login)
+                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
                               speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
-                              swarm_key=key, broker_credentials=world_login)
+                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
         world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
@@ -344,7 +370,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
                               extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,
-                              swarm_key=key_path, credentials=creds.get(f"agent{i}"))
+                              swarm_key=key_path, credentials=creds.get(f"agent{i}"),
+                              mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = tg.create_task(observer.run(), name="launcher-bus")
@@ -379,6 +406,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     traces = [ap.trace() for ap in fleet.procs.values()]
     summary["timeliness"] = timeliness(traces, [t0s[i] for i in fleet.procs] if isinstance(t0s, list) else t0s)
     summary["autopilot"] = "arducopter" if real else f"emulator ({opts.personality})"
+    summary["mavlink_signed"] = bool(mav_keys)
+    if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
+        summary["vehicle_input"] = [c.as_dict() for c in world.host.counters()]
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -121,6 +121,10 @@ class WorldConfig:
     # sends the agents (start, ctl, closed, sense, demand); None: the unsigned wire.
     swarm_key: SwarmKey | None = None
     broker_credentials: tuple[str, str] | None = None  # (username, password) on the broker
+    # MAVLink 2 signing keys, one per vehicle (empty: unsigned links). The emulated vehicle
+    # i signs with key i and drops unsigned or badly signed input; with external vehicles
+    # the world's own link to vehicle i signs with it.
+    mavlink_keys: tuple[bytes, ...] = ()
 
 
 @dataclass
@@ -165,7 +169,7 @@ class SitlWorld:
         self.host: AutopilotHost | None = None  # the emulated autopilots, if they are
         self.vehicles: WorldVehicles
         if cfg.external:
-            self.vehicles = ExternalVehicles(m, list(cfg.external), cfg.speedup)
+            self.vehicles = ExternalVehicles(m, list(cfg.external), cfg.speedup, list(cfg.mavlink_keys) or None)
         else:
             homes = launch_positions(m, 0.0)
             homes[:, 2] = 0.0
@@ -177,6 +181,7 @@ class SitlWorld:
                 home_offsets_ned=[tuple(map(float, h)) for h in homes],
                 base_port=cfg.base_port,
                 boot=cfg.boot,
+                signing_keys=list(cfg.mavlink_keys) or None,
             )
             self.vehicles = EmulatedVehicles(self.host)
         self.radius = CoverageRadius(m.channel, m.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
@@ -482,6 +487,8 @@ class SitlWorld:
             "tup_s": self.tup_s,
         }
         self.bus.publish(self.topics.metrics, encode_json(metrics))
+        if self.host is not None:
+            self.host.log_counters()  # dropped MAVLink input (unsigned commands ...): a line when it moves
         if k is not None:
             self._report_faults(uav)
             self.apply_events(k)

@@ -74,6 +74,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "received that does not authenticate (docs/SECURITY.md). Required unless --no-auth")
     a.add_argument("--no-auth", action="store_true",
                    help="fly with unsigned version-1 messages: anyone who can publish on the broker can steer the agent")
+    p.add_argument("--mavlink-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key of this UAV's autopilot (64 hex characters, mode 0600): sign everything "
+                   "sent to it and accept only its signed messages (default: an unsigned link; docs/SECURITY.md)")
     p.add_argument("--no-takeoff", action="store_true", help="attach to an airborne, armed vehicle instead of taking off")
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
@@ -126,6 +129,7 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.deploy.agent.inbox import subscriptions
     from plmarl_sitl.deploy.agent.stats import process_start_time
     from plmarl_sitl.deploy.mavlink.connect import connect, parse_url
+    from plmarl_sitl.deploy.mavlink.keys import load_mavlink_key
     from plmarl_sitl.deploy.mqtt.auth import key_from_flags
     from plmarl_sitl.deploy.mqtt.credentials import load_credentials
     from plmarl_sitl.deploy.mqtt.schema import Topics
@@ -140,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
     if args.verbose:
         logging.getLogger("plmarl").setLevel(logging.DEBUG)
     parse_url(args.connect)  # bad URLs fail before anything slow
+    mavlink_key = load_mavlink_key(args.mavlink_key) if args.mavlink_key else None
     swarm_key = key_from_flags(args.swarm_key, args.no_auth)
     if swarm_key is None:
         logging.getLogger("plmarl.agent").warning("--no-auth: messages are unsigned; anyone who can publish on the "
@@ -179,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
     bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode),
                   lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus", credentials=credentials)
-    link = connect(args.connect)
+    link = connect(args.connect, signing_key=mavlink_key)
     link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)
     agent = Agent(cfg, lp, bus, link)
     if args.rt_priority is not None:

@@ -75,6 +75,9 @@ class _VehicleProtocol(asyncio.DatagramProtocol):
 class AutopilotHost:
     """Hosts `count` vehicles; vehicle i has sysid i + 1 (or `sysids[i]`) and listens on base_port + i.
 
+    `signing_key` signs every vehicle's MAVLink with one key, `signing_keys[i]` vehicle i's
+    with its own (None: unsigned); a signing vehicle drops and counts unsigned and badly
+    signed input but the personality's `accept_unsigned` reports.
     `home_offsets_ned[i]` is where vehicle i's home (and local NED origin) sits in the
     mission frame, whose geodetic origin is `origin`. `streams` overrides the default
     telemetry rates (message name or id -> Hz of sim time; 0 disables). `boot` is "instant"
@@ -92,6 +95,7 @@ class AutopilotHost:
         base_port: int = 14540,
         bind_host: str = "127.0.0.1",
         signing_key: bytes | None = None,
+        signing_keys: Sequence[bytes | None] | None = None,
         gcs: tuple[str, int] | None = None,
         physics_hz: float = 50.0,
         streams: Mapping[str | int, float] | None = None,
@@ -106,6 +110,9 @@ class AutopilotHost:
                 f"need {count} system ids in 1..{MAX_SYSID} (MAVLink has 8-bit ids: more than {MAX_SYSID} "
                 "vehicles need repeated ids, each on its own port)"
             )
+        keys = list(signing_keys) if signing_keys is not None else [signing_key] * count
+        if len(keys) != count:
+            raise ValueError(f"{len(keys)} signing keys for {count} vehicles")
         if physics_hz < 50.0:
             raise ValueError("physics_hz must be >= 50 (the contract is >= 50 Hz of sim time)")
         self.personality: Personality = personality(personality_name)
@@ -129,7 +136,7 @@ class AutopilotHost:
             Vehicle(
                 self.fleet, i, sysids[i], self.personality, self.model,
                 ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, offsets[i][0], offsets[i][1], 0.0),
-                gcs=gcs, signing_key=signing_key, heartbeat=telemetry.heartbeat,
+                gcs=gcs, signing_key=keys[i], heartbeat=telemetry.heartbeat,
             )
             for i in range(count)
         ]

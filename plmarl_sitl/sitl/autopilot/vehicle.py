@@ -42,8 +42,9 @@ TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
 LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
-# Messages a signed vehicle still accepts unsigned: presence only, nothing that acts.
-ALLOW_UNSIGNED = (d.MAVLINK_MSG_ID_HEARTBEAT, d.MAVLINK_MSG_ID_RADIO_STATUS)
+# SETUP_SIGNING: a vehicle's signing timestamp starts this far past the one given (10 us
+# ticks), as ArduPilot's load_signing_key does against replays across a reboot.
+SETUP_SIGNING_AHEAD = 60 * 100_000
 # POSITION_TARGET_LOCAL_NED's type_mask for what the vehicle tracks (a landing: a velocity).
 ECHO_MASK = {Kind.POSITION: POSITION_ONLY, Kind.VELOCITY: VELOCITY_ONLY, Kind.ACCEL: ACCEL_ONLY, Kind.LAND: VELOCITY_ONLY}
 
@@ -73,7 +74,7 @@ class Vehicle:
         self.index = index
         self.personality = personality
         self.model = model
-        self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, ALLOW_UNSIGNED)
+        self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, personality.accept_unsigned)
         self.params = ParamStore(model, personality, sysid)
         self.counters = InputCounters()
         self.home_geodetic = home_geodetic
@@ -266,6 +267,17 @@ class Vehicle:
         peers[addr] = None
         if len(peers) > MAX_PEERS:
             peers.popitem(last=False)
+
+    def setup_signing(self, key: bytes, initial_timestamp: int) -> None:
+        """SETUP_SIGNING: sign with `key` from now on (an all-zero key and timestamp: stop
+        signing), as ArduPilot's handle_setup_signing and PX4's MavlinkSignControl do."""
+        if initial_timestamp == 0 and not any(key):
+            self.codec.clear_signing_key()
+            log.warning("vehicle %d: MAVLink signing disabled by SETUP_SIGNING", self.sysid)
+            return
+        self.codec.set_signing_key(key)
+        self.codec.mav.signing.timestamp = initial_timestamp + SETUP_SIGNING_AHEAD
+        log.info("vehicle %d: MAVLink signing key set by SETUP_SIGNING", self.sysid)
 
     def drop(self, fault: str, detail: str = "") -> None:
         """Count a dropped input; the first of each kind is logged and announced."""
