@@ -171,6 +171,8 @@ class MqttBus:
         )
         try:
             async with asyncio.timeout(self.connect_timeout_s * 2) as connecting, client:
+                if connecting.expired():  # connected as the deadline fired (a starved process): a timeout
+                    raise TimeoutError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
                 try:
