@@ -46,11 +46,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default="0,1,2", type=comma_list(int, "seed"),
                    help="mission seeds; the gap compares mean coverage over them, as one run's is noisy (default 0,1,2)")
     p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
+    p.add_argument("--broker", default="embedded", metavar="embedded|mosquitto",
+                   help="the broker every run starts (default embedded amqtt)")
     p.add_argument("--lockstep", action="store_true",
                    help="also fly every seed in lockstep (and the first seed twice): wall time, gap, output hashes")
 
 
-def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bool = False) -> tuple[dict, float]:
+def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bool = False,
+         broker: str = "embedded") -> tuple[dict, float]:
     """(summary, wall seconds) of one headless run (the summary's run_dir has its outputs)."""
     from rich.console import Console
 
@@ -58,7 +61,7 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bo
 
     out = Path(tempfile.mkdtemp(prefix="plmarl-bench-swarm-"))
     opts = UpOptions(Path(mission_path), speedup=speedup, headless=True, out=out, seed=seed, policy=Path(policy),
-                     lockstep=lockstep)
+                     lockstep=lockstep, broker=broker)
     t0 = time.perf_counter()
     summary = asyncio.run(swarm_up(opts, console=Console(quiet=True)))
     return summary, time.perf_counter() - t0
@@ -75,10 +78,10 @@ def outputs_hash(run_dir: Path) -> str:
     return h.hexdigest()
 
 
-def _lockstep(path: str, policy: str, seeds: list[int], twin_mean: float, free_wall_s: float) -> dict:
+def _lockstep(path: str, policy: str, seeds: list[int], twin_mean: float, free_wall_s: float, broker: str) -> dict:
     """Every seed in lockstep, and the first one again: wall, gap, the two runs' hashes."""
-    flights = [_fly(path, policy, 10.0, s, lockstep=True) for s in seeds]
-    again = _fly(path, policy, 10.0, seeds[0], lockstep=True)
+    flights = [_fly(path, policy, 10.0, s, lockstep=True, broker=broker) for s in seeds]
+    again = _fly(path, policy, 10.0, seeds[0], lockstep=True, broker=broker)
     wall = float(np.mean([f[1] for f in flights]))
     sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
     hashes = [outputs_hash(Path(f[0]["run_dir"])) for f in (flights[0], again)]
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> dict:
         twin_mean = float(np.mean(twin))
         tried = []
         for k in args.speedups:
-            flights = [_fly(path, args.policy, k, s) for s in seeds]
+            flights = [_fly(path, args.policy, k, s, broker=getattr(args, "broker", "embedded")) for s in seeds]
             sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
             on_time = [f[0]["timeliness"] for f in flights]
             lags = [t["sensing_age_s"]["max"] for t in on_time if t["sensing_age_s"]]
@@ -121,8 +124,8 @@ def run(args: argparse.Namespace) -> dict:
                      "sensing_lag_max_s": best["sensing_lag_max_s"], "decision_delay_p95_s": best["decision_delay_p95_s"],
                      "ok": best["ok"], "tried": tried})
         if getattr(args, "lockstep", False):
-            rows[-1]["lockstep"] = _lockstep(path, args.policy, seeds, twin_mean, best["wall_s"])
-    return {"rows": rows, "machine": machine_info(), "seeds": seeds}
+            rows[-1]["lockstep"] = _lockstep(path, args.policy, seeds, twin_mean, best["wall_s"], args.broker)
+    return {"rows": rows, "machine": machine_info(), "seeds": seeds, "broker": getattr(args, "broker", "embedded")}
 
 
 def print_table(res: dict) -> None:
