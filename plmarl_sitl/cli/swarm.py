@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 
 UP_EPILOG = """\
 examples:
@@ -38,7 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
-    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time)")
+    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time; "
+                    "with --lockstep: the pace of the start-up only)")
+    up.add_argument("--lockstep", action="store_true",
+                    help="lockstep SITL: vehicle time waits for every agent's answer to each telemetry sample, so the run "
+                         "is as fast as the agents compute, never late, and the same mission and seed give the same "
+                         "metrics.jsonl, events.jsonl and summary (emulated autopilots only)")
+    up.add_argument("--straggler", type=float, default=DEFAULT_STRAGGLER_S, metavar="S",
+                    help=f"with --lockstep: an agent that owes an answer for S wall seconds is declared failed, killed, and "
+                         f"its vehicle left to its failsafe; the mission goes on (default {DEFAULT_STRAGGLER_S:g})")
     up.add_argument("--duration", type=int, default=None, metavar="S", help="mission seconds to fly (default: the mission's episode length)")
     up.add_argument("--broker", default="embedded", metavar="embedded|mosquitto|mqtt://HOST:PORT",
                     help="MQTT broker: embedded (amqtt in a child process, default), mosquitto (a mosquitto child), both "
@@ -131,6 +140,10 @@ def run_up(args: argparse.Namespace) -> int:
         raise UserError("--instance must be >= 0")
     if args.duration is not None and args.duration < 1:
         raise UserError("--duration must be >= 1 s")
+    if args.lockstep and autopilot != "emulator":
+        raise UserError("--lockstep needs the emulated autopilots (an ArduCopter SITL runs a clock of its own)")
+    if not args.straggler > 0:
+        raise UserError("--straggler must be > 0 s")
     opts = UpOptions(
         mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
@@ -138,6 +151,7 @@ def run_up(args: argparse.Namespace) -> int:
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
         auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
         mavlink_sign=args.mavlink_sign, mavlink_keys=args.mavlink_keys,
+        lockstep=args.lockstep, straggler_s=args.straggler,
     )
     try:
         summary = launch(opts)

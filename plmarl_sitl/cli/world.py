@@ -19,6 +19,7 @@ from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
 from plmarl_sitl.errors import UserError
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 
 EPILOG = """\
 examples:
@@ -30,6 +31,7 @@ vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SI
   plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key \\
       --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5
 a key file (0600): plmarl swarm keygen swarm.key"""
+
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -59,11 +61,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1; with --lockstep: "
+                   "the pace of the start-up only)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="lockstep: vehicle time waits for every agent's answer to each telemetry sample (agents run with "
+                        "--lockstep), as fast as they compute; same mission and seed, same outputs (emulated vehicles only)")
+    p.add_argument("--straggler", type=float, default=DEFAULT_STRAGGLER_S, metavar="S",
+                   help=f"with --lockstep: an agent that owes an answer for S wall seconds is declared failed and its "
+                        f"vehicle left to its failsafe (default {DEFAULT_STRAGGLER_S:g})")
     p.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
                    help="MAVLink 2 signing: vehicle i signs with DIR/vehicleI.key (0600; `plmarl swarm up` writes them "
                    "to RUN/mavlink) and drops unsigned commands and setpoints; with --external the world's links sign "
-                   "with them (default: unsigned)"),
+                   "with them (default: unsigned)")
     p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs")
     p.add_argument("--loss", type=float, default=0.0, help="extra per-delivery loss probability (default 0)")
@@ -85,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
     check_boot(args.personality, args.boot)
     if not 0 <= args.loss <= 1:
         raise UserError("--loss must be in [0, 1]")
+    if args.lockstep and args.external:
+        raise UserError("--lockstep needs the emulated vehicles (external autopilots run clocks of their own)")
+    if not args.straggler > 0:
+        raise UserError("--straggler must be > 0 s")
     from plmarl_sitl.deploy.mqtt.auth import key_from_flags
     from plmarl_sitl.deploy.mqtt.credentials import load_credentials
 
@@ -140,6 +153,8 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         swarm_key=args.key,
         broker_credentials=args.credentials,
         mavlink_keys=tuple(args.mavlink_keys or ()),
+        lockstep=args.lockstep,
+        straggler_s=args.straggler,
     )
     broker = None
     if args.embedded_broker:
@@ -163,7 +178,8 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         vehicles = f"{world.n} external vehicle(s) on {', '.join(args.external)} (waiting for their telemetry)"
     print(
         f"plmarl world: {vehicles}, broker {args.broker}{' (embedded)' if broker else ''}, swarm {args.swarm!r}, "
-        f"speedup {args.speedup:g}",
+        f"speedup {args.speedup:g}" + (f", lockstep (an agent silent for {args.straggler:g} s wall is declared failed)"
+                                       if args.lockstep else ""),
         flush=True,
     )
     try:

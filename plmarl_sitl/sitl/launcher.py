@@ -55,6 +55,7 @@ from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.live import headless_line, render
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
@@ -106,6 +107,10 @@ class UpOptions:
     # key per vehicle in RUN_DIR/mavlink/vehicleI.key (0600), or DIR/vehicleI.key given.
     mavlink_sign: bool = True
     mavlink_keys: Path | None = None
+    # Lockstep (emulated autopilots only, `sitl.lockstep`): deterministic, as fast as the agents
+    # compute; an agent owing an answer for straggler_s wall seconds is declared failed.
+    lockstep: bool = False
+    straggler_s: float = DEFAULT_STRAGGLER_S
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -290,7 +295,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
 
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
-    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
+    pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
+            "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
+    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
     console.print(f"messages signed with the swarm key {key_path}" if key is not None else
                   "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
@@ -360,21 +367,30 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
                               speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
-                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
+                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
+                              lockstep=opts.lockstep, straggler_s=opts.straggler_s)
         world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
-        observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
-                           monitor.on_bus, name="launcher-bus", credentials=monitor_login)
+        observer = None
+        if opts.lockstep:
+            # The world hands the monitor each state as it relays it and each delivery as it
+            # sends it, in its own order: overheard on the broker they would race the metrics.
+            world.on_signal = monitor.on_bus
+            world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
+        else:
+            observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
+                               monitor.on_bus, name="launcher-bus", credentials=monitor_login)
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose,
+                              extra=["--autopilot", "ardupilot" if real else opts.personality,
+                                     *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
                               swarm_key=key_path, credentials=creds.get(f"agent{i}"),
                               mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
-            bus_task = tg.create_task(observer.run(), name="launcher-bus")
+            bus_task = None if observer is None else tg.create_task(observer.run(), name="launcher-bus")
             watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout(), copters), name="watchdog")
             view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
             await world_task
@@ -429,12 +445,25 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
                                   f"(log: {gone.log_path})")
         for i, ap in fleet.procs.items():
             rc = ap.proc.returncode
-            if rc is not None and i not in script.killed:
+            if rc is not None and i not in script.killed and world.barrier is not None:
+                world.agent_failed(i, f"exited with code {rc}")  # lockstep: the mission goes on without it
+            elif rc is not None and i not in script.killed:
                 tail = [ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"]
                 raise ComponentFailed(f"agent {i} exited with code {rc}: {tail[0][-160:]} (log: {ap.log_path})")
         if world.t0 is None and loop.time() - t_start > start_timeout_s:
             waiting = "; ".join(world.not_ready()) or "?"
             raise ComponentFailed(f"vehicles not airborne after {start_timeout_s:.0f} s: {waiting}")
+
+
+def _agent_failed(fleet: AgentFleet, script: LauncherEvents | None, record: Callable[[dict], None], i: int,
+                  k: int | None, why: str) -> None:
+    """Lockstep: the world declared agent i failed. Its process is killed (a stopped or hung
+    agent must not come back and fly) and its vehicle is left to its setpoint-loss failsafe."""
+    if script is not None:
+        script.killed.add(i)
+    if i in fleet.procs:
+        fleet.kill(i)
+    record({"t": float(k) if k is not None else -1.0, "type": "agent_failed", "uav": i, "why": why})
 
 
 async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Task) -> None:  # noqa: ANN001

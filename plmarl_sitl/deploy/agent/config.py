@@ -55,6 +55,9 @@ class AgentConfig:
     # Signalling session: receivers tell a restarted agent's messages from its predecessor's
     # by it (also part of the MQTT client id).
     session_id: int = field(default_factory=lambda: random.getrandbits(16))
+    # Lockstep SITL (`deploy.agent.lockstep`): stamp each setpoint with the telemetry it
+    # answers, answer a boot second's telemetry only after the world's tick for it.
+    lockstep: bool = False
 
     def __post_init__(self) -> None:
         n = self.mission.n_uavs

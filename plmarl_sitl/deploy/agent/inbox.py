@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from collections.abc import Callable
 
 import torch
 
@@ -29,17 +30,20 @@ log = logging.getLogger("plmarl.agent")
 SenseHistory = deque[tuple[float, torch.Tensor]]
 
 
-def subscriptions(topics: Topics, me: int, bus_mode: str) -> list[str]:
+def subscriptions(topics: Topics, me: int, bus_mode: str, lockstep: bool = False) -> list[str]:
     """What agent `me` listens to: its sensing, the demand map, the mission start and
     control, and its neighbours' states (relayed by the SITL world, or straight from tx/+
-    with `direct`)."""
+    with `direct`); in lockstep SITL also the world's ticks."""
     subs = [topics.sense(me), topics.demand, topics.start, topics.ctl]
-    return subs + ([topics.tx("+")] if bus_mode == "direct" else [topics.rx(me), topics.closed])
+    if bus_mode == "direct":
+        return [*subs, topics.tx("+")]
+    return [*subs, topics.rx(me), topics.closed, *([topics.tick] if lockstep else [])]
 
 
 class Inbox:
     def __init__(self, topics: Topics, me: int, n: int, table: NeighbourTable, clock: MissionClock,
-                 sense_history: SenseHistory, demand: DemandMaps, *, wait_start: bool, wire: Wire | None = None) -> None:
+                 sense_history: SenseHistory, demand: DemandMaps, *, wait_start: bool, wire: Wire | None = None,
+                 on_tick: Callable[[float], None] | None = None) -> None:
         self.topics, self.me, self.n = topics, me, n
         self.table, self.clock, self.sense_history, self.demand = table, clock, sense_history, demand
         self.wait_start = wait_start  # take t0 from the world's start announcement
@@ -47,6 +51,7 @@ class Inbox:
         self.rx = RxCounters()
         self.seq_filter = SeqFilter()
         self.ctl_seq = -1  # signed wire: the counter of the last ctl applied
+        self.on_tick = on_tick  # a lockstep world's tick (boot second) goes here
 
     def on_message(self, topic: str, payload: bytes) -> None:
         """One bus message (the bus's callback: must not block)."""
@@ -60,6 +65,8 @@ class Inbox:
                 self._on_start(payload)
             elif topic == t.closed:
                 self._on_closed(payload)
+            elif topic == t.tick:
+                self._on_tick(payload)
             elif topic == t.ctl:
                 self._on_ctl(payload)
             else:
@@ -72,6 +79,16 @@ class Inbox:
             self.clock.on_closed(float(self.wire.read_json("closed", payload)["t_s"]))
         except (Malformed, KeyError, TypeError, ValueError):
             self.rx.bad("closed")
+
+    def _on_tick(self, payload: bytes) -> None:
+        if not payload or self.on_tick is None:
+            return  # the world clears a previous run's retained tick with an empty payload
+        try:
+            boot_s = float(self.wire.read_json("tick", payload)["boot_s"])
+        except (Malformed, KeyError, TypeError, ValueError):
+            self.rx.bad("tick")
+            return
+        self.on_tick(boot_s)
 
     def _on_sense(self, payload: bytes) -> None:
         try:

@@ -78,6 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="MAVLink 2 signing key of this UAV's autopilot (64 hex characters, mode 0600): sign everything "
                    "sent to it and accept only its signed messages (default: an unsigned link; docs/SECURITY.md)")
     p.add_argument("--no-takeoff", action="store_true", help="attach to an airborne, armed vehicle instead of taking off")
+    p.add_argument("--lockstep", action="store_true",
+                   help="lockstep SITL (a world run with --lockstep): stamp each setpoint with the telemetry it answers and "
+                        "answer a second's telemetry only after the world's tick for it; decisions never wait on wall time")
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
                    "now: start at once (default with --bus direct)")
@@ -165,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         "start-up: interpreter + imports %.2f s, policy loaded at %.2f s", t_imports, time.time() - process_start_time()
     )
     start = args.start or ("wait" if args.bus == "sitl" else "now")
+    if args.lockstep and (args.bus != "sitl" or start != "wait"):
+        raise UserError("--lockstep needs a lockstep SITL world: --bus sitl and --start wait")
     cfg = AgentConfig(
         uav_id=args.id,
         connect_url=args.connect,
@@ -179,10 +184,11 @@ def run(args: argparse.Namespace) -> int:
         trace_path=_output_path("--trace", args.trace),
         stats_path=_output_path("--stats-json", args.stats_json),
         swarm_key=swarm_key,
+        lockstep=args.lockstep,
     )
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
-    bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode),
+    bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),
                   lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus", credentials=credentials)
     link = connect(args.connect, signing_key=mavlink_key)
     link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)

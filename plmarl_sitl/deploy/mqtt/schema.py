@@ -191,6 +191,11 @@ class Topics:
         return f"{self.root}/ctl"
 
     @property
+    def tick(self) -> str:
+        """Lockstep SITL only: the world has published everything of a boot second (retained)."""
+        return f"{self.root}/tick"
+
+    @property
     def closed(self) -> str:
         """SITL only: the link emulator has delivered everything of a signalling instant."""
         return f"{self.root}/closed"

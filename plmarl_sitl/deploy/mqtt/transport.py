@@ -83,6 +83,7 @@ class MqttBus:
         self.name = name
         self.credentials = credentials  # (username, password) the broker knows this client by
         self.connected = asyncio.Event()
+        self.on_connection: Callable[[bool], None] | None = None  # told when the connection comes up or goes
         self.stats = BusStats()
         self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
         self._sticky: dict[str, bytes] = {}
@@ -113,6 +114,15 @@ class MqttBus:
         return True
 
     # ------------------------------------------------------------------ connection
+    def _set_connected(self, up: bool) -> None:
+        was = self.connected.is_set()
+        if up:
+            self.connected.set()
+        else:
+            self.connected.clear()
+        if was != up and self.on_connection is not None:
+            self.on_connection(up)
+
     async def run(self) -> None:
         """Connect, serve, reconnect with backoff; returns only when cancelled."""
         delay = self.backoff_min_s
@@ -127,7 +137,7 @@ class MqttBus:
                 else:
                     self._unreachable(str(exc))
             except TimeoutError:
-                self.connected.clear()
+                self._set_connected(False)
                 self._unreachable("connect timed out")
             # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
             await asyncio.sleep(delay * (0.5 + self._rng.random()))
@@ -176,7 +186,7 @@ class MqttBus:
                     self._was_connected = self.connected.is_set()
                     if self._was_connected:
                         self.stats.disconnects += 1
-                    self.connected.clear()
+                    self._set_connected(False)
         except aiomqtt.MqttError:
             # Closing a connection whose broker is gone can fail too (aiomqtt's __aexit__
             # raises); while we are being cancelled (Ctrl-C also stops a local broker) that
@@ -196,7 +206,7 @@ class MqttBus:
         for topic, payload in self._sticky.items():
             await client.publish(topic, payload, qos=0, retain=True)
         self.stats.connects += 1
-        self.connected.set()
+        self._set_connected(True)
         self._unreachable_since = None
         log.info("%s: connected to %s", self.name, self.url)
         # Plain tasks, not a TaskGroup: when the connection breaks while this task is

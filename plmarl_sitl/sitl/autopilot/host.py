@@ -31,6 +31,8 @@ from plmarl_sitl.sitl.autopilot import handlers, telemetry
 from plmarl_sitl.sitl.autopilot.boot import Boot, boot_timeline
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.fleet import Fleet
+from plmarl_sitl.sitl.autopilot.guidance import Kind
+from plmarl_sitl.sitl.autopilot.schedule import STREAM_PHASES
 from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
 
 log = logging.getLogger("plmarl.autopilot")
@@ -101,6 +103,7 @@ class AutopilotHost:
         streams: Mapping[str | int, float] | None = None,
         sysids: Sequence[int] | None = None,
         boot: str = "instant",
+        stream_phases: int = STREAM_PHASES,
     ) -> None:
         if count < 1:
             raise ValueError("count must be >= 1")
@@ -131,7 +134,7 @@ class AutopilotHost:
             rates[telemetry.message_id(k)] = float(hz)
         self.boot = boot
         self.fleet = Fleet(count, Limits.ground_to_ceiling(self.model), rates,
-                           Boot(boot_timeline(self.personality, boot)))
+                           Boot(boot_timeline(self.personality, boot)), stream_phases)
         self.vehicles = [
             Vehicle(
                 self.fleet, i, sysids[i], self.personality, self.model,
@@ -225,6 +228,18 @@ class AutopilotHost:
     def kill(self, i: int) -> None:
         """Node failure: vehicle i stops answering and sending, and falls if airborne."""
         self.vehicles[i].kill()
+
+    def place(self, i: int, pos_local: tuple[float, float, float]) -> None:
+        """Put vehicle i at rest at `pos_local` (its local NED frame) with a zero acceleration
+        setpoint in force, as if its companion had just sent one: a lockstep world starts the
+        mission from the twin's start state exactly (the take-off before it is not lockstepped)."""
+        f = self.fleet
+        f.pos_np[i] = pos_local
+        f.vel_np[i] = 0.0
+        f.acc_np[i] = 0.0
+        v = self.vehicles[i]
+        if v.setpoint is not None and v.setpoint[0] == Kind.ACCEL:
+            v.accept_setpoint(Kind.ACCEL, (0.0, 0.0, 0.0), v.setpoint[2])
 
     def set_gnss_noise(self, i: int, std_m: float) -> None:
         """GNSS noise: vehicle i's reported position gets Gaussian noise of `std_m` per axis (0: none)."""

@@ -2,8 +2,8 @@
 
 `BrokerAccess(swarm, n)` makes a random password for every principal of a run:
 
-    agentI   publishes tx/I;            reads rx/I, closed, sense/I, demand, start, ctl
-    world    publishes rx/+, closed, sense/+, demand, start, ctl, metrics;  reads tx/+
+    agentI   publishes tx/I;            reads rx/I, closed, tick, sense/I, demand, start, ctl
+    world    publishes rx/+, closed, tick, sense/+, demand, start, ctl, metrics;  reads tx/+
     monitor  reads tx/+, rx/+, metrics (the launcher's own observer)
     view     reads tx/+, rx/+, metrics (`plmarl swarm status`)
 
@@ -51,12 +51,12 @@ class BrokerAccess:
 
         observer = [t.tx("+"), t.rx("+"), t.metrics]
         self.principals: dict[str, Principal] = {
-            "world": login("world", [t.rx("+"), t.closed, t.sense("+"), t.demand, t.start, t.ctl, t.metrics], [t.tx("+")]),
+            "world": login("world", [t.rx("+"), t.closed, t.tick, t.sense("+"), t.demand, t.start, t.ctl, t.metrics], [t.tx("+")]),
             "monitor": login("monitor", [], observer),
             "view": login("view", [], observer),
         }
         for i in range(n):
-            self.principals[f"agent{i}"] = login(f"agent{i}", [t.tx(i)], [t.rx(i), t.closed, t.sense(i), t.demand, t.start, t.ctl])
+            self.principals[f"agent{i}"] = login(f"agent{i}", [t.tx(i)], [t.rx(i), t.closed, t.tick, t.sense(i), t.demand, t.start, t.ctl])
 
     def add(self, name: str, publish: list[str], read: list[str]) -> Principal:
         """One more login (an operator's tool, or a test's intruder)."""
