@@ -424,7 +424,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     summary["autopilot"] = "arducopter" if real else f"emulator ({opts.personality})"
     summary["mavlink_signed"] = bool(mav_keys)
     if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
-        summary["vehicle_input"] = [c.as_dict() for c in world.host.counters()]
+        summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
