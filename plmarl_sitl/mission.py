@@ -131,7 +131,7 @@ class Failure:
     uav: int = field(metadata={"min": 0})
 
 
-EventType = Literal["node_failure", "link_blackout", "broker_outage", "tup_change", "gnss_noise"]
+EventType = Literal["node_failure", "link_blackout", "broker_outage", "tup_change", "gnss_noise", "gps_loss", "motor_failure"]
 
 # Which optional fields each event type takes, and which it requires.
 _EVENT_FIELDS: dict[str, tuple[set[str], set[str]]] = {
@@ -140,6 +140,8 @@ _EVENT_FIELDS: dict[str, tuple[set[str], set[str]]] = {
     "broker_outage": ({"duration_s"}, {"duration_s"}),
     "tup_change": ({"tup_s"}, {"tup_s"}),
     "gnss_noise": ({"std_m", "duration_s", "uavs"}, {"std_m"}),
+    "gps_loss": ({"duration_s", "uavs"}, set()),
+    "motor_failure": ({"uav"}, {"uav"}),
 }
 
 
@@ -153,6 +155,11 @@ class Event:
     tup_change: the signalling interval becomes `tup_s`.
     gnss_noise: position telemetry of `uavs` (all when empty) gets Gaussian noise of
     `std_m` per axis, for `duration_s` (to the end when omitted).
+
+    Autopilot faults (the autopilot's own fault injection; docs/SIGNALLING.md, "Mission events"):
+    gps_loss: the GPS receiver of `uavs` (all when empty) goes dark for `duration_s` (to the
+    end when omitted). A real ArduCopter dead-reckons, then its EKF failsafe lands it.
+    motor_failure: one motor of vehicle `uav` stops for good; a quadrotor falls.
     """
 
     type: EventType

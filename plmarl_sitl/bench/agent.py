@@ -44,6 +44,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", default="policies/pl-marl")
     p.add_argument("--mission-s", type=int, default=120, help="mission seconds flown together (default 120)")
     p.add_argument("--workdir", default=None, help="keep agent logs/traces here (default: a temp dir)")
+    p.add_argument("--no-auth", action="store_true",
+                   help="unsigned messages (default: signed with a fresh swarm key, as `plmarl swarm up` flies)")
     p.add_argument("--rt-priority", type=rt_priority_arg(0), default=None, metavar="P",
                    help="SCHED_FIFO priority of the second fleet (default 20 when permitted; 0: fly only at normal priority)")
 
@@ -58,6 +60,7 @@ def _pct(xs: list[float], q: float) -> float | None:
 async def _run(args: argparse.Namespace, rt_priority: int, workdir: Path) -> dict:
     import dataclasses
 
+    from plmarl_sitl.deploy.mqtt.auth import create_key_file
     from plmarl_sitl.mission import load_mission
     from plmarl_sitl.sitl.agents import AgentFleet
     from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
@@ -67,18 +70,21 @@ async def _run(args: argparse.Namespace, rt_priority: int, workdir: Path) -> dic
     n = args.n
     base = free_udp_ports(n)
     fleet = AgentFleet(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    key_path = None if args.no_auth else workdir / "swarm.key"
+    key = None if key_path is None else create_key_file(key_path)
     extra = ["--rt-priority", str(rt_priority)] if rt_priority else []
     async with local_broker() as broker:
         url = broker.url
         world = SitlWorld(WorldConfig(mission=mission, broker_url=url, speedup=args.speedup, base_port=base,
-                                      episode_s=args.mission_s, start_timeout_s=1e9))
+                                      episode_s=args.mission_s, start_timeout_s=1e9, swarm_key=key))
         t_start = time.perf_counter()
         try:
             await world.start()
             run = asyncio.create_task(world.run(), name="world")
             for i in range(n):
                 ap = await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=args.mission, policy=args.policy,
-                                       n_uavs=n, trace=False, extra=extra)
+                                       n_uavs=n, trace=False, extra=extra, swarm_key=key_path)
                 async with asyncio.timeout(60):
                     while "ready after" not in ap.log():
                         if ap.proc.returncode is not None:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import torch
 
+from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
@@ -51,13 +52,15 @@ async def sitl_coverage(
     base = free_udp_ports(n)
     tmp = workdir or Path(tempfile.mkdtemp(prefix="plmarl-gap-"))
     fleet = AgentFleet(tmp, nice=SITL_AGENT_NICE)
+    key = create_key_file(tmp / "swarm.key")  # signed, as `plmarl swarm up` flies
     async with local_broker() as broker:
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
-                                      episode_s=mission.timing.episode_s))
+                                      episode_s=mission.timing.episode_s, swarm_key=key))
         try:
             await world.start()
             for i in range(n):
-                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir)
+                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir,
+                                  swarm_key=tmp / "swarm.key")
             async with asyncio.timeout(60 + 3 * mission.timing.episode_s / speedup + 60):
                 summary = await world.run()
         finally:

@@ -8,12 +8,20 @@ within `--max-delay` vehicle seconds of their mission second (the twin acts at o
 and on sensing at most `--max-lag` seconds old. An overloaded swarm backs up its bus and acts late; with a
 poor policy that need not move the coverage gap, so the gap alone cannot tell.
 N = 20 is the zero-shot mission `missions/scale_20.yaml` (20 clusters in the same 1 km^2).
+
+With `--lockstep` it then flies each seed in lockstep (`plmarl swarm up --lockstep`: never
+late by construction, so only the gap is judged) and the first seed twice, and reports
+the lockstep wall time next to the best on-time free-running one, the lockstep coverage
+gap, and whether the two runs' outputs (metrics.jsonl, events.jsonl, the summary without
+its run directory) hash the same.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import hashlib
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -38,19 +46,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default="0,1,2", type=comma_list(int, "seed"),
                    help="mission seeds; the gap compares mean coverage over them, as one run's is noisy (default 0,1,2)")
     p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
+    p.add_argument("--broker", default="embedded", metavar="embedded|mosquitto",
+                   help="the broker every run starts (default embedded amqtt)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="also fly every seed in lockstep (and the first seed twice): wall time, gap, output hashes")
 
 
-def _fly(mission_path: str, policy: str, speedup: float, seed: int) -> tuple[dict, float]:
-    """(summary, wall seconds) of one headless run."""
+def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bool = False,
+         broker: str = "embedded") -> tuple[dict, float]:
+    """(summary, wall seconds) of one headless run (the summary's run_dir has its outputs)."""
     from rich.console import Console
 
     from plmarl_sitl.sitl.launcher import UpOptions, swarm_up
 
     out = Path(tempfile.mkdtemp(prefix="plmarl-bench-swarm-"))
-    opts = UpOptions(Path(mission_path), speedup=speedup, headless=True, out=out, seed=seed, policy=Path(policy))
+    opts = UpOptions(Path(mission_path), speedup=speedup, headless=True, out=out, seed=seed, policy=Path(policy),
+                     lockstep=lockstep, broker=broker)
     t0 = time.perf_counter()
     summary = asyncio.run(swarm_up(opts, console=Console(quiet=True)))
     return summary, time.perf_counter() - t0
+
+
+def outputs_hash(run_dir: Path) -> str:
+    """SHA-256 over a run's metrics.jsonl, events.jsonl and summary.json without run_dir."""
+    summary = json.loads((run_dir / "summary.json").read_text())
+    summary.pop("run_dir", None)
+    h = hashlib.sha256()
+    for part in ((run_dir / "metrics.jsonl").read_bytes(), (run_dir / "events.jsonl").read_bytes(),
+                 json.dumps(summary, sort_keys=True).encode()):
+        h.update(hashlib.sha256(part).digest())
+    return h.hexdigest()
+
+
+def _lockstep(path: str, policy: str, seeds: list[int], twin_mean: float, free_wall_s: float, broker: str) -> dict:
+    """Every seed in lockstep, and the first one again: wall, gap, the two runs' hashes."""
+    flights = [_fly(path, policy, 10.0, s, lockstep=True, broker=broker) for s in seeds]
+    again = _fly(path, policy, 10.0, seeds[0], lockstep=True, broker=broker)
+    wall = float(np.mean([f[1] for f in flights]))
+    sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
+    hashes = [outputs_hash(Path(f[0]["run_dir"])) for f in (flights[0], again)]
+    return {"wall_s": wall, "x_faster_than_free": free_wall_s / wall, "sitl_coverage": sitl,
+            "coverage_gap": abs(sitl - twin_mean), "sitl_by_seed": [f[0]["coverage_mean"] for f in flights],
+            "hash_runs": hashes, "identical": hashes[0] == hashes[1]}
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -67,7 +104,7 @@ def run(args: argparse.Namespace) -> dict:
         twin_mean = float(np.mean(twin))
         tried = []
         for k in args.speedups:
-            flights = [_fly(path, args.policy, k, s) for s in seeds]
+            flights = [_fly(path, args.policy, k, s, broker=getattr(args, "broker", "embedded")) for s in seeds]
             sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
             on_time = [f[0]["timeliness"] for f in flights]
             lags = [t["sensing_age_s"]["max"] for t in on_time if t["sensing_age_s"]]
@@ -86,7 +123,9 @@ def run(args: argparse.Namespace) -> dict:
                      "twin_coverage": twin_mean, "twin_by_seed": twin, "sitl_coverage": best["sitl"],
                      "sensing_lag_max_s": best["sensing_lag_max_s"], "decision_delay_p95_s": best["decision_delay_p95_s"],
                      "ok": best["ok"], "tried": tried})
-    return {"rows": rows, "machine": machine_info(), "seeds": seeds}
+        if getattr(args, "lockstep", False):
+            rows[-1]["lockstep"] = _lockstep(path, args.policy, seeds, twin_mean, best["wall_s"], args.broker)
+    return {"rows": rows, "machine": machine_info(), "seeds": seeds, "broker": getattr(args, "broker", "embedded")}
 
 
 def print_table(res: dict) -> None:
@@ -100,3 +139,14 @@ def print_table(res: dict) -> None:
         t.add_row(str(r["n"]), f"{r['speedup']:g}x", f"{r['wall_s']:.1f} s", f"{r['twin_coverage']:.3f}",
                   f"{r['sitl_coverage']:.3f}", f"{r['coverage_gap']:.3f}", f"{r['decision_delay_p95_s']} s", f"{r['sensing_lag_max_s']} s", "yes" if r["ok"] else "no")
     Console().print(t)
+    if any("lockstep" in r for r in res["rows"]):
+        lt = Table(title="the same missions in lockstep (--lockstep), next to the best on-time free-running speedup above")
+        for col in ("N", "free wall", "lockstep wall", "x faster", "SITL C", "gap", "2 runs identical", "hash"):
+            lt.add_column(col, justify="right")
+        for r in res["rows"]:
+            ls = r.get("lockstep")
+            if ls is not None:
+                lt.add_row(str(r["n"]), f"{r['wall_s']:.1f} s", f"{ls['wall_s']:.1f} s", f"{ls['x_faster_than_free']:.1f}",
+                           f"{ls['sitl_coverage']:.3f}", f"{ls['coverage_gap']:.3f}", "yes" if ls["identical"] else "no",
+                           ls["hash_runs"][0][:12])
+        Console().print(lt)

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 
 UP_EPILOG = """\
 examples:
@@ -32,15 +33,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Start the MQTT broker (embedded amqtt, or an external one), the SITL world "
         "(emulated PX4/ArduPilot autopilots, ground users, link emulator) and one `plmarl agent` "
         "per UAV; wait until every vehicle is airborne; run the mission with its scripted events "
-        "(node_failure, link_blackout, broker_outage, tup_change, gnss_noise); show the live view; "
+        "(node_failure, link_blackout, broker_outage, tup_change, gnss_noise, gps_loss, motor_failure); show the live view; "
         "record .tlogs, metrics.jsonl, events.jsonl, mission.yaml and summary.json; shut down.",
         epilog=UP_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
-    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time)")
+    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time; "
+                    "with --lockstep: the pace of the start-up only)")
+    up.add_argument("--lockstep", action="store_true",
+                    help="lockstep SITL: vehicle time waits for every agent's answer to each telemetry sample, so the run "
+                         "is as fast as the agents compute, never late, and the same mission and seed give the same "
+                         "metrics.jsonl, events.jsonl and summary (emulated autopilots only)")
+    up.add_argument("--straggler", type=float, default=DEFAULT_STRAGGLER_S, metavar="S",
+                    help=f"with --lockstep: an agent that owes an answer for S wall seconds is declared failed, killed, and "
+                         f"its vehicle left to its failsafe; the mission goes on (default {DEFAULT_STRAGGLER_S:g})")
     up.add_argument("--duration", type=int, default=None, metavar="S", help="mission seconds to fly (default: the mission's episode length)")
-    up.add_argument("--broker", default="embedded", metavar="embedded|mqtt://HOST:PORT", help="MQTT broker (default: embedded amqtt)")
+    up.add_argument("--broker", default="embedded", metavar="embedded|mosquitto|mqtt://HOST:PORT",
+                    help="MQTT broker: embedded (amqtt in a child process, default), mosquitto (a mosquitto child), both "
+                    "with a login per process and an ACL; or an external broker by URL (its access control is its own)")
     up.add_argument("--headless", action="store_true", help="no live view: one status line every 10 s of sim time")
     up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
     add_seed(up, default=None)
@@ -61,6 +72,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
     up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
+    up.add_argument("--broker-credentials", type=Path, default=None, metavar="DIR",
+                    help="with an external broker: the logins it knows this swarm by, DIR/world.cred, DIR/monitor.cred "
+                    "and DIR/agentI.cred (one line USERNAME:PASSWORD each, mode 0600)")
+    a = up.add_mutually_exclusive_group()
+    a.add_argument("--swarm-key", type=Path, default=None, metavar="FILE",
+                   help="sign every message with this key file (64 hex characters, mode 0600; default: a fresh key "
+                   "in the run directory, swarm.key)")
+    a.add_argument("--no-auth", action="store_true",
+                   help="fly with unsigned messages (anyone who can publish on the broker can steer the swarm)")
+    up.add_argument("--mavlink-sign", action=argparse.BooleanOptionalAction, default=True,
+                    help="MAVLink 2 signing between each autopilot and its agent, and on the world's links (default on: "
+                    "a fresh key per vehicle in RUN_DIR/mavlink/vehicleI.key, 0600; a real ArduCopter gets it by "
+                    "SETUP_SIGNING). Unsigned or badly signed commands and setpoints are then dropped and counted")
+    up.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
+                    help="with --mavlink-sign: use DIR/vehicleI.key (64 hex characters, mode 0600) instead of fresh keys")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
     up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
     up.set_defaults(func=run_up)
@@ -75,7 +101,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     st.add_argument("--broker", required=True, metavar="mqtt://HOST:PORT", help="the swarm's broker")
     st.add_argument("--swarm", default="sitl", help="swarm name (default sitl)")
+    st.add_argument("--swarm-key", default=None, metavar="FILE",
+                    help="the swarm's key file: without it the view shows metrics but no signed signalling")
+    st.add_argument("--broker-credentials", default=None, metavar="FILE",
+                    help="the view's broker login, one line USERNAME:PASSWORD (a SITL run writes credentials/view.cred)")
     st.set_defaults(func=run_status)
+
+    kg = ssub.add_parser("keygen", help="write a fresh random swarm key file (mode 0600)",
+                         description="Write a fresh random 32-byte swarm key, as 64 hexadecimal characters, to FILE "
+                         "with owner-only permissions; give the same file to the world and every agent (--swarm-key).")
+    kg.add_argument("file", type=Path, help="the key file to create (must not exist)")
+    kg.set_defaults(func=run_keygen)
 
 
 def autopilot_arg(text: str) -> tuple[str, Path | None]:
@@ -104,11 +140,18 @@ def run_up(args: argparse.Namespace) -> int:
         raise UserError("--instance must be >= 0")
     if args.duration is not None and args.duration < 1:
         raise UserError("--duration must be >= 1 s")
+    if args.lockstep and autopilot != "emulator":
+        raise UserError("--lockstep needs the emulated autopilots (an ArduCopter SITL runs a clock of its own)")
+    if not args.straggler > 0:
+        raise UserError("--straggler must be > 0 s")
     opts = UpOptions(
         mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
         personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
+        auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
+        mavlink_sign=args.mavlink_sign, mavlink_keys=args.mavlink_keys,
+        lockstep=args.lockstep, straggler_s=args.straggler,
     )
     try:
         summary = launch(opts)
@@ -127,7 +170,24 @@ def run_up(args: argparse.Namespace) -> int:
 
 
 def run_status(args: argparse.Namespace) -> int:
+    from plmarl_sitl.deploy.mqtt.auth import load_key
+    from plmarl_sitl.deploy.mqtt.credentials import load_credentials
     from plmarl_sitl.sitl.launcher import status
 
-    status(args.broker, args.swarm)
+    key = load_key(args.swarm_key) if args.swarm_key else None
+    credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
+    status(args.broker, args.swarm, key=key, credentials=credentials)
+    return 0
+
+
+def run_keygen(args: argparse.Namespace) -> int:
+    from plmarl_sitl.deploy.mqtt.auth import create_key_file
+    from plmarl_sitl.errors import UserError
+
+    if args.file.exists():
+        raise UserError(f"{args.file} exists: a key is not overwritten (remove it first to rotate)")
+    if not args.file.parent.is_dir():
+        raise UserError(f"{args.file}: no such directory {args.file.parent}")
+    key = create_key_file(args.file)
+    print(f"wrote {args.file} (key id {key.key_id:#04x}, mode 600)")
     return 0

@@ -15,19 +15,23 @@ import json
 import logging
 import signal
 import sys
+from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
 from plmarl_sitl.errors import UserError
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 
 EPILOG = """\
 examples:
-  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --speedup 10
-  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --episode 200
-then one agent per vehicle:
-  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
+  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key --speedup 10
+  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --no-auth --episode 200
+then one agent per vehicle, with the same key:
+  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key
 vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SITLs, SERIAL1):
-  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 \\
-      --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5"""
+  plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key \\
+      --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5
+a key file (0600): plmarl swarm keygen swarm.key"""
+
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +44,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("mission", help="mission YAML (e.g. missions/paper_urban.yaml)")
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
+    p.add_argument("--broker-credentials", default=None, metavar="FILE",
+                   help="the world's broker login: one line USERNAME:PASSWORD, mode 0600 (default: anonymous)")
+    a = p.add_mutually_exclusive_group()
+    a.add_argument("--swarm-key", default=None, metavar="FILE",
+                   help="the swarm key (64 hex characters, mode 0600): relay only authentic states, sign start, ctl, "
+                   "closed, sensing and demand (docs/SECURITY.md). Required unless --no-auth")
+    a.add_argument("--no-auth", action="store_true", help="unsigned version-1 messages (anyone on the broker can steer)")
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
     p.add_argument("--swarm", default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
     p.add_argument("--external", default=None, metavar="URL[,URL...]",
@@ -50,7 +61,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1; with --lockstep: "
+                   "the pace of the start-up only)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="lockstep: vehicle time waits for every agent's answer to each telemetry sample (agents run with "
+                        "--lockstep), as fast as they compute; same mission and seed, same outputs (emulated vehicles only)")
+    p.add_argument("--straggler", type=float, default=DEFAULT_STRAGGLER_S, metavar="S",
+                   help=f"with --lockstep: an agent that owes an answer for S wall seconds is declared failed and its "
+                        f"vehicle left to its failsafe (default {DEFAULT_STRAGGLER_S:g})")
+    p.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
+                   help="MAVLink 2 signing: vehicle i signs with DIR/vehicleI.key (0600; `plmarl swarm up` writes them "
+                   "to RUN/mavlink) and drops unsigned commands and setpoints; with --external the world's links sign "
+                   "with them (default: unsigned)")
     p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs")
     p.add_argument("--loss", type=float, default=0.0, help="extra per-delivery loss probability (default 0)")
@@ -72,7 +94,20 @@ def run(args: argparse.Namespace) -> int:
     check_boot(args.personality, args.boot)
     if not 0 <= args.loss <= 1:
         raise UserError("--loss must be in [0, 1]")
+    if args.lockstep and args.external:
+        raise UserError("--lockstep needs the emulated vehicles (external autopilots run clocks of their own)")
+    if not args.straggler > 0:
+        raise UserError("--straggler must be > 0 s")
+    from plmarl_sitl.deploy.mqtt.auth import key_from_flags
+    from plmarl_sitl.deploy.mqtt.credentials import load_credentials
+
+    args.key = key_from_flags(args.swarm_key, args.no_auth)
+    args.credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     mission = load_mission(args.mission)
+    if args.mavlink_keys is not None:
+        from plmarl_sitl.deploy.mavlink.keys import load_key_files
+
+        args.mavlink_keys = load_key_files(args.mavlink_keys, args.n_uavs or mission.n_uavs, "--mavlink-keys")
     args.external = _external_urls(args.external)
     if args.external:
         n = args.n_uavs or mission.n_uavs
@@ -115,6 +150,11 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         episode_s=args.episode,
         n_uavs=args.n_uavs,
         external=args.external,
+        swarm_key=args.key,
+        broker_credentials=args.credentials,
+        mavlink_keys=tuple(args.mavlink_keys or ()),
+        lockstep=args.lockstep,
+        straggler_s=args.straggler,
     )
     broker = None
     if args.embedded_broker:
@@ -138,7 +178,8 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         vehicles = f"{world.n} external vehicle(s) on {', '.join(args.external)} (waiting for their telemetry)"
     print(
         f"plmarl world: {vehicles}, broker {args.broker}{' (embedded)' if broker else ''}, swarm {args.swarm!r}, "
-        f"speedup {args.speedup:g}",
+        f"speedup {args.speedup:g}" + (f", lockstep (an agent silent for {args.straggler:g} s wall is declared failed)"
+                                       if args.lockstep else ""),
         flush=True,
     )
     try:

@@ -10,8 +10,16 @@ The schedule answers two questions about the same data:
 * what is in force at second t (`failure_s`, `tup_at`, `broker_down`, `cut_off`,
   `active`, `gnss_std_m`): the twin asks while it steps;
 * what changes at second t (`changes_at`): the SITL world applies the changes it owns
-  (vehicles, links, GNSS noise, T_up) and the launcher the rest (a failed node's agent
-  process, the broker gate) and logs them all.
+  (vehicles, links, GNSS noise, T_up, autopilot faults) and the launcher the rest (a failed
+  node's agent process, the broker gate) and logs them all.
+
+Autopilot faults (gps_loss, motor_failure) reach the autopilot's own fault injection in
+SITL; the twin has no autopilot, so it takes their measured outcome on a real ArduCopter
+4.7 (docs/RESULTS.md, "Autopilot faults"): a UAV with a failed motor falls (it hit the
+ground 3.3 s later from 30 m) and is lost at once; a UAV whose GPS stays dark for
+GPS_FAILSAFE_S has its EKF failsafe switch it to LAND, out of the mission for good; a
+shorter loss is bridged by dead reckoning and changes nothing. `fault_failures_at` gives
+both worlds the second each such UAV stops counting, and `failure_s` includes it.
 """
 
 from __future__ import annotations
@@ -32,6 +40,23 @@ def start_second(ev: Event) -> int:
 def end_second(ev: Event) -> float:
     """The mission second `ev` is over at (inf: it lasts to the end of the mission)."""
     return math.ceil(ev.end_s()) if ev.duration_s is not None else math.inf
+
+
+# Measured on ArduCopter 4.7 SITL (FS_EKF_ACTION 1, default EKF3 set-up), GPS gone in
+# GUIDED flight: the EKF failsafe switches to LAND 8.1 s later, and the EKF stops aiding
+# (LOCAL_POSITION_NED stops) 15.2 s later.
+GPS_FAILSAFE_S = 8
+GPS_AIDING_STOPS_S = 15
+AUTOPILOT_FAULTS = ("gps_loss", "motor_failure")
+
+
+def fault_failure_second(ev: Event) -> float:
+    """The mission second an autopilot fault takes its UAVs out of the mission (inf: never)."""
+    if ev.type == "motor_failure":
+        return float(start_second(ev))
+    if ev.type == "gps_loss" and (ev.duration_s is None or end_second(ev) - start_second(ev) >= GPS_FAILSAFE_S):
+        return float(start_second(ev) + GPS_FAILSAFE_S)
+    return math.inf
 
 
 @dataclass(frozen=True)
@@ -61,8 +86,15 @@ class EventSchedule:
         return any(e.type == kind for e in self.events)
 
     def uavs_of(self, ev: Event) -> tuple[int, ...]:
-        """The UAVs a link_blackout or gnss_noise event touches: its `uavs`, or all when empty."""
+        """The UAVs an event touches: `uav`, else its `uavs`, or all when empty."""
+        if ev.uav is not None:
+            return (ev.uav,)
         return ev.uavs or tuple(range(self.n_uavs))
+
+    def fault_failures_at(self, second: int) -> list[tuple[int, Event]]:
+        """(uav, fault) for each UAV an autopilot fault takes out of the mission at `second`."""
+        return [(u, e) for e in self.events if e.type in AUTOPILOT_FAULTS and fault_failure_second(e) == second
+                for u in self.uavs_of(e)]
 
     # ------------------------------------------------------------------ what changes at t
     def changes_at(self, second: int) -> list[Change]:
@@ -77,11 +109,15 @@ class EventSchedule:
         return tuple(e for e in self.events if e.type == kind and start_second(e) <= t < end_second(e))
 
     def failure_s(self) -> tuple[float, ...]:
-        """Per UAV, the second it fails at (inf: never); it is dead from then on."""
+        """Per UAV, the second it fails at (inf: never): a node failure, or the autopilot
+        fault that takes it out (`fault_failure_second`); it is dead from then on."""
         at = [math.inf] * self.n_uavs
         for e in self.events:
             if e.type == "node_failure" and e.uav is not None:
                 at[e.uav] = min(at[e.uav], start_second(e))
+            elif e.type in AUTOPILOT_FAULTS:
+                for u in self.uavs_of(e):
+                    at[u] = min(at[u], fault_failure_second(e))
         return tuple(float(s) for s in at)
 
     def tup_at(self, t: int) -> int:
@@ -128,4 +164,5 @@ def failure_times(
     return fail_at
 
 
-__all__ = ["Change", "EventSchedule", "end_second", "failure_times", "start_second"]
+__all__ = ["AUTOPILOT_FAULTS", "GPS_AIDING_STOPS_S", "GPS_FAILSAFE_S", "Change", "EventSchedule", "end_second",
+           "failure_times", "fault_failure_second", "start_second"]

@@ -83,13 +83,24 @@ class AgentFleet:
         trace: bool = True,
         stats: bool = True,
         verbose: bool = False,
+        swarm_key: Path | None = None,
+        credentials: Path | None = None,
+        mavlink_key: Path | None = None,
     ) -> AgentProc:
+        """Start agent `uav_id`; it signs its messages with the key file `swarm_key`, or
+        flies unsigned (`--no-auth`) without one, and logs in to the broker with the
+        credentials file `credentials` (None: anonymous)."""
         self.workdir.mkdir(parents=True, exist_ok=True)
         trace_path = self.workdir / f"agent{uav_id}.trace.jsonl" if trace else None
         stats_path = self.workdir / f"agent{uav_id}.stats.json" if stats else None
         log_path = self.workdir / f"agent{uav_id}.log"
         cmd = ["--id", str(uav_id), "--connect", connect_url,
                "--broker", broker_url, "--mission", str(mission), "--policy", str(policy), "--swarm", swarm]
+        cmd += ["--swarm-key", str(swarm_key)] if swarm_key is not None else ["--no-auth"]
+        if credentials is not None:
+            cmd += ["--broker-credentials", str(credentials)]
+        if mavlink_key is not None:  # sign the link to the autopilot
+            cmd += ["--mavlink-key", str(mavlink_key)]
         if verbose:  # DEBUG for the plmarl loggers: only when asked for
             cmd.append("-v")
         if n_uavs is not None:
@@ -120,6 +131,14 @@ class AgentFleet:
         p = self.procs[uav_id].proc
         if p.returncode is None:
             p.kill()
+
+    def retire(self, uav_id: int) -> None:
+        """Ask one agent to stop and leave its vehicle to the autopilot (SIGUSR1): its UAV is
+        out of the mission after an autopilot fault, its companion computer is not dead."""
+        p = self.procs[uav_id].proc
+        if p.returncode is None:
+            with contextlib.suppress(ProcessLookupError):
+                p.send_signal(signal.SIGUSR1)
 
     async def stop(self, grace_s: float = 5.0) -> None:
         live = [ap.proc for ap in self.procs.values() if ap.proc.returncode is None]

@@ -34,7 +34,9 @@ import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
-from plmarl_sitl.errors import UserError
+from plmarl_sitl.deploy.mavlink.codec import signing_timestamp
+from plmarl_sitl.deploy.mavlink.connect import connect
+from plmarl_sitl.errors import UserError, VehicleTimeout
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.proc import die_with_parent
@@ -44,7 +46,8 @@ SERIAL0_PORT = 5760  # + 10 I: the agent's link
 SERIAL1_PORT = 5762  # + 10 I: the world's link
 SERIAL2_PORT = 5763
 RCIN_PORT = 5501  # UDP
-MAX_INSTANCE = 400  # ports stay below 65536 with room to spare
+MAX_INSTANCE = 400
+PROVISIONER_SYSID = 255  # the launcher speaks as a ground station while it provisions the keys  # ports stay below 65536 with room to spare
 COPTER_PARM = Path("Tools") / "autotest" / "default_params" / "copter.parm"
 
 # What the run adds to copter.parm, and why (one line each; written into plmarl.parm).
@@ -195,6 +198,11 @@ class ArduCopterFleet:
                                        f"(log: {p.log_path})")
                 await asyncio.sleep(0.1)
 
+    async def provision_signing(self, keys: list[bytes], timeout_s: float = 30.0) -> None:
+        """Give vehicle i the MAVLink signing key `keys[i]` (RuntimeError naming one that did not take it)."""
+        await asyncio.gather(*(provision_signing(f"tcpout://127.0.0.1:{p.serial0}", key, timeout_s)
+                               for p, key in zip(self.procs, keys, strict=True)))
+
     async def stop(self, grace_s: float = 5.0) -> None:
         """SIGTERM every process, SIGKILL whoever is left after `grace_s`."""
         live = [p.proc for p in self.procs if p.proc.poll() is None]
@@ -210,3 +218,24 @@ class ArduCopterFleet:
                 with contextlib.suppress(ProcessLookupError):
                     proc.kill()
                 proc.wait()
+
+
+async def provision_signing(url: str, key: bytes, timeout_s: float = 30.0) -> None:
+    """SETUP_SIGNING to the ArduPilot at `url` (its SERIAL0), checked, then the link closed.
+
+    ArduPilot takes SETUP_SIGNING only disarmed (a vehicle just started is) and, once a key
+    is set, only signed, except on its channel 0 (SERIAL0: USB on a board, the agent's TCP
+    port in SITL), which it always trusts: that is where a key is provisioned, before the
+    agent connects. The key is stored in the vehicle's storage (eeprom.bin in its working
+    directory) and takes effect on every link at once; the check is a heartbeat that
+    verifies under the key (an unsigned one is not accepted by the signing link)."""
+    link = connect(url, sysid=PROVISIONER_SYSID)
+    try:
+        await link.open(timeout_s)
+        link.send(link.codec.mav.setup_signing_encode(link.sysid, 1, list(key), signing_timestamp()))
+        link.codec.set_signing_key(key)
+        await link.recv("HEARTBEAT", 5.0, lambda m: m.get_srcSystem() == link.sysid and m.get_srcComponent() == 1)
+    except VehicleTimeout as exc:
+        raise RuntimeError(f"MAVLink signing: the autopilot on {url} did not take its key ({exc})") from None
+    finally:
+        link.close()

@@ -20,6 +20,11 @@ each agent on its own vehicle's clock (`start_times`).
 
 A link that cannot be opened, or breaks, is retried for as long as the world runs; what
 each vehicle is waiting for is in `not_ready`, which the world logs.
+
+Autopilot faults are PARAM_SETs of ArduPilot SITL's SIM_ parameters on this link
+(`sitl.vehicles.GPS_OFF`, ...); the PARAM_VALUE the vehicle echoes is reported
+(`fault_reports`), and so is every STATUSTEXT of a vehicle under a fault. A real drone has
+no SIM_ parameters: it echoes nothing, which is reported as unconfirmed.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from plmarl_sitl.deploy.mavlink.connect import connect, parse_url
 from plmarl_sitl.errors import CommandRejected, LinkLost, UserError, VehicleTimeout
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.geodesy import local_frame_origin
+from plmarl_sitl.sitl.vehicles import GPS_OFF, GPS_ON, MOTOR_FAIL
 
 log = logging.getLogger("plmarl.world")
 
@@ -48,6 +54,8 @@ OPEN_TIMEOUT_S = 10.0  # wall: one attempt to open a link (then it is tried agai
 ASK_EVERY_S = 2.0  # wall: ask for the home position / the stream again until they come
 SILENT_S = 5.0  # wall: a vehicle not heard this long has no known position (not counted)
 CLIMB_DONE_MPS = 0.5  # |vertical speed| under this at take-off altitude: the climb is over
+STREAM_GAP_S = 1.0  # vehicle s: no LOCAL_POSITION_NED this long (10 Hz asked for): its EKF has no position
+PARAM_TRIES = 3  # PARAM_SET attempts (2 s each) before a fault is reported unconfirmed
 HOME_POSITION_ID = 242
 LOCAL_POSITION_NED_ID = 32
 
@@ -70,6 +78,7 @@ class ExternalVehicle:
     boot_s: float | None = None  # time_boot_ms of that sample, s
     wall_s: float = -math.inf  # perf_counter when it arrived
     tlog: BinaryIO | None = None
+    faulted: bool = False  # under an autopilot fault: its STATUSTEXTs are reported
     _rate_ref: tuple[float, float] | None = field(default=None, repr=False)  # (wall, boot) the rate is measured from
 
     def observe(self, boot_s: float, wall_s: float) -> None:
@@ -105,9 +114,13 @@ class ExternalVehicles:
 
     owns_clock = False
 
-    def __init__(self, mission: Mission, urls: list[str], speedup: float = 1.0) -> None:
+    def __init__(self, mission: Mission, urls: list[str], speedup: float = 1.0,
+                 signing_keys: list[bytes] | None = None) -> None:
         if len(urls) != mission.n_uavs:
             raise UserError(f"{len(urls)} vehicle URL(s) for a mission of {mission.n_uavs} UAVs: give one per UAV")
+        if signing_keys is not None and len(signing_keys) != len(urls):
+            raise UserError(f"{len(signing_keys)} MAVLink signing key(s) for {len(urls)} vehicles")
+        self.signing_keys = signing_keys  # vehicle i's MAVLink signing key (None: unsigned links)
         for url in urls:
             parse_url(url)  # a malformed URL is a UserError now, not a retry loop later
         self.mission = mission
@@ -119,6 +132,7 @@ class ExternalVehicles:
         self._tasks: list[asyncio.Task] = []
         self._tlog_dir: Path | None = None
         self._warned_gnss = False
+        self._reports: list[dict] = []
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -165,7 +179,8 @@ class ExternalVehicles:
     async def _follow(self, v: ExternalVehicle) -> None:
         """Open the link (again, if it breaks) and follow the vehicle, for ever."""
         while True:
-            link = connect(v.url, sysid=WORLD_SYSID)
+            key = self.signing_keys[v.index] if self.signing_keys is not None else None
+            link = connect(v.url, sysid=WORLD_SYSID, signing_key=key)
             link.tlog = v.tlog
             v.state = f"connecting to {v.url}"
             try:
@@ -201,7 +216,7 @@ class ExternalVehicles:
         streaming = False
         asked = -math.inf
         with (link.subscribe("LOCAL_POSITION_NED", mine) as positions, link.subscribe("HEARTBEAT", mine) as beats,
-              link.subscribe("HOME_POSITION", mine) as homes):
+              link.subscribe("HOME_POSITION", mine) as homes, link.subscribe("STATUSTEXT", mine) as texts):
             v.state = "waiting for its home position (set once its EKF has an origin)"
             while True:
                 if (not streaming or v.origin is None) and time.monotonic() - asked >= ASK_EVERY_S:
@@ -222,6 +237,11 @@ class ExternalVehicles:
                     v.armed = bool(hb.base_mode & 128)
                 while homes.queued:
                     self.place(v, homes.queued.popleft())
+                while texts.queued:
+                    text = texts.queued.popleft().text
+                    if v.faulted and v.boot_s is not None:
+                        self._reports.append({"uav": v.index, "boot_s": round(v.clock_at(time.perf_counter()), 3),
+                                              "text": text.rstrip("\x00").strip()})
                 if m is None:
                     continue
                 v.local = (m.x, m.y, m.z, m.vx, m.vy, m.vz)
@@ -319,6 +339,53 @@ class ExternalVehicles:
         if not self._warned_gnss:
             self._warned_gnss = True
             log.warning("gnss_noise: external autopilots navigate on their own GNSS; the event is not applied")
+
+    # ------------------------------------------------------------------ autopilot faults
+    def set_gps(self, i: int, on: bool) -> None:
+        self._set_params(i, GPS_ON if on else GPS_OFF)
+
+    def fail_motor(self, i: int) -> None:
+        self._set_params(i, MOTOR_FAIL)
+
+    def mark_failed(self, i: int) -> None:
+        self.kill(i)
+
+    def _set_params(self, i: int, params: tuple[tuple[str, float], ...]) -> None:
+        v = self.vehicles[i]
+        v.faulted = True
+        self._tasks.append(asyncio.get_running_loop().create_task(self._param_set(v, params), name=f"vehicle{i}-fault"))
+
+    async def _param_set(self, v: ExternalVehicle, params: tuple[tuple[str, float], ...]) -> None:
+        """PARAM_SET each parameter on the world's link; report the echo (or that none came)."""
+        for name, value in params:
+            why = "no link"
+            for _ in range(PARAM_TRIES):
+                link = v.link
+                if link is None:
+                    await asyncio.sleep(ASK_EVERY_S)
+                    continue
+                try:
+                    echo = await link.param_set(name, value)
+                except (LinkLost, VehicleTimeout) as exc:
+                    why = str(exc)
+                    continue
+                self._reports.append({"uav": v.index, "boot_s": round(v.clock_at(time.perf_counter()), 3), "param": name,
+                                      "set": value, "echo": echo, "via": f"PARAM_SET on {v.url}"})
+                if echo != value:
+                    log.warning("vehicle %d: %s set to %g, but it reports %g", v.index, name, value, echo)
+                break
+            else:
+                log.warning("vehicle %d: %s %g not confirmed (%s): not an ArduPilot SITL?", v.index, name, value, why)
+                self._reports.append({"uav": v.index, "boot_s": v.boot_s, "param": name, "set": value, "echo": None,
+                                      "via": f"PARAM_SET on {v.url}", "error": why})
+
+    def fault_reports(self) -> list[dict]:
+        out, self._reports = self._reports, []
+        return out
+
+    def position_streams(self, i: int) -> bool:
+        v = self.vehicles[i]
+        return v.boot_s is not None and v.clock_at(time.perf_counter()) - v.boot_s < STREAM_GAP_S
 
     def uav_rows(self) -> list[dict]:
         w = time.perf_counter()

@@ -13,7 +13,8 @@ Everything is recorded in the run directory:
 
     mission.yaml      the resolved mission (extends applied, seed filled in)
     metrics.jsonl     one row per mission second: t, coverage, lambda2, messages, uavs
-    events.jsonl      every event as it fired
+    events.jsonl      every event as it fired; autopilot faults also what the vehicle then
+                      said and did ("autopilot" entries) and when it left the mission ("uav_failed")
     summary.json      coverage mean/min, duration, speedup, events, node-failure recovery
     tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer; ArduCopter:
                       the world's SERIAL1 link, both ways)
@@ -33,6 +34,7 @@ import datetime as _dt
 import json
 import logging
 import signal
+import subprocess
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -41,16 +43,22 @@ from pathlib import Path
 import yaml
 
 from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.deploy.mavlink.keys import create_key_files, key_file, load_key_files
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
+from plmarl_sitl.deploy.mqtt.credentials import load_credentials
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.live import headless_line, render
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 from plmarl_sitl.sitl.monitor import SwarmMonitor
-from plmarl_sitl.sitl.network.broker import AmqttProcess, free_udp_ports
+from plmarl_sitl.sitl.network.access import BrokerAccess
+from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -89,6 +97,20 @@ class UpOptions:
     copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
     instance_base: int | None = None  # first ArduPilot SITL instance -I (None: the first free ones)
     verbose: bool = False  # agents log DEBUG too
+    # Message authentication (docs/SECURITY.md): a fresh swarm key per run in the run
+    # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
+    auth: bool = True
+    swarm_key: Path | None = None
+    # An external broker's logins: DIR/world.cred, DIR/monitor.cred, DIR/agentI.cred (None: anonymous).
+    broker_credentials: Path | None = None
+    # MAVLink 2 signing between each autopilot and its agent (and the world's links): a fresh
+    # key per vehicle in RUN_DIR/mavlink/vehicleI.key (0600), or DIR/vehicleI.key given.
+    mavlink_sign: bool = True
+    mavlink_keys: Path | None = None
+    # Lockstep (emulated autopilots only, `sitl.lockstep`): deterministic, as fast as the agents
+    # compute; an agent owing an answer for straggler_s wall seconds is declared failed.
+    lockstep: bool = False
+    straggler_s: float = DEFAULT_STRAGGLER_S
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -110,13 +132,14 @@ def default_out_dir() -> Path:
 
 class LauncherEvents:
     """The launcher's part of the mission's events, from the schedule the SITL world applies
-    too (the world kills the vehicle, cuts the links, sets GNSS noise and T_up): it kills a
-    failed node's agent process, opens and closes the broker gate for an outage, and records
-    every event as it fires."""
+    too (the world kills the vehicle, cuts the links, sets GNSS noise, T_up and autopilot
+    faults): it kills a failed node's agent process, asks the agent of a UAV an autopilot
+    fault took out of the mission to stop (its companion computer lives on), opens and
+    closes the broker gate for an outage, and records every event as it fires."""
 
-    # The ends worth an entry of their own: the outage's and the noise's are switched at
-    # their end second; a blackout's cut expires inside the link emulator.
-    RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise"})
+    # The ends worth an entry of their own: the outage's, the noise's and the GPS's are
+    # switched at their end second; a blackout's cut expires inside the link emulator.
+    RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise", "gps_loss"})
 
     def __init__(self, schedule: EventSchedule, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
         self.schedule, self.fleet, self.gate, self.record = schedule, fleet, gate, record
@@ -140,15 +163,32 @@ class LauncherEvents:
                 self.record(entry)
             elif ev.type in self.RECORDED_ENDS:
                 self.record({"t": t, "type": f"{ev.type}_end"})
+        for uav, ev in self.schedule.fault_failures_at(second):
+            self.killed.add(uav)
+            if uav in self.fleet.procs:
+                self.fleet.retire(uav)
+            entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
+            log.warning("event at t=%.0f s: %s", second, entry)
+            self.record(entry)
 
 
-async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
-    if spec == "embedded":
-        broker = AmqttProcess()
+# What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
+BROKER_GUARANTEES = {
+    "mosquitto": "mosquitto: a login per process (password file), ACL (agent i publishes only tx/i and reads only "
+                 "what is addressed to it; the world its topics; the view reads), login = client id",
+    "embedded": "embedded amqtt: a login per process and topic ACLs (publish, subscribe) are enforced; it cannot bind "
+                "a login to its client id (a valid login can take over another client's session: a denial of "
+                "service, not an impersonation) and has no TLS; use --broker mosquitto for that",
+}
+
+
+async def _start_broker(spec: str, access: BrokerAccess | None) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
+    if spec in ("embedded", "mosquitto"):
+        broker = AmqttProcess(access=access) if spec == "embedded" else MosquittoBroker(access=access)
         try:
-            await asyncio.to_thread(broker.start)
-        except (RuntimeError, TimeoutError) as exc:
-            raise ComponentFailed(f"the embedded amqtt broker did not start: {exc}") from exc
+            await asyncio.to_thread(broker.start, 20.0)  # amqtt imports and hashes passwords first
+        except (RuntimeError, TimeoutError, OSError, subprocess.CalledProcessError) as exc:
+            raise ComponentFailed(f"the {broker.what} broker did not start: {exc}") from exc
         return broker, broker.host, broker.port
     host, port = parse_broker_url(spec)  # UserError on a malformed URL
     try:
@@ -158,6 +198,39 @@ async def _start_broker(spec: str) -> tuple[AmqttProcess | None, str, int]:
     except (OSError, TimeoutError) as exc:
         raise ComponentFailed(f"cannot reach the broker at {spec} ({exc.__class__.__name__})") from exc
     return None, host, port
+
+
+def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None]:
+    """The run's key file and key: the one given, else a fresh one in the run directory."""
+    if not opts.auth:
+        log.warning("--no-auth: the swarm's messages are unsigned")
+        return None, None
+    if opts.swarm_key is not None:
+        return opts.swarm_key, load_key(opts.swarm_key)
+    path = out / "swarm.key"
+    return path, create_key_file(path)
+
+
+def _mavlink_keys(opts: UpOptions, out: Path, n: int) -> tuple[Path | None, list[bytes]]:
+    """The directory of the vehicles' MAVLink keys and the keys: the one given, else fresh
+    ones in RUN_DIR/mavlink; (None, []) for unsigned links."""
+    if not opts.mavlink_sign:
+        log.warning("--no-mavlink-sign: the MAVLink links are unsigned")
+        return None, []
+    if opts.mavlink_keys is not None:
+        return opts.mavlink_keys, load_key_files(opts.mavlink_keys, n, "--mavlink-keys")
+    return out / "mavlink", create_key_files(out / "mavlink", n)
+
+
+def _external_logins(directory: Path | None, n: int) -> dict[str, Path]:
+    """The credentials files an external broker knows this swarm's processes by."""
+    if directory is None:
+        return {}
+    names = ["world", "monitor", *(f"agent{i}" for i in range(n))]
+    paths = {name: directory / f"{name}.cred" for name in names}
+    for path in paths.values():
+        load_credentials(path)  # missing, exposed or malformed: one error before anything starts
+    return paths
 
 
 def _setup_logging(out: Path) -> logging.Handler:
@@ -185,8 +258,18 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
         if EventSchedule.of(mission).has("gnss_noise"):
             raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
-    if opts.broker != "embedded":
+    if opts.broker not in ("embedded", "mosquitto"):
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
+    if opts.swarm_key is not None:
+        load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
+    if opts.mavlink_keys is not None:
+        if not opts.mavlink_sign:
+            raise UserError("--mavlink-keys with --no-mavlink-sign: choose one")
+        load_key_files(opts.mavlink_keys, mission.n_uavs, "--mavlink-keys")  # fails before anything starts
+    if opts.broker_credentials is not None:
+        if opts.broker in ("embedded", "mosquitto"):
+            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
+        _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
@@ -196,24 +279,44 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
     duration = opts.duration_s or mission.timing.episode_s
     n = mission.n_uavs
+    key_path, key = _swarm_key(opts, out)
+    mav_dir, mav_keys = _mavlink_keys(opts, out, n)
     metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
     events: list[dict] = []
     rows: list[dict] = []
-    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup)
+    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key))
 
     def record_event(entry: dict) -> None:
         events.append(entry)
         events_f.write(json.dumps(entry) + "\n")
         events_f.flush()
-        monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
+        if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
+            monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
 
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
-    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s at {opts.speedup:g}x, "
+    pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
+            "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
+    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+    console.print(f"messages signed with the swarm key {key_path}" if key is not None else
+                  "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
+                  highlight=False)
+    console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
+                  "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
+                  "command it", highlight=False)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
     fleet.warm_up()  # the agents' imports load on the other core meanwhile
-    broker, up_host, up_port = await _start_broker(opts.broker)
+    # Our own broker: a login per process and an ACL; an external one: its own business.
+    access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
+    creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
+    world_login = load_credentials(creds["world"]) if creds else None
+    monitor_login = load_credentials(creds["monitor"]) if creds else None
+    broker, up_host, up_port = await _start_broker(opts.broker, access)
+    guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
+                                       "(docs/SECURITY.md has the ACL to give it)")
+    console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
+    log.info("%s", guarantees)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
     schedule = EventSchedule.of(mission)
@@ -251,28 +354,43 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             log.info("%s", copters.ports_line())
             try:
                 await copters.wait_listening()
+                if mav_keys:
+                    await copters.provision_signing(mav_keys)
             except RuntimeError as exc:
                 raise ComponentFailed(str(exc)) from exc
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
-                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs))
+                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
+                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
         else:
             base_port = free_udp_ports(n)
             agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule)
-        world = SitlWorld(cfg, on_metrics=on_metrics)
+                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
+                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
+                              lockstep=opts.lockstep, straggler_s=opts.straggler_s)
+        world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
-        observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
-                           monitor.on_bus, name="launcher-bus")
+        observer = None
+        if opts.lockstep:
+            # The world hands the monitor each state as it relays it and each delivery as it
+            # sends it, in its own order: overheard on the broker they would race the metrics.
+            world.on_signal = monitor.on_bus
+            world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
+        else:
+            observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
+                               monitor.on_bus, name="launcher-bus", credentials=monitor_login)
         for i in range(n):
             await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                              extra=["--autopilot", "ardupilot" if real else opts.personality], verbose=opts.verbose)
+                              extra=["--autopilot", "ardupilot" if real else opts.personality,
+                                     *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
+                              swarm_key=key_path, credentials=creds.get(f"agent{i}"),
+                              mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
-            bus_task = tg.create_task(observer.run(), name="launcher-bus")
+            bus_task = None if observer is None else tg.create_task(observer.run(), name="launcher-bus")
             watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout(), copters), name="watchdog")
             view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
             await world_task
@@ -304,6 +422,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     traces = [ap.trace() for ap in fleet.procs.values()]
     summary["timeliness"] = timeliness(traces, [t0s[i] for i in fleet.procs] if isinstance(t0s, list) else t0s)
     summary["autopilot"] = "arducopter" if real else f"emulator ({opts.personality})"
+    summary["mavlink_signed"] = bool(mav_keys)
+    if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
+        summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
@@ -324,12 +445,25 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
                                   f"(log: {gone.log_path})")
         for i, ap in fleet.procs.items():
             rc = ap.proc.returncode
-            if rc is not None and i not in script.killed:
+            if rc is not None and i not in script.killed and world.barrier is not None:
+                world.agent_failed(i, f"exited with code {rc}")  # lockstep: the mission goes on without it
+            elif rc is not None and i not in script.killed:
                 tail = [ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"]
                 raise ComponentFailed(f"agent {i} exited with code {rc}: {tail[0][-160:]} (log: {ap.log_path})")
         if world.t0 is None and loop.time() - t_start > start_timeout_s:
             waiting = "; ".join(world.not_ready()) or "?"
             raise ComponentFailed(f"vehicles not airborne after {start_timeout_s:.0f} s: {waiting}")
+
+
+def _agent_failed(fleet: AgentFleet, script: LauncherEvents | None, record: Callable[[dict], None], i: int,
+                  k: int | None, why: str) -> None:
+    """Lockstep: the world declared agent i failed. Its process is killed (a stopped or hung
+    agent must not come back and fly) and its vehicle is left to its setpoint-loss failsafe."""
+    if script is not None:
+        script.killed.add(i)
+    if i in fleet.procs:
+        fleet.kill(i)
+    record({"t": float(k) if k is not None else -1.0, "type": "agent_failed", "uav": i, "why": why})
 
 
 async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Task) -> None:  # noqa: ANN001
@@ -361,16 +495,19 @@ def run_up(opts: UpOptions) -> dict:
         raise KeyboardInterrupt from None
 
 
-def status(broker: str, swarm: str, drop_after_missed: int = 2) -> None:
-    """`plmarl swarm status`: attach the live view to a running swarm over MQTT."""
+def status(broker: str, swarm: str, drop_after_missed: int = 2, key: SwarmKey | None = None,
+           credentials: tuple[str, str] | None = None) -> None:
+    """`plmarl swarm status`: attach the live view to a running swarm over MQTT (the
+    signalling of a signed swarm is shown only with its key)."""
     from rich.console import Console
     from rich.live import Live
 
     async def main() -> None:
         parse_broker_url(broker)  # UserError on a malformed URL
-        monitor = SwarmMonitor(swarm, 15, drop_after_missed)
+        monitor = SwarmMonitor(swarm, 15, drop_after_missed, wire=Wire(key))
         t = monitor.topics
-        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus, name="status-bus")
+        bus = MqttBus(broker, f"plmarl-status-{swarm}-{id(monitor) % 10000}", [t.metrics, t.tx("+"), t.rx("+")], monitor.on_bus,
+                      name="status-bus", credentials=credentials)
         console = Console()
         async with asyncio.TaskGroup() as tg:
             tg.create_task(bus.run())

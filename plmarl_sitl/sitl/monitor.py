@@ -13,15 +13,18 @@ from __future__ import annotations
 import collections
 import math
 
-from plmarl_sitl.deploy.mqtt.schema import Malformed, Topics, decode_json, decode_state, split_states
+from plmarl_sitl.deploy.mqtt.auth import AuthError
+from plmarl_sitl.deploy.mqtt.schema import Malformed, Topics, decode_json
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.sitl.live import SwarmView, UavView
 
 HISTORY_S = 120  # seconds of coverage kept for the sparkline
 
 
 class SwarmMonitor:
-    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0) -> None:
+    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0, wire: Wire | None = None) -> None:
         self.topics = Topics(swarm)
+        self.wire = wire or Wire(None)  # signed swarms: only authentic states are shown
         self.swarm = swarm
         self.tup_s = tup_s
         self.drop_after_missed = drop_after_missed
@@ -49,8 +52,8 @@ class SwarmMonitor:
         if who is None:
             return
         try:
-            msgs = [decode_state(part) for part in split_states(payload)]
-        except Malformed:
+            msgs = [self.wire.read_state(part) for part in self.wire.split_states(payload)]
+        except (Malformed, AuthError):
             self.malformed += 1
             return
         if topic == self.topics.tx(who):

@@ -1,7 +1,8 @@
 """The summary of a recorded run (summary.json), computed from metrics.jsonl rows.
 
 A row is one sim second: {"t", "coverage", "lambda2", "messages", "uavs": [{"id",
-"alive", "pos_ned", "vel_ned", "aoi_max"}, ...]}. For each node failure at t_f:
+"alive", "pos_ned", "vel_ned", "aoi_max"}, ...]}. For each node failure at t_f (or a UAV
+an autopilot fault took out of the mission, "uav_failed"):
 * trough: the lowest coverage from t_f on;
 * plateau: the mean coverage over the last `plateau_s` seconds of the run (or up to the
   next failure);
@@ -46,7 +47,7 @@ def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> d
         raise ValueError("no metrics recorded")
     t = np.array([r["t"] for r in rows], dtype=float)
     cov = np.array([r["coverage"] for r in rows], dtype=float)
-    fails = sorted(e["t"] for e in events if e.get("type") == "node_failure")
+    fails = sorted(e["t"] for e in events if e.get("type") in ("node_failure", "uav_failed"))
     recoveries = []
     for i, tf in enumerate(fails):
         t_next = fails[i + 1] if i + 1 < len(fails) else None

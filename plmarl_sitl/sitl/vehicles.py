@@ -13,6 +13,15 @@ What the world needs of them: their clock, true positions in the mission frame, 
 alive, what each is doing (the metrics row and the start condition: armed, in the offboard
 mode and at take-off altitude), node failure, and each vehicle's mission start t0 on its
 own clock.
+
+Autopilot faults (gps_loss, motor_failure) go to the autopilot's own fault injection,
+ArduPilot SITL's SIM_ parameters (`GPS_OFF`, `GPS_ON`, `MOTOR_FAIL`): an external vehicle
+gets a PARAM_SET on the world's link, and what it echoes in PARAM_VALUE is reported; the
+emulator applies the same parameters' effect in-process (`AutopilotHost.set_gps`,
+`fail_motor`), reproducing what the real one was measured to do. Either way the vehicle
+flies on under its autopilot; `mark_failed` only stops counting it (coverage, relaying).
+`fault_reports` hands the world what each vehicle said about it since the last call: the
+parameter echo and the STATUSTEXTs of a vehicle under a fault, each at its boot time.
 """
 
 from __future__ import annotations
@@ -24,6 +33,13 @@ import torch
 
 from plmarl_sitl.deploy.mavlink.personality import Behaviour
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+
+# ArduPilot SITL's fault injection (libraries/SITL/SITL.cpp, SIM_GPS.cpp, AP_HAL_SITL/SITL_State.cpp):
+# SIM_GPS1_ENABLE 0 takes the first GPS's fix away; SIM_ENGINE_FAIL is a mask of motor outputs
+# whose thrust is multiplied by SIM_ENGINE_MUL (0: motor 1 stops).
+GPS_OFF = (("SIM_GPS1_ENABLE", 0.0),)
+GPS_ON = (("SIM_GPS1_ENABLE", 1.0),)
+MOTOR_FAIL = (("SIM_ENGINE_MUL", 0.0), ("SIM_ENGINE_FAIL", 1.0))
 
 
 class WorldVehicles(Protocol):
@@ -48,6 +64,22 @@ class WorldVehicles(Protocol):
         ...
     def kill(self, i: int) -> None: ...
     def set_gnss_noise(self, i: int, std_m: float) -> None: ...
+    def set_gps(self, i: int, on: bool) -> None:
+        """gps_loss: vehicle i's GPS goes dark (on=False) or comes back, through its autopilot."""
+        ...
+    def fail_motor(self, i: int) -> None:
+        """motor_failure: one of vehicle i's motors stops, through its autopilot."""
+        ...
+    def mark_failed(self, i: int) -> None:
+        """Stop counting vehicle i (no coverage, no relaying) without touching it."""
+        ...
+    def fault_reports(self) -> list[dict]:
+        """What vehicles under a fault said since the last call: {"uav", "boot_s", and "param",
+        "set", "echo" (None: unconfirmed), "via" | "text"}; boot_s on the vehicle's own clock."""
+        ...
+    def position_streams(self, i: int) -> bool:
+        """Whether vehicle i's autopilot reports its position now (its EKF has one)."""
+        ...
     def uav_rows(self) -> list[dict]:
         """Per UAV, for the metrics: id, pos, vel, alt, acc (the active setpoint), mode, armed, alive."""
         ...
@@ -67,6 +99,8 @@ class EmulatedVehicles:
 
     def __init__(self, host: AutopilotHost) -> None:
         self.host = host
+        self.failed: set[int] = set()  # counted failed by an autopilot fault (flying on, or fallen)
+        self._reports: list[dict] = []
 
     @property
     def n(self) -> int:
@@ -93,13 +127,44 @@ class EmulatedVehicles:
         return self.host.mission_positions()
 
     def alive(self) -> torch.Tensor:
-        return torch.tensor([not v.killed for v in self.host.vehicles])
+        return torch.tensor([not v.killed and v.index not in self.failed for v in self.host.vehicles])
 
     def kill(self, i: int) -> None:
         self.host.kill(i)
 
     def set_gnss_noise(self, i: int, std_m: float) -> None:
         self.host.set_gnss_noise(i, std_m)
+
+    def set_gps(self, i: int, on: bool) -> None:
+        self.host.set_gps(i, on)
+        self._applied(i, GPS_ON if on else GPS_OFF)
+
+    def fail_motor(self, i: int) -> None:
+        self.host.fail_motor(i)
+        self._applied(i, MOTOR_FAIL)
+
+    def _applied(self, i: int, params: tuple[tuple[str, float], ...]) -> None:
+        v = self.host.vehicles[i]
+        if v.texts is None:
+            v.texts = []  # from now on its STATUSTEXTs are reported
+        for name, value in params:
+            self._reports.append({"uav": i, "boot_s": self.host.now, "param": name, "set": value, "echo": value,
+                                  "via": "emulator, in-process"})
+
+    def mark_failed(self, i: int) -> None:
+        self.failed.add(i)
+
+    def fault_reports(self) -> list[dict]:
+        out, self._reports = self._reports, []
+        for v in self.host.vehicles:
+            if v.texts:
+                out += [{"uav": v.index, "boot_s": t, "text": text} for t, text in v.texts]
+                v.texts.clear()
+        return sorted(out, key=lambda r: r["boot_s"])
+
+    def position_streams(self, i: int) -> bool:
+        v = self.host.vehicles[i]
+        return not v.killed and not v.aiding_stopped and self.host.fleet.boot.position(self.host.now)
 
     def uav_rows(self) -> list[dict]:
         states = self.host.true_states()
@@ -115,7 +180,7 @@ class EmulatedVehicles:
                 "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
                 "mode": v.mode,
                 "armed": v.armed,
-                "alive": not v.killed,
+                "alive": not v.killed and i not in self.failed,
             })
         return rows
 

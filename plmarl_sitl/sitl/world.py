@@ -59,17 +59,18 @@ from typing import TYPE_CHECKING
 
 import torch
 
-from plmarl_sitl.deploy.mqtt.demand import encode_demand
+from plmarl_sitl.deploy.mqtt.auth import AuthError, SwarmKey
 from plmarl_sitl.deploy.mqtt.schema import (
     INSTANT_WAIT_MIN_S,
     INSTANT_WAIT_WALL_S,
+    WINDOW_SLACK_S,
     Malformed,
+    SeqFilter,
     Topics,
-    decode_state,
     encode_json,
-    encode_sense,
 )
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import covered_users
@@ -79,6 +80,7 @@ from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_
 from plmarl_sitl.model.users import UserState, init_users, step_users
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.sitl.external import ExternalVehicles
+from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S, Barrier
 from plmarl_sitl.sitl.network.link_emulator import LinkEmulator
 from plmarl_sitl.sitl.vehicles import EmulatedVehicles, WorldVehicles
 from plmarl_sitl.twin.env import launch_positions
@@ -116,6 +118,20 @@ class WorldConfig:
     # MAVLink URLs of vehicles that fly elsewhere, one per UAV (then no emulated autopilots:
     # personality, boot and base_port do not apply); empty: the emulator in this process.
     external: tuple[str, ...] = ()
+    # The swarm key: the world relays only states that authenticate and signs what it
+    # sends the agents (start, ctl, closed, sense, demand); None: the unsigned wire.
+    swarm_key: SwarmKey | None = None
+    broker_credentials: tuple[str, str] | None = None  # (username, password) on the broker
+    # MAVLink 2 signing keys, one per vehicle (empty: unsigned links). The emulated vehicle
+    # i signs with key i and drops unsigned or badly signed input; with external vehicles
+    # the world's own link to vehicle i signs with it.
+    mavlink_keys: tuple[bytes, ...] = ()
+    # Lockstep (emulated vehicles only, `sitl.lockstep`): vehicle time waits for every
+    # member agent's answer to each telemetry sample and for the tx of each instant; the
+    # speedup then paces only the start-up. An agent that owes an answer for straggler_s
+    # of wall time is declared failed.
+    lockstep: bool = False
+    straggler_s: float = DEFAULT_STRAGGLER_S
 
 
 @dataclass
@@ -140,7 +156,8 @@ def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
 
 
 class SitlWorld:
-    def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None) -> None:
+    def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None,
+                 on_event: Callable[[dict], None] | None = None) -> None:
         self.cfg = cfg
         m = cfg.mission
         self.mission = m
@@ -150,14 +167,19 @@ class SitlWorld:
 
             self.mission = m = dataclasses.replace(m, n_uavs=self.n)
         self.on_metrics = on_metrics
+        self.on_event = on_event
+        self.faulted: dict[int, tuple[str, bool, bool]] = {}  # UAVs under an autopilot fault: last (mode, armed, position)
         self.topics = Topics(cfg.swarm)
         vm = m.vehicle_model()
         self.vehicle_model = vm
         self.takeoff_alt = min(max(vm.takeoff_alt_m, vm.min_alt_m), vm.max_alt_m)  # the twin's start altitude
         self.host: AutopilotHost | None = None  # the emulated autopilots, if they are
         self.vehicles: WorldVehicles
+        self.barrier: Barrier | None = None  # lockstep only
+        if cfg.lockstep and cfg.external:
+            raise ValueError("lockstep needs emulated vehicles (external autopilots keep clocks of their own)")
         if cfg.external:
-            self.vehicles = ExternalVehicles(m, list(cfg.external), cfg.speedup)
+            self.vehicles = ExternalVehicles(m, list(cfg.external), cfg.speedup, list(cfg.mavlink_keys) or None)
         else:
             homes = launch_positions(m, 0.0)
             homes[:, 2] = 0.0
@@ -169,8 +191,14 @@ class SitlWorld:
                 home_offsets_ned=[tuple(map(float, h)) for h in homes],
                 base_port=cfg.base_port,
                 boot=cfg.boot,
+                signing_keys=list(cfg.mavlink_keys) or None,
+                # Lockstep: every vehicle's telemetry on the same grid points, so all agents
+                # answer (and decide) in parallel at each barrier instead of in 5 serial groups.
+                **({"stream_phases": 1} if cfg.lockstep else {}),
             )
             self.vehicles = EmulatedVehicles(self.host)
+            if cfg.lockstep:
+                self.barrier = Barrier(self.host.fleet, cfg.straggler_s)
         self.radius = CoverageRadius(m.channel, m.radii.sensing_m, vm.min_alt_m, vm.max_alt_m)
         seed = m.seed if cfg.seed is None else cfg.seed
         self.gen = torch.Generator().manual_seed(seed)  # as CoverageEnv(mission, 1, seed)
@@ -178,11 +206,17 @@ class SitlWorld:
         self.users_ahead: collections.deque[UserState] = collections.deque()  # users of seconds k + 1 .. k + map period
         self.map_seq = 0
         self.links = LinkEmulator(m, self.n, loss=cfg.loss, seed=seed)
-        self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus")
+        self.wire = Wire(cfg.swarm_key)
+        self.seq_filter = SeqFilter()  # relays each state once: a replay is not relayed again
+        self.ctl_seq = 0
+        self.bus = MqttBus(cfg.broker_url, f"plmarl-world-{cfg.swarm}", [self.topics.tx("+")], self._on_message, name="world-bus",
+                           credentials=cfg.broker_credentials)
         # A retained start (and T_up) of a previous run must not reach this run's agents.
         self.bus.publish(self.topics.start, b"", sticky=True)
         self.bus.publish(self.topics.ctl, b"", sticky=True)
         self.bus.publish(self.topics.demand, b"", sticky=True)
+        if cfg.lockstep:
+            self.bus.publish(self.topics.tick, b"", sticky=True)
         self.summary = WorldSummary()
         self.t0: float | None = None  # boot second of mission t = 0 (external vehicles: on the reference clock)
         self.t0_by_uav: list[float] | None = None  # ... on each vehicle's own clock, if they differ
@@ -199,6 +233,16 @@ class SitlWorld:
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
         self._sim0: float | None = None  # the vehicles' clock when the run began (sim_s is counted from it)
+        # Lockstep state: the states of each open instant by sender (relayed in sender order
+        # when it closes), the boot second whose tick is not yet out, since when (wall) the
+        # tick waits for an instant's states, T_up at that second, and the start placement.
+        self._held: dict[float, dict[int, bytes]] = {}
+        self._tick_due: float | None = None
+        self._tx_wait_since: float | None = None
+        self._instant_tup = self.tup_s
+        self._place_pending = False
+        self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
+        self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
 
     # ------------------------------------------------------------------ events
     def apply_events(self, second: int) -> None:
@@ -219,6 +263,45 @@ class SitlWorld:
                 std = schedule.gnss_std_m(second)
                 for u in schedule.uavs_of(ev):
                     self.vehicles.set_gnss_noise(u, std[u])
+            elif ev.type == "gps_loss":
+                dark = {u for e in schedule.active("gps_loss", second) for u in schedule.uavs_of(e)}
+                for u in schedule.uavs_of(ev):
+                    self._watch_fault(u)
+                    self.vehicles.set_gps(u, u not in dark)  # overlapping losses: dark while any lasts
+            elif ev.type == "motor_failure" and ev.uav is not None:
+                self._watch_fault(ev.uav)
+                self.vehicles.fail_motor(ev.uav)
+        for u, ev in schedule.fault_failures_at(second):
+            self.vehicles.mark_failed(u)
+            log.warning("event: vehicle %d out of the mission at t=%d s (%s): left to its autopilot", u, second, ev.type)
+
+    def _watch_fault(self, i: int) -> None:
+        if i not in self.faulted:
+            row = self.vehicles.uav_rows()[i]
+            self.faulted[i] = (row["mode"], row["armed"], self.vehicles.position_streams(i))
+
+    def _report_faults(self, rows: list[dict]) -> None:
+        """What the vehicles under a fault said and did since the last second, as events."""
+        if self.t0 is None:
+            return
+        reports = self.vehicles.fault_reports()
+        for i, (mode, armed, streams) in self.faulted.items():
+            now = (rows[i]["mode"], rows[i]["armed"], self.vehicles.position_streams(i))
+            if now == (mode, armed, streams):
+                continue
+            self.faulted[i] = now
+            change = {"mode": now[0]} if now[0] != mode else {}
+            change |= {"armed": now[1]} if now[1] != armed else {}
+            change |= {"position": "streaming" if now[2] else "stopped"} if now[2] != streams else {}
+            reports.append({"uav": i, "boot_s": None, **change})
+        for r in reports:
+            i, boot_s = r.pop("uav"), r.pop("boot_s")
+            t0 = self.t0_by_uav[i] if self.t0_by_uav is not None else self.t0
+            t = (boot_s - t0) if boot_s is not None else (self.mission_t or 0)  # None: seen at this second
+            entry = {"t": round(float(t), 2), "type": "autopilot", "uav": i, **r}
+            log.info("autopilot fault report: %s", entry)
+            if self.on_event is not None:
+                self.on_event(entry)
 
     def kill(self, i: int) -> None:
         """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""
@@ -233,7 +316,9 @@ class SitlWorld:
     def set_tup(self, tup_s: int) -> None:
         """Tell the agents to signal every `tup_s` seconds from now on (ctl topic)."""
         self.tup_s = int(tup_s)
-        self.bus.publish(self.topics.ctl, encode_json({"tup_s": self.tup_s}), sticky=True)
+        self.ctl_seq += 1  # signed: agents apply only a ctl newer than the last (a replay is not)
+        ctl = {"tup_s": self.tup_s, "seq": self.ctl_seq} if self.wire.signed else {"tup_s": self.tup_s}
+        self.bus.publish(self.topics.ctl, self.wire.json("ctl", ctl), sticky=True)
 
     def stop(self) -> None:
         self._stop.set()
@@ -262,13 +347,33 @@ class SitlWorld:
     # ------------------------------------------------------------------ bus
     def _on_message(self, topic: str, payload: bytes) -> None:
         sender = self.topics.id_of(topic)
+        counters = self.links.counters
         try:
-            msg = decode_state(payload)
+            msg = self.wire.read_state(payload)
         except Malformed:
-            self.links.counters.malformed += 1
+            counters.malformed += 1
             return
-        if sender is None or msg.sender != sender or not 0 <= sender < self.n:
-            self.links.counters.malformed += 1
+        except AuthError as exc:
+            setattr(counters, exc.reason, getattr(counters, exc.reason) + 1)
+            return
+        if sender is None or not 0 <= sender < self.n:
+            counters.malformed += 1
+            return
+        if msg.sender != sender:
+            counters.misattributed += 1
+            return
+        if self.wire.signed and self.t0 is not None:
+            now_t = self.now - self.t0
+            if not now_t - self.tup_s - WINDOW_SLACK_S <= msg.t_s <= now_t + WINDOW_SLACK_S:
+                counters.out_of_window += 1
+                return
+        if self.seq_filter.check(msg) is not None:
+            counters.replayed += 1
+            return
+        if self.barrier is not None and msg.t_s > self._closed_upto:
+            # Lockstep: relayed when the instant closes, in sender order (the loss draws too).
+            self._held.setdefault(msg.t_s, {})[sender] = payload
+            self.host.fleet.answers.set()  # type: ignore[union-attr]  # wake the barrier
             return
         pos = self.vehicles.positions()
         alive = self.alive()
@@ -289,7 +394,12 @@ class SitlWorld:
         if self.cfg.latency_s > 0:
             heapq.heappush(self._pending, (self.now + self.cfg.latency_s, next(self._tiebreak), topic, payload))
         else:
-            self.bus.publish(topic, payload)
+            self._publish_signal(topic, payload)
+
+    def _publish_signal(self, topic: str, payload: bytes) -> None:
+        if self.on_signal is not None:
+            self.on_signal(topic, payload)
+        self.bus.publish(topic, payload)
 
     def _close_instant(self, t_s: float) -> None:
         """Deliver instant t_s's updates, one rx message per receiver, then tell the agents
@@ -300,7 +410,7 @@ class SitlWorld:
         self._closed_upto = max(self._closed_upto, t_s)
         for i, payloads in sorted(self._batches.pop(t_s, {}).items()):
             self._send_after_latency(self.topics.rx(i), b"".join(payloads))
-        self._send_after_latency(self.topics.closed, encode_json({"t_s": t_s}))
+        self._send_after_latency(self.topics.closed, self.wire.json("closed", {"t_s": t_s}))
 
     def _close_overdue(self) -> None:
         """Close every open instant some updates are still missing from after half the
@@ -316,7 +426,7 @@ class SitlWorld:
     def _deliver_due(self) -> None:
         while self._pending and self._pending[0][0] <= self.now:
             _, _, topic, payload = heapq.heappop(self._pending)
-            self.bus.publish(topic, payload)
+            self._publish_signal(topic, payload)
 
     # ------------------------------------------------------------------ per-second work
     def not_ready(self) -> list[str]:
@@ -346,7 +456,8 @@ class SitlWorld:
             start = {"t0_boot_s": self.t0, "tup_s": self.tup_s, "n_uavs": self.n}
             if self.t0_by_uav is not None:
                 start["t0_boot_s_by_uav"] = self.t0_by_uav
-            self.bus.publish(self.topics.start, encode_json(start), sticky=True)
+            self.bus.publish(self.topics.start, self.wire.json("start", start), sticky=True)
+            self._place_pending = self.barrier is not None
             self.publish_map(0, self.users)  # the users stay at their t = 0 positions until t0
             log.info("mission starts at boot %.0f s (now %.2f s)%s", self.t0, now,
                      f"; on each vehicle's clock {self.t0_by_uav}" if self.t0_by_uav is not None else "")
@@ -356,7 +467,7 @@ class SitlWorld:
         m = self.mission
         counts = demand_map(users.xy[0], m.area.north_m, m.area.east_m, m.demand.cell_m)
         rows, cols = grid_shape(m.area.north_m, m.area.east_m, m.demand.cell_m)
-        payload = encode_demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
+        payload = self.wire.demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
         self.bus.publish(self.topics.demand, payload, sticky=True)
         self.map_seq += 1
 
@@ -400,7 +511,7 @@ class SitlWorld:
                     continue
                 d = users - pos[i, :2]
                 inside = users[(d * d).sum(-1) <= r2]
-                self.bus.publish(self.topics.sense(i), encode_sense(i, t_ms, inside.tolist()))
+                self.bus.publish(self.topics.sense(i), self.wire.sense(i, t_ms, inside.tolist()))
         uav = self.vehicles.uav_rows()
         metrics = {
             "t": k,
@@ -414,7 +525,10 @@ class SitlWorld:
             "tup_s": self.tup_s,
         }
         self.bus.publish(self.topics.metrics, encode_json(metrics))
+        if self.host is not None:
+            self.host.log_counters()  # dropped MAVLink input (unsigned commands ...): a line when it moves
         if k is not None:
+            self._report_faults(uav)
             self.apply_events(k)
         if self.on_metrics is not None:
             self.on_metrics(metrics)
@@ -485,6 +599,111 @@ class SitlWorld:
                 await asyncio.sleep(0)  # let datagrams and MQTT messages in between chunks
             next_tick = max(next_tick + period, now - period)
 
+    # ------------------------------------------------------------------ lockstep
+    async def _lockstep_clock(self) -> None:
+        """Lockstep: one physics substep at a time, each once the barrier is met (`_settle`).
+        Until every live vehicle's agent has joined (start-up), also paced at wall x speedup:
+        arming and take-off are wall-clock command exchanges and need vehicle time to pass."""
+        assert self.host is not None and self.barrier is not None
+        dt = self.host.physics_dt
+        wall0, sim0 = time.perf_counter(), self.now
+        next_tick = float(math.floor(self.now + 1e-9) + 1)
+        while not self._stop.is_set():
+            await self._settle()
+            if self._stop.is_set():
+                break
+            if self._place_pending:  # every answer to the start second's telemetry is in
+                self._place_pending = False
+                self._place_at_start()
+            self.vehicles.advance(dt)
+            if self.now >= self._next_second - 1e-9:
+                self._instant_tup = self.tup_s  # the instants of this second follow T_up before its events
+                self._at_second()
+            if self.now >= next_tick - 1e-9:  # every boot second, also those between the start and t0
+                self._tick_due = next_tick
+                next_tick += 1.0
+            self._deliver_due()
+            if self.barrier.all_joined(self.alive().tolist()):
+                wall0, sim0 = time.perf_counter(), self.now
+                await asyncio.sleep(0)
+            else:
+                await asyncio.sleep(max(0.0, (self.now - sim0) / self.cfg.speedup - (time.perf_counter() - wall0)))
+
+    def _place_at_start(self) -> None:
+        """The mission starts from the twin's start state exactly: every live vehicle at rest
+        over its launch slot at the start altitude (the take-off before it ran on wall time)."""
+        assert self.host is not None
+        for i, a in enumerate(self.alive().tolist()):
+            if a:
+                self.host.place(i, (0.0, 0.0, -self.takeoff_alt))
+
+    async def _settle(self) -> None:
+        """The barrier: the tick of the last whole second is out (after its instant's states,
+        relayed) and every member has answered its telemetry; stragglers are declared failed."""
+        assert self.host is not None and self.barrier is not None
+        b, wake = self.barrier, self.host.fleet.answers
+        while not self._stop.is_set():
+            wake.clear()
+            wall = time.perf_counter()
+            alive = self.alive().tolist()
+            if self._tick_due is not None and self._instant_closed(alive, wall):
+                self.bus.publish(self.topics.tick, self.wire.json("tick", {"boot_s": self._tick_due}), sticky=True)
+                self._tick_due = None
+            owing = b.owing(alive)
+            for i in b.overdue(owing, wall):
+                self.agent_failed(i, f"no answer to its telemetry for {b.straggler_s:g} s")
+            owing = b.owing(alive)
+            if self._tick_due is None and not owing:
+                return
+            left = b.wait_left(owing, wall)
+            if self._tick_due is not None:
+                left = min(left, 0.5 * b.straggler_s)
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(left):
+                    await wake.wait()
+
+    def _instant_closed(self, alive: list[bool], wall: float) -> bool:
+        """The tick's second has no instant open: none is due, or every member's state for it
+        is in (then relayed), or the broker is down, or it waited half the straggler bound."""
+        assert self.barrier is not None and self._tick_due is not None
+        if self.t0 is None or self._tick_due < self.t0 - 1e-6:
+            return True
+        k = float(round(self._tick_due - self.t0))
+        if k % self._instant_tup != 0 and k not in self._held:
+            return True
+        missing = set(self.barrier.members(alive)) - set(self._held.get(k, {}))
+        if missing and self.bus.connected.is_set():
+            if self._tx_wait_since is None:
+                self._tx_wait_since = wall
+            if wall - self._tx_wait_since < 0.5 * self.barrier.straggler_s:
+                return False
+            log.warning("lockstep: instant %d closed without the states of %s", int(k), sorted(missing))
+        self._tx_wait_since = None
+        self._relay_instant(k)
+        return True
+
+    def _relay_instant(self, k: float) -> None:
+        """Relay instant k's states in sender order, then close it (one rx per receiver, closed)."""
+        held = self._held.pop(k, {})
+        pos, alive = self.vehicles.positions(), self.alive()
+        batch = self._batches.setdefault(k, {})
+        for sender in sorted(held):
+            if self.on_signal is not None:
+                self.on_signal(self.topics.tx(sender), held[sender])
+            for i in self.links.receivers(sender, pos, alive, self.now):
+                batch.setdefault(i, []).append(held[sender])
+        self._close_instant(k)
+
+    def agent_failed(self, i: int, why: str) -> None:
+        """Lockstep: stop waiting for agent i (its vehicle is left to its setpoint-loss failsafe)."""
+        if self.barrier is None or i in self.barrier.failed:
+            return
+        self.barrier.fail(i, why)
+        log.warning("lockstep: agent %d declared failed (%s) at boot %.2f s; its vehicle is left to its failsafe", i, why, self.now)
+        if self.on_agent_failed is not None:
+            self.on_agent_failed(i, self.mission_t, why)
+        self.host.fleet.answers.set()  # type: ignore[union-attr]
+
     # ------------------------------------------------------------------ lifecycle
     async def _flush(self, timeout_s: float) -> None:
         """Let the last metrics go out before the bus closes."""
@@ -512,7 +731,10 @@ class SitlWorld:
         try:
             async with asyncio.TaskGroup() as tg:
                 bus = tg.create_task(self.bus.run(), name="world-bus")
-                await (self._clock() if self.vehicles.owns_clock else self._follow())
+                if self.barrier is not None:
+                    await self._lockstep_clock()
+                else:
+                    await (self._clock() if self.vehicles.owns_clock else self._follow())
                 await self._flush(1.0)
                 bus.cancel()
         finally:

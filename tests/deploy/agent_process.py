@@ -32,10 +32,11 @@ class AgentRun:
 
 async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.0,
                     on_line: Callable[[str], bool | None] | None = None,
-                    interrupt_when: Callable[[], bool] | None = None) -> AgentRun:
+                    interrupt_when: Callable[[], bool] | None = None, sig: signal.Signals = signal.SIGINT,
+                    repeat_every_s: float | None = None) -> AgentRun:
     """Run `plmarl agent ARGV` until it exits. `on_line(line)` sees each stderr line;
-    returning True sends SIGINT (Ctrl-C), as does `interrupt_when()` turning True (polled
-    every 0.2 s): once."""
+    returning True sends `sig` (default SIGINT, Ctrl-C), as does `interrupt_when()` turning
+    True (polled every 0.2 s): once, or from then on every `repeat_every_s` until it exits."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
     proc = await asyncio.create_subprocess_exec(sys.executable, "-m", "plmarl_sitl.cli", "agent", *argv, cwd=cwd, env=env,
                                                 stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
@@ -46,7 +47,7 @@ async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.
     def interrupt() -> None:
         nonlocal interrupted
         if not interrupted and proc.returncode is None:
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(sig)
             interrupted = True
 
     async def poll() -> None:
@@ -54,6 +55,11 @@ async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.
             if interrupt_when():
                 interrupt()
             await asyncio.sleep(0.2)
+        while repeat_every_s is not None and proc.returncode is None:
+            if interrupted:
+                with contextlib.suppress(ProcessLookupError):
+                    proc.send_signal(sig)
+            await asyncio.sleep(repeat_every_s)
 
     poller = asyncio.create_task(poll())
     try:
@@ -98,4 +104,4 @@ def agent_argv(port_or_url: int | str, broker: str = "mqtt://127.0.0.1:1", *extr
     """One agent of a one-UAV mission on the emulator port (or a URL); with no broker the
     bus retries in the background and nothing else notices."""
     url = port_or_url if isinstance(port_or_url, str) else f"udpout://127.0.0.1:{port_or_url}"
-    return ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker, *extra]
+    return ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker, "--no-auth", *extra]

@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.errors import PolicyFileError
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.sitl.agents import AgentFleet
@@ -112,15 +113,18 @@ def run_sitl(
                 if on_second is not None:
                     on_second(world, fleet, m, run)
 
+            key_path = tmp / "swarm.key"  # signed messages, as `plmarl swarm up` flies them
+            key = create_key_file(key_path)
             world = SitlWorld(
                 WorldConfig(mission=wm, broker_url=url, personality=personality, speedup=speedup, base_port=base_port, episode_s=episode_s,
-                            publish_sense=publish_sense),
+                            publish_sense=publish_sense, swarm_key=key),
                 on_metrics=hook,
             )
             try:
                 await world.start()
                 for i in range(n):
-                    await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", url, mission=MISSION, policy=policy, n_uavs=n, tup_s=tup_s)
+                    await fleet.spawn(i, f"udpout://127.0.0.1:{base_port + i}", url, mission=MISSION, policy=policy, n_uavs=n, tup_s=tup_s,
+                                      swarm_key=key_path)
                 async with asyncio.timeout(wall_timeout_s):
                     run.summary = await world.run()
             finally:

@@ -17,12 +17,17 @@ def test_registered() -> None:
 @pytest.mark.parametrize(
     "argv,needle",
     [
-        (["agent", "--id", "0", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1", "--policy", "/nope"],
+        (["agent", "--id", "0", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1", "--policy", "/nope",
+          "--no-auth"],
          "missing policy directory"),
-        (["agent", "--id", "0", "--connect", "http://x", "--broker", "mqtt://127.0.0.1:1"], "scheme must be udpout"),
-        (["agent", "--id", "9", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1"], "--id 9"),
-        (["world", "missions/paper_urban.yaml", "--broker", "ftp://x"], "scheme must be mqtt"),
-        (["world", "missions/paper_urban.yaml", "--broker", "mqtt://127.0.0.1:1", "--loss", "2"], "--loss"),
+        (["agent", "--id", "0", "--connect", "http://x", "--broker", "mqtt://127.0.0.1:1", "--no-auth"], "scheme must be udpout"),
+        (["agent", "--id", "9", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1", "--no-auth"], "--id 9"),
+        (["agent", "--id", "0", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1"], "no --swarm-key FILE"),
+        (["agent", "--id", "0", "--connect", "udpout://127.0.0.1:1", "--broker", "mqtt://127.0.0.1:1", "--swarm-key", "/nope"],
+         "--swarm-key /nope: cannot read the key file"),
+        (["world", "missions/paper_urban.yaml", "--broker", "ftp://x", "--no-auth"], "scheme must be mqtt"),
+        (["world", "missions/paper_urban.yaml", "--broker", "mqtt://127.0.0.1:1", "--loss", "2", "--no-auth"], "--loss"),
+        (["world", "missions/paper_urban.yaml", "--broker", "mqtt://127.0.0.1:1"], "no --swarm-key FILE"),
     ],
 )
 def test_user_errors(argv: list[str], needle: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:

@@ -253,7 +253,7 @@ def test_the_agent_stops_with_one_line_when_its_radio_is_unplugged(policy_dir: P
             agent = await asyncio.create_subprocess_exec(
                 sys.executable, "-m", "plmarl_sitl.cli", "agent", "--id", "0", "--connect", f"serial://{radio.dev}:57600",
                 "--broker", broker.url, "--bus", "direct", "--start", "now", "--mission", str(MISSION),
-                "--policy", str(policy_dir), "-v", cwd=ROOT, stderr=asyncio.subprocess.PIPE,
+                "--policy", str(policy_dir), "-v", "--no-auth", cwd=ROOT, stderr=asyncio.subprocess.PIPE,
             )
             assert agent.stderr is not None
             err: list[str] = []

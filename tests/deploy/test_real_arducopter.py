@@ -227,7 +227,7 @@ def test_the_shipped_agent_flies_a_real_arducopter_in_guided(tmp_path: Path) -> 
 
         run = asyncio.run(run_agent(
             ["--id", "0", "--n-uavs", "1", "--connect", f"tcpout://127.0.0.1:{ac.serial0}", "--broker", broker.url,
-             "--bus", "direct"], cwd=tmp_path, timeout_s=240, on_line=on_line, interrupt_when=flown_enough))
+             "--bus", "direct", "--no-auth"], cwd=tmp_path, timeout_s=240, on_line=on_line, interrupt_when=flown_enough))
         stop.set()
         if watcher.is_alive():
             watcher.join(5)
@@ -256,7 +256,7 @@ def test_with_arducopters_default_home_the_agent_exits_with_the_far_home_error(t
             lines.append((time.monotonic() - t0, line.rstrip()))
 
         run = asyncio.run(run_agent(["--id", "0", "--n-uavs", "1", "--connect", f"tcpout://127.0.0.1:{ac.serial0}",
-                                     "--broker", broker.url, "--bus", "direct"], cwd=tmp_path, timeout_s=120, on_line=on_line))
+                                     "--broker", broker.url, "--bus", "direct", "--no-auth"], cwd=tmp_path, timeout_s=120, on_line=on_line))
     print(f"\nreal ArduCopter x{SPEEDUP}, default home: far-home error at {lines[-1][0]:.2f} s: {lines[-1][1]}")
     assert "Traceback" not in run.err, run.err
     assert run.code == EXIT_USER, run.err

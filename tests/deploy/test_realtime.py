@@ -20,7 +20,7 @@ pytestmark = [pytest.mark.timeout(60), pytest.mark.integration]
 ROOT = Path(__file__).resolve().parents[2]
 # Nothing listens on these: the agent sets its priority, then waits for a heartbeat.
 AGENT = [sys.executable, "-m", "plmarl_sitl.cli", "agent", "--id", "0", "--connect", "udpout://127.0.0.1:9",
-         "--broker", "mqtt://127.0.0.1:9", "--rt-priority", "7", "-v"]
+         "--broker", "mqtt://127.0.0.1:9", "--rt-priority", "7", "-v", "--no-auth"]
 
 
 def _no_rtprio_rlimit() -> None:
@@ -61,6 +61,7 @@ def test_without_cap_sys_nice_the_agent_exits_with_the_how_to() -> None:
 @pytest.mark.parametrize("value,needle", [("0", "outside 1-99"), ("100", "outside 1-99"), ("high", "not a priority")])
 def test_priority_out_of_range_is_an_argparse_error(value: str, needle: str, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
-        main(["agent", "--id", "0", "--connect", "udpout://127.0.0.1:9", "--broker", "mqtt://127.0.0.1:9", "--rt-priority", value])
+        main(["agent", "--id", "0", "--connect", "udpout://127.0.0.1:9", "--broker", "mqtt://127.0.0.1:9", "--rt-priority", value,
+              "--no-auth"])
     assert exc.value.code == 2
     assert needle in capsys.readouterr().err

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import Launch, Mission
 
 from .conftest import run_sitl
@@ -198,11 +199,12 @@ def test_direct_bus_without_world(tmp_path: Path, policy_dir: Path) -> None:
         ap = subprocess.Popen([sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--count", "2", "--base-port", str(base),
                                "--speedup", "5", "--spacing", "40"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         fleet = AgentFleet(tmp_path)
+        create_key_file(tmp_path / "swarm.key")  # no world and no ACL: the signatures alone say who sent what
         try:
             with MosquittoBroker() as b:
                 for i in range(2):
                     await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", b.url, mission=MISSION, policy=policy_dir, n_uavs=2,
-                                      tup_s=TUP, extra=["--bus", "direct"])
+                                      tup_s=TUP, extra=["--bus", "direct"], swarm_key=tmp_path / "swarm.key")
                 async with asyncio.timeout(60):
                     while min(len(ap_.trace()) for ap_ in fleet.procs.values()) < 25:
                         await asyncio.sleep(0.2)
@@ -241,16 +243,20 @@ def test_world_cli_with_embedded_amqtt(tmp_path: Path, policy_dir: Path) -> None
     async def main() -> tuple[int, str, dict]:
         base, port = free_udp_ports(2), free_port()
         url = f"mqtt://127.0.0.1:{port}"
+        key = tmp_path / "swarm.key"
+        create_key_file(key)
         summary = tmp_path / "summary.json"
         world = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "plmarl_sitl.cli", "world", str(MISSION), "--broker", url, "--embedded-broker",
             "--n-uavs", "2", "--speedup", "10", "--base-port", str(base), "--episode", "15", "--seed", "3",
-            "--summary-json", str(summary), stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT)
+            "--summary-json", str(summary), "--swarm-key", str(key), stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT)
         fleet = AgentFleet(tmp_path)
         try:
             await asyncio.sleep(1.0)  # let the world bind its ports and start the broker
             for i in range(2):
-                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=MISSION, policy=policy_dir, n_uavs=2)
+                await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", url, mission=MISSION, policy=policy_dir, n_uavs=2,
+                                  swarm_key=key)
             async with asyncio.timeout(60):
                 out, _ = await world.communicate()
         finally:

@@ -193,8 +193,8 @@ def test_world_delivers_an_instant_in_one_message_per_receiver_then_closes_it():
     topics = Topics("sitl")
     seen: list[tuple[str, bytes]] = []
 
-    def tx(sender: int, t_s: int = 15) -> tuple[str, bytes]:
-        return topics.tx(sender), encode_state(StateMsg(sender, 7, 1, t_s * 1000, (40.0 * sender, 0.0, -60.0, 0.0, 0.0, 0.0)))
+    def tx(sender: int, t_s: int = 15, seq: int = 1) -> tuple[str, bytes]:
+        return topics.tx(sender), encode_state(StateMsg(sender, 7, seq, t_s * 1000, (40.0 * sender, 0.0, -60.0, 0.0, 0.0, 0.0)))
 
     def senders(payload: bytes) -> list[int]:
         return [decode_state(part).sender for part in split_states(payload)]
@@ -227,15 +227,18 @@ def test_world_delivers_an_instant_in_one_message_per_receiver_then_closes_it():
                     rx = {topics.id_of(t): senders(p) for t, p in batch}
                     assert len(rx) == len(batch) == 3  # one message per receiver (all within 80 m)
                     assert all(sorted(v) == sorted({0, 1, 2} - {i}) for i, v in rx.items())
+                    # The same message again is a replay: counted, not relayed.
+                    world._on_message(*tx(0))
+                    assert world.links.counters.replayed == 1
                     # Late for instant 15: delivered alone, and no second closing.
                     n = len(seen)
-                    world._on_message(*tx(0))
+                    world._on_message(*tx(0, seq=2))
                     await until(lambda: len(seen) == n + 2)
                     assert all(senders(p) == [0] for _, p in seen[n:]) and closings() == [15.0]
                     # Vehicle 2 stays silent at instant 30: closed once the bound has passed.
                     world.t0, n = 0.0, len(seen)
-                    world._on_message(*tx(0, 30))
-                    world._on_message(*tx(1, 30))
+                    world._on_message(*tx(0, 30, seq=3))
+                    world._on_message(*tx(1, 30, seq=2))
                     world.host.now = 30.0 + 0.5 * INSTANT_WAIT_MIN_S
                     world._close_overdue()
                     await asyncio.sleep(0.3)

@@ -2,13 +2,17 @@
 
 import dataclasses
 import math
+from pathlib import Path
 
+import pytest
 import torch
 
+from plmarl_sitl.config import ConfigError
 from plmarl_sitl.mission import Event, Failure, load_mission
-from plmarl_sitl.model.events import EventSchedule, failure_times
+from plmarl_sitl.model.events import GPS_FAILSAFE_S, EventSchedule, failure_times
 
-BASE = load_mission("missions/paper_urban.yaml")
+BASE_PATH = Path("missions/paper_urban.yaml").resolve()
+BASE = load_mission(BASE_PATH)
 
 
 def _schedule(*events: dict, failures: tuple[Failure, ...] = ()) -> EventSchedule:
@@ -51,3 +55,39 @@ def test_failure_curriculum_adds_one_random_failure_to_the_chosen_episodes():
     extra = (fail_at[:, 1:] == 100).sum(-1)  # at most one more, in 0.3 x 3/4 of the episodes
     assert int(extra.max()) == 1 and 0.19 < float(extra.float().mean()) < 0.26
     assert torch.equal(failure_times(s, 3, torch.Generator()), torch.tensor([[30.0, math.inf, math.inf, math.inf]] * 3, dtype=torch.float64))
+
+
+# ---------------------------------------------------------------------------- autopilot faults
+def test_autopilot_faults_take_uavs_out_at_their_measured_second():
+    """motor_failure: at once; gps_loss: when the EKF failsafe lands the UAV (GPS_FAILSAFE_S
+    after the loss), if the loss lasts that long; a shorter one is bridged."""
+    s = _schedule(
+        {"type": "gps_loss", "at_s": 40.5, "duration_s": 30, "uavs": (0, 2)},
+        {"type": "gps_loss", "at_s": 50, "duration_s": GPS_FAILSAFE_S - 1, "uavs": (1,)},
+        {"type": "motor_failure", "at_s": 100, "uav": 3},
+    )
+    assert s.failure_s() == (41 + GPS_FAILSAFE_S, math.inf, 41 + GPS_FAILSAFE_S, 100.0)
+    assert [(u, e.type) for u, e in s.fault_failures_at(41 + GPS_FAILSAFE_S)] == [(0, "gps_loss"), (2, "gps_loss")]
+    assert [(u, e.type) for u, e in s.fault_failures_at(100)] == [(3, "motor_failure")]
+    assert s.fault_failures_at(57) == []  # uav 1's short loss never takes it out
+    everyone = _schedule({"type": "gps_loss", "at_s": 10})  # no uavs: all of them, to the end
+    assert everyone.failure_s() == (10.0 + GPS_FAILSAFE_S,) * BASE.n_uavs
+
+
+def test_autopilot_fault_events_are_validated_with_their_yaml_path(tmp_path):
+    cases = {
+        "{type: motor_failure, at_s: 10}": "events[0].uav: is required for a motor_failure event",
+        "{type: motor_failure, at_s: 10, uav: 7}": "events[0].uav: must be < n_uavs (4)",
+        "{type: motor_failure, at_s: 10, uav: 1, duration_s: 5}": "events[0].duration_s: not used by a motor_failure",
+        "{type: gps_loss, at_s: 10, uav: 1}": "events[0].uav: not used by a gps_loss event",
+        "{type: gps_loss, at_s: 10, uavs: [9]}": "events[0].uavs: must be < n_uavs (4)",
+        "{type: gps_loss, at_s: 10, duration_s: 0}": "events[0].duration_s",
+    }
+    for event, message in cases.items():
+        path = tmp_path / "m.yaml"
+        path.write_text(f"extends: {BASE_PATH}\nname: bad\nevents:\n  - {event}\n")
+        with pytest.raises(ConfigError) as err:
+            load_mission(path)
+        assert message in str(err.value) and str(path) in str(err.value), (event, str(err.value))
+    shipped = load_mission("missions/autopilot_faults.yaml")
+    assert {e.type for e in shipped.events} == {"gps_loss", "motor_failure"}

@@ -104,6 +104,9 @@ class _Fleet:
     def kill(self, i: int) -> None:
         self.killed.append(i)
 
+    def retire(self, i: int) -> None:  # an autopilot fault took its UAV out: the agent is asked to stop
+        self.killed.append(i)
+
 
 def _sitl_seconds(mission: Mission, positions: list[torch.Tensor]) -> list[tuple]:
     """Per second, as `_twin_seconds` (without positions), signalling from `positions`."""

@@ -23,6 +23,7 @@ from pathlib import Path
 import psutil
 import pytest
 
+from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.sitl.arducopter import instance_free, launch_homes
 from plmarl_sitl.sitl.network.broker import free_port, free_udp_ports
@@ -199,16 +200,18 @@ def test_world_external_runs_a_mission_on_two_separate_autopilot_processes(tmp_p
     def logs() -> str:
         return "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in sorted(tmp_path.glob("*.log")))
 
+    create_key_file(tmp_path / "swarm.key")
     t0 = time.monotonic()
     try:
         world = start(["world", str(mission), "--broker", broker, "--embedded-broker", "--speedup", "5", "--episode", "40",
+                       "--swarm-key", "swarm.key",
                        "--external", ",".join(f"udpout://127.0.0.1:{p}" for p in ports), "--summary-json",
                        str(tmp_path / "world.json"), "-v"], "world")
         for i, (lat, lon, alt, _) in enumerate(launch_homes(m)):
             start(["autopilot", "--count", "1", "--personality", "ardupilot", "--boot", "real", "--speedup", "5",
                    "--base-port", str(ports[i]), "--home", f"{lat:.8f},{lon:.8f},{alt:.2f}"], f"autopilot{i}")
             start(["agent", "--id", str(i), "--connect", f"udpout://127.0.0.1:{ports[i]}", "--broker", broker,
-                   "--mission", str(mission), "--autopilot", "ardupilot"], f"agent{i}")
+                   "--mission", str(mission), "--autopilot", "ardupilot", "--swarm-key", "swarm.key"], f"agent{i}")
         world.wait(timeout=240)
         wall = time.monotonic() - t0
         assert world.returncode == 0, logs()
@@ -231,3 +234,25 @@ def test_world_external_runs_a_mission_on_two_separate_autopilot_processes(tmp_p
                 p.wait(timeout=15)
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
+
+
+@needs_arducopter
+@pytest.mark.timeout(500)
+def test_autopilot_faults_on_four_real_arducopters_are_confirmed_in_the_recording(tmp_path: Path) -> None:
+    """GPS loss (SIM_GPS1_ENABLE) and motor failure (SIM_ENGINE_FAIL) through ArduCopter's own
+    fault injection: the same checks as the emulator's run (tests/sitl/test_swarm_up.py)."""
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_swarm_up import FAULTS, _agents_left_their_vehicles, _fault_checks
+
+    mission = tmp_path / "faults.yaml"
+    mission.write_text(f"extends: {ROOT / 'missions' / 'paper_urban.yaml'}\nname: faults\n"
+                       f"timing: {{dt_s: 1, decision_every_s: 3, episode_s: 90}}\nevents:\n{FAULTS}")
+    out, base = tmp_path / "run", free_base(4)
+    r = subprocess.run(cli("swarm", "up", str(mission), "--autopilot", f"arducopter={BINARY}", "--speedup", "5",
+                           "--headless", "--json", "--instance", str(base), "--out", str(out)),
+                       cwd=tmp_path, env=env(), capture_output=True, text=True, timeout=480)
+    log = (out / "launcher.log").read_text() if (out / "launcher.log").exists() else ""
+    assert r.returncode == 0, f"exit {r.returncode}: {r.stderr[-2000:]}\n{log[-3000:]}"
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    _fault_checks(events)
+    _agents_left_their_vehicles(out)

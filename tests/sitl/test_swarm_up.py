@@ -81,9 +81,14 @@ def _check_all_flying_and_resynced(out: Path, after_t: float):
     last = rows[-1]
     assert all(u["alive"] for u in last["uavs"]), "no vehicle may be lost"
     assert all(-u["pos_ned"][2] > 30 for u in last["uavs"]), "every vehicle still airborne"
-    # Signalling flows again after the disruption and everyone holds fresh neighbours.
-    assert sum(r["messages"] for r in rows if r["t"] > after_t) > 0
-    assert all(u["aoi_max"] is not None and u["aoi_max"] <= 15 for u in last["uavs"])
+    # Signalling flows again after the disruption, and every vehicle comes to hold only fresh
+    # neighbours (P-AoI <= T_up = 15 s for all it holds) at some second after it. Not necessarily
+    # in the last row: the channel is lossy, and one packet lost at the last instant would age
+    # a held neighbour past T_up there.
+    after = [r for r in rows if r["t"] > after_t]
+    assert sum(r["messages"] for r in after) > 0
+    resynced = {u["id"] for r in after for u in r["uavs"] if u["aoi_max"] is not None and u["aoi_max"] <= 15}
+    assert resynced == {u["id"] for u in last["uavs"]}, f"never resynced: {sorted({u['id'] for u in last['uavs']} - resynced)}"
 
 
 def test_link_blackout_completes_and_links_come_back(tmp_path):
@@ -101,7 +106,10 @@ def test_link_blackout_completes_and_links_come_back(tmp_path):
 def _outage(tmp_path: Path, *extra: str) -> None:
     mission = _mission(tmp_path, "outage", "  - {type: broker_outage, at_s: 20, duration_s: 20}\n")
     out = tmp_path / "run"
-    s = _up(mission, out, 65, *extra)
+    # The buses reconnect with a jittered exponential backoff in wall time (0.1 s doubling): after
+    # this 2-s (wall) outage the last of them is back up to ~2.5 s later, 25 s of mission time at
+    # 10x, so t = 60 may still miss someone; the instant at t = 75 s is the one that must resync.
+    s = _up(mission, out, 80, *extra)
     assert [e["type"] for e in s["events"]] == ["broker_outage", "broker_outage_end"]
     rows = _rows(out)
     assert sum(r["messages"] for r in rows if 22 <= r["t"] <= 39) == 0  # nobody can publish
@@ -166,3 +174,54 @@ def test_agents_die_with_a_killed_launcher(tmp_path):
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _fault_checks(events: list[dict]) -> None:
+    """What both the emulator and a real ArduCopter must show in events.jsonl for a GPS loss
+    of UAV 1 at 30 s (40 s long) and a motor failure of UAV 3 at 50 s."""
+    def reports(uav: int, key: str) -> list[dict]:
+        return [e for e in events if e["type"] == "autopilot" and e["uav"] == uav and key in e]
+
+    # Applied, and confirmed by the autopilot's echo of the SIM_ parameter.
+    gps = reports(1, "param")
+    assert [(r["param"], r["set"], r["echo"]) for r in gps] == [("SIM_GPS1_ENABLE", 0.0, 0.0), ("SIM_GPS1_ENABLE", 1.0, 1.0)]
+    # Each at its mission second, on the vehicle's own clock (real vehicles: offsets between
+    # clocks are estimated at the start to within ~0.1 s).
+    assert 29.9 <= gps[0]["t"] < 31 and 69.9 <= gps[1]["t"] < 71
+    motor = reports(3, "param")
+    assert [(r["param"], r["echo"]) for r in motor] == [("SIM_ENGINE_MUL", 0.0), ("SIM_ENGINE_FAIL", 1.0)]
+    # Confirmed by the effect: the EKF failsafe lands UAV 1, its position stream stops and
+    # comes back with the GPS; UAV 3 hits the ground.
+    texts1 = {r["text"]: r["t"] for r in reports(1, "text")}
+    assert 37 <= texts1["EKF Failsafe: changed to LAND Mode"] <= 40, texts1
+    assert [r["mode"] for r in reports(1, "mode")][:1] == ["LAND"]
+    assert [r["position"] for r in reports(1, "position")][:2] == ["stopped", "streaming"]
+    hits = [r["t"] for r in reports(3, "text") if r["text"].startswith("SIM Hit ground")]
+    assert hits and 50 < hits[0] < 62, reports(3, "text")  # falling from at most 120 m (the altitude band)
+    # Out of the mission at the twin's seconds.
+    failed = [(e["t"], e["uav"], e["cause"]) for e in events if e["type"] == "uav_failed"]
+    assert failed == [(38.0, 1, "gps_loss"), (50.0, 3, "motor_failure")]
+
+
+FAULTS = "  - {type: gps_loss, at_s: 30, duration_s: 40, uavs: [1]}\n  - {type: motor_failure, at_s: 50, uav: 3}\n"
+
+
+def test_autopilot_faults_on_the_emulator_are_confirmed_in_the_recording(tmp_path):
+    mission = _mission(tmp_path, "faults", FAULTS)
+    out = tmp_path / "run"
+    s = _up(mission, out, 90, "--personality", "ardupilot")
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    _fault_checks(events)
+    assert [f["at_s"] for f in s["node_failures"]] == [38.0, 50.0]
+    last = {u["id"]: u for u in _rows(out)[-1]["uavs"]}
+    assert [last[i]["alive"] for i in range(4)] == [True, False, True, False]
+    _agents_left_their_vehicles(out)
+
+
+def _agents_left_their_vehicles(out: Path) -> None:
+    """The agents of the failed UAVs were asked to stop and did, with no traceback, leaving
+    the vehicle to its autopilot (no BRAKE over a failsafe LAND or a falling vehicle)."""
+    for i in (1, 3):
+        log = (out / "agents" / f"agent{i}.log").read_text()
+        assert "Traceback" not in log and "vehicle in BRAKE" not in log, log[-1500:]
+        assert "stopped: vehicle left to its autopilot" in log, log[-1500:]

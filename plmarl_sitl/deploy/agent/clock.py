@@ -30,11 +30,15 @@ def next_multiple(k: int, step: int) -> int:
 
 
 class MissionClock:
-    def __init__(self, tup: int, tau: int, settle_min_s: float, settle_wall_s: float) -> None:
+    def __init__(self, tup: int, tau: int, settle_min_s: float, settle_wall_s: float, lockstep: bool = False) -> None:
         self.tup = tup  # signalling interval T_up, s
         self.tau = tau  # decision interval, s
         self.settle_min_s = settle_min_s  # vehicle s: an instant is never processed earlier
         self.settle_wall_s = settle_wall_s  # wall s: ... and at most this late (x the rate)
+        # Lockstep SITL: the agent answers a second's first telemetry only once the world's
+        # tick says everything of that second is in, so every second is processed there and
+        # then, and an instant's misses are booked at the instant (no wall-clock bound).
+        self.lockstep = lockstep
         self.boot_s = 0.0  # the vehicle's boot clock at the latest telemetry
         self.t0: float | None = None  # mission start on the boot clock; None: not started
         self.first_k = 0  # the first mission second this agent processes
@@ -91,6 +95,12 @@ class MissionClock:
         assert self.t0 is not None
         return self.boot_s - self.t0
 
+    def mission_now(self) -> float | None:
+        """Mission time at the latest telemetry; None before t0 or any telemetry."""
+        if self.t0 is None or self._rate_ref is None:
+            return None
+        return self.boot_s - self.t0
+
     def is_decision(self, k: int) -> bool:
         return k % self.tau == 0
 
@@ -100,7 +110,10 @@ class MissionClock:
 
     def grace_s(self) -> float:
         """How long after an instant an update still counts as delivered: 0.5 s of wall
-        time (x the observed speedup), at least the decision wait, at most T_up / 2."""
+        time (x the observed speedup), at least the decision wait, at most T_up / 2.
+        Lockstep: none (no update of an instant arrives after the instant's tick)."""
+        if self.lockstep:
+            return 0.0
         return min(max(self.settle_max_s(), 0.5 * (self.rate or 1.0)), self.tup / 2)
 
     def states_due(self, tm: float) -> list[int]:
@@ -126,6 +139,8 @@ class MissionClock:
         all bounded by `settle_max_s` of vehicle time, so late messages still count."""
         if tm < k - EPS:
             return False
+        if self.lockstep:
+            return True  # the tick for second k is in (or the broker is down: nothing more will come)
         instant = k % self.tup == 0
         first_sensing = self.is_decision(k) and awaiting_sensing
         demand = self.is_decision(k) and awaiting_demand

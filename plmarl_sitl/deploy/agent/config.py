@@ -6,6 +6,7 @@ import random
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey
 from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Mission
@@ -48,9 +49,15 @@ class AgentConfig:
     takeoff_timeout_s: float = 120.0  # vehicle seconds
     trace_path: Path | None = None
     stats_path: Path | None = None
+    # The swarm key: every message sent is signed and every message received must
+    # authenticate (docs/SIGNALLING.md, schema version 2); None: unsigned (--no-auth).
+    swarm_key: SwarmKey | None = None
     # Signalling session: receivers tell a restarted agent's messages from its predecessor's
     # by it (also part of the MQTT client id).
     session_id: int = field(default_factory=lambda: random.getrandbits(16))
+    # Lockstep SITL (`deploy.agent.lockstep`): stamp each setpoint with the telemetry it
+    # answers, answer a boot second's telemetry only after the world's tick for it.
+    lockstep: bool = False
 
     def __post_init__(self) -> None:
         n = self.mission.n_uavs

@@ -21,8 +21,15 @@ as the `Bus` and `session.Link` protocols. Flying, mission second k = boot_s - t
 * every telemetry message (10 Hz of vehicle time) re-sends the current setpoint, with a
   wall-clock watchdog so the stream never stops while the process lives.
 
+With `--lockstep` (SITL only, `lockstep.TickGate`) the setpoint carries the telemetry's
+time_boot_ms, the first telemetry of each boot second is answered only once the world's
+tick for that second is in, the wall-clock watchdog is off, and the clock decides on
+ticks, not on wall-clock bounds (`MissionClock(lockstep=True)`).
+
 A broker outage only stops updates: the tracker keeps predicting, the bus reconnects with
 backoff. Stop (Ctrl-C/SIGTERM): hold (PX4 AUTO.LOITER) or brake (ArduPilot BRAKE), exit 0.
+SIGUSR1 stops it too but leaves the vehicle to its autopilot (a SITL world took the UAV out
+of the mission after an autopilot fault: no stop mode is commanded).
 A failure ends the run the same way and is raised as itself (`errors.run_reporting` makes
 it one line and an exit code).
 """
@@ -40,10 +47,12 @@ from plmarl_sitl.deploy.agent.clock import MissionClock
 from plmarl_sitl.deploy.agent.config import AgentConfig
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.inbox import Inbox
+from plmarl_sitl.deploy.agent.lockstep import TickGate
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.session import Link, VehicleSession
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace, process_start_time, write_stats
-from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_state
+from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics
+from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import reported
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 
@@ -73,41 +82,77 @@ class Agent:
         self.me, self.n = cfg.uav_id, m.n_uavs
         self.topics = Topics(cfg.swarm)
         self.bus = bus
+        self.wire = Wire(cfg.swarm_key)
         self.seq = 0  # of this agent's state messages
         self.stats = LoopStats()
         self.t_proc0 = process_start_time()
         self.stop_event = asyncio.Event()
         self.trace = Trace(cfg.trace_path)
         self.clock = MissionClock(int(cfg.tup_s or m.signalling.tup_s), int(m.timing.decision_every_s),
-                                  cfg.settle_min_s, cfg.settle_wall_s)
+                                  cfg.settle_min_s, cfg.settle_wall_s, lockstep=cfg.lockstep)
         self.table = NeighbourTable(self.n, self.me, m.signalling.drop_after_missed)
-        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics)
+        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics, cfg.lockstep)
+        # Lockstep SITL: a boot second's telemetry is answered once the world's tick for it is in.
+        self.gate = TickGate() if cfg.lockstep else None
         self.inbox = Inbox(self.topics, self.me, self.n, self.table, self.clock, self.decision.sense_history,
-                           self.decision.demand, wait_start=cfg.wait_start)
+                           self.decision.demand, wait_start=cfg.wait_start, wire=self.wire, on_tick=self.on_tick)
         self.session = VehicleSession(link, cfg, self.clock, self.decision, self.stats, self.t_proc0, self.on_telemetry)
+        self.owed: tuple[Any, float, float] | None = None  # the telemetry not yet answered (lockstep), its t_in, c_in
+        if self.gate is not None:
+            bus.on_connection = self.on_bus_connection  # type: ignore[attr-defined]
 
     def on_telemetry(self, m: Any) -> None:
-        """One LOCAL_POSITION_NED: advance the mission clock, decide, send the setpoint."""
+        """One LOCAL_POSITION_NED: advance the mission clock, publish the state due, then
+        answer it (decide, send the setpoint) unless lockstep holds the answer for a tick."""
         t_in = time.perf_counter()
         c_in = time.thread_time()
         self.clock.observe(m.time_boot_ms / 1000.0, time.perf_counter())
         self.decision.ego = self.session.mission_state(m)
+        if self.clock.t0 is not None:
+            for k in self.clock.states_due(self.clock.mission_s()):
+                self.publish_state(k)
+        self.owed = (m, t_in, c_in)
+        self._answer()
+
+    def _answer(self) -> None:
+        """Process the mission seconds now due and send the setpoint for the owed telemetry
+        (stamped with its vehicle time in lockstep)."""
+        if self.owed is None:
+            return
+        m, t_in, c_in = self.owed
+        if self.gate is not None and self.session.flying and self.gate.holds(self.clock.boot_s):
+            return  # the world's tick for this second answers it (on_tick)
+        self.owed = None
         decided = False
         if self.clock.t0 is not None:
-            tm = self.clock.mission_s()
-            for k in self.clock.states_due(tm):
-                self.publish_state(k)
-            decided = self.decision.catch_up(tm)
+            decided = self.decision.catch_up(self.clock.mission_s())
         if self.session.flying:
-            self.session.send_setpoint()
+            self.session.send_setpoint(m.time_boot_ms if self.gate is not None else 0)
         self.stats.tick(t_in, c_in, decided, getattr(m, "rx_ns", None))
+
+    def on_tick(self, boot_s: float) -> None:
+        if self.gate is not None:
+            self.gate.on_tick(boot_s)
+            self._answer()
+
+    def on_bus_connection(self, up: bool) -> None:
+        """Lockstep: no tick can come while the broker is unreachable; answer without."""
+        assert self.gate is not None
+        self.gate.online = up
+        if not up:
+            self._answer()
 
     def publish_state(self, k: int) -> None:
         """This agent's state (the latest telemetry) for signalling instant k, to tx/<id>."""
         state = tuple(float(x) for x in self.decision.ego.tolist())
         msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state)  # type: ignore[arg-type]
         self.seq += 1
-        self.bus.publish(self.topics.tx(self.me), encode_state(msg))
+        self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
+
+    def release(self) -> None:
+        """Stop without commanding the stop mode: the vehicle is left to its autopilot."""
+        self.session.leave_to_autopilot = True
+        self.stop_event.set()
 
     async def run(self) -> int:
         """Run until `stop_event` is set (signal handler): 0. A failure (the vehicle refuses,
@@ -120,9 +165,10 @@ class Agent:
                 helpers = [
                     tg.create_task(self.bus.run(), name="bus"),
                     tg.create_task(self.session.gcs_heartbeat(), name="gcs-heartbeat"),
-                    tg.create_task(self.session.watchdog(), name="setpoint-watchdog"),
                     tg.create_task(self._announce_start_wait(), name="start-wait"),
                 ]
+                if self.gate is None:  # lockstep: the world waits for the answers, a wall-clock re-send is noise
+                    helpers.append(tg.create_task(self.session.watchdog(), name="setpoint-watchdog"))
                 main = tg.create_task(self._main(), name="main")
                 helpers.append(tg.create_task(self._cancel_on_stop(main), name="stop-watch"))
                 # The helpers only serve `main`: when it ends, so do they.

@@ -42,7 +42,7 @@ HOLD_KP, HOLD_KD, HOLD_MAX_ACCEL = 0.3, 1.0, 2.5  # pre-mission hold: soft, so l
 
 class Decision:
     def __init__(self, mission: Mission, me: int, lp: LoadedPolicy, clock: MissionClock, table: NeighbourTable,
-                 stats: LoopStats, trace: Trace, topics: Topics) -> None:
+                 stats: LoopStats, trace: Trace, topics: Topics, lockstep: bool = False) -> None:
         self.mission, self.me, self.n = mission, me, mission.n_uavs
         self.sense_topic = topics.sense(me)  # where sensing comes from (for the warning when it does not)
         self.tracker, self.policy = lp.tracker, lp.policy
@@ -57,6 +57,10 @@ class Decision:
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
         self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
         self.hold_target: torch.Tensor | None = None  # pre-mission hold point (None: where the vehicle is)
+        # Lockstep SITL: hold by damping only. The world places every vehicle at rest at the
+        # twin's start state when it announces the start; a zero command then keeps it there
+        # exactly, where a position hold would pull it back to where offboard control began.
+        self.hold_damping_only = lockstep
         self.accel = (0.0, 0.0, 0.0)  # the command in force (before the band guard)
         self.ego_at: dict[int, torch.Tensor] = {}  # the state at the first sample of each second not yet processed
         self.buf: torch.Tensor | None = None  # the tracker's state
@@ -212,7 +216,7 @@ class Decision:
         alt, v_up = -float(self.ego[2]), -float(self.ego[5])
         if not self.clock.in_mission():
             # Before the mission: hold where offboard control began (PD on position).
-            tgt = self.hold_target if self.hold_target is not None else self.ego[:3]
+            tgt = self.hold_target if self.hold_target is not None and not self.hold_damping_only else self.ego[:3]
             a = HOLD_KP * (tgt - self.ego[:3]) - HOLD_KD * self.ego[3:]
             norm = float(torch.linalg.vector_norm(a))
             if norm > HOLD_MAX_ACCEL:

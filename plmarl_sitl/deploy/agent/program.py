@@ -43,12 +43,13 @@ BOUNDS = StartupBounds()
 
 EPILOG = """\
 examples:
-  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883
-  plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff
+  plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key
+  plmarl agent --id 2 --connect udpin://0.0.0.0:14550 --broker mqtt://10.0.0.1 --bus direct --no-takeoff \\
+      --swarm-key swarm.key --broker-credentials agent2.cred
   plmarl agent --id 0 --connect tcpout://127.0.0.1:5760 --broker mqtt://127.0.0.1 --bus direct \\
-      --n-uavs 1                # a real ArduCopter SITL (SERIAL0), started at the mission's launch point
+      --n-uavs 1 --no-auth      # a real ArduCopter SITL (SERIAL0), started at the mission's launch point
   plmarl agent --id 1 --connect serial:///dev/ttyACM0:57600 --broker mqtt://10.0.0.1 --autopilot ardupilot \\
-      --rt-priority 20          # SCHED_FIFO, as for any control loop on a companion computer"""
+      --swarm-key swarm.key --rt-priority 20   # SCHED_FIFO, as for any control loop on a companion computer"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -56,6 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", required=True, metavar="URL",
                    help="autopilot: udpout://HOST:PORT, udpin://BIND:PORT, tcpout://HOST:PORT, serial:///dev/X:BAUD")
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
+    p.add_argument("--broker-credentials", default=None, metavar="FILE",
+                   help="this agent's broker login: a file with one line USERNAME:PASSWORD, mode 0600 (default: anonymous)")
     p.add_argument("--mission", default=str(DEFAULT_MISSION), help=f"mission YAML (default: the project's {DEFAULT_MISSION})")
     p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs (must match the world)")
     p.add_argument("--policy", default=str(DEFAULT_POLICY), help=f"policy directory (default: the project's {DEFAULT_POLICY})")
@@ -65,7 +68,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--swarm", default="sitl", help="swarm name: topics plmarl/<swarm>/... (default sitl)")
     p.add_argument("--bus", choices=["sitl", "direct"], default="sitl",
                    help="sitl: the world's link emulator delivers rx/<id>; direct: subscribe tx/+ (radios bridged to a broker)")
+    a = p.add_mutually_exclusive_group()
+    a.add_argument("--swarm-key", default=None, metavar="FILE",
+                   help="the swarm key (64 hex characters, mode 0600): sign every message sent, drop every message "
+                   "received that does not authenticate (docs/SECURITY.md). Required unless --no-auth")
+    a.add_argument("--no-auth", action="store_true",
+                   help="fly with unsigned version-1 messages: anyone who can publish on the broker can steer the agent")
+    p.add_argument("--mavlink-key", default=None, metavar="FILE",
+                   help="MAVLink 2 signing key of this UAV's autopilot (64 hex characters, mode 0600): sign everything "
+                   "sent to it and accept only its signed messages (default: an unsigned link; docs/SECURITY.md)")
     p.add_argument("--no-takeoff", action="store_true", help="attach to an airborne, armed vehicle instead of taking off")
+    p.add_argument("--lockstep", action="store_true",
+                   help="lockstep SITL (a world run with --lockstep): stamp each setpoint with the telemetry it answers and "
+                        "answer a second's telemetry only after the world's tick for it; decisions never wait on wall time")
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
                    "now: start at once (default with --bus direct)")
@@ -117,6 +132,9 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.deploy.agent.inbox import subscriptions
     from plmarl_sitl.deploy.agent.stats import process_start_time
     from plmarl_sitl.deploy.mavlink.connect import connect, parse_url
+    from plmarl_sitl.deploy.mavlink.keys import load_mavlink_key
+    from plmarl_sitl.deploy.mqtt.auth import key_from_flags
+    from plmarl_sitl.deploy.mqtt.credentials import load_credentials
     from plmarl_sitl.deploy.mqtt.schema import Topics
     from plmarl_sitl.deploy.mqtt.transport import MqttBus
     from plmarl_sitl.learning.nn.io import load_policy
@@ -129,6 +147,12 @@ def run(args: argparse.Namespace) -> int:
     if args.verbose:
         logging.getLogger("plmarl").setLevel(logging.DEBUG)
     parse_url(args.connect)  # bad URLs fail before anything slow
+    mavlink_key = load_mavlink_key(args.mavlink_key) if args.mavlink_key else None
+    swarm_key = key_from_flags(args.swarm_key, args.no_auth)
+    if swarm_key is None:
+        logging.getLogger("plmarl.agent").warning("--no-auth: messages are unsigned; anyone who can publish on the "
+                                                  "broker can steer this agent")
+    credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     mission = load_mission(args.mission)
     if args.n_uavs is not None:
         import dataclasses
@@ -144,6 +168,8 @@ def run(args: argparse.Namespace) -> int:
         "start-up: interpreter + imports %.2f s, policy loaded at %.2f s", t_imports, time.time() - process_start_time()
     )
     start = args.start or ("wait" if args.bus == "sitl" else "now")
+    if args.lockstep and (args.bus != "sitl" or start != "wait"):
+        raise UserError("--lockstep needs a lockstep SITL world: --bus sitl and --start wait")
     cfg = AgentConfig(
         uav_id=args.id,
         connect_url=args.connect,
@@ -157,12 +183,14 @@ def run(args: argparse.Namespace) -> int:
         bounds=StartupBounds(args.wait_heartbeat, args.wait_home, args.wait_position, args.wait_arm),
         trace_path=_output_path("--trace", args.trace),
         stats_path=_output_path("--stats-json", args.stats_json),
+        swarm_key=swarm_key,
+        lockstep=args.lockstep,
     )
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
-    bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode),
-                  lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus")
-    link = connect(args.connect)
+    bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),
+                  lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus", credentials=credentials)
+    link = connect(args.connect, signing_key=mavlink_key)
     link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)
     agent = Agent(cfg, lp, bus, link)
     if args.rt_priority is not None:
@@ -172,13 +200,25 @@ def run(args: argparse.Namespace) -> int:
 
         use_realtime(args.rt_priority)
         logging.getLogger("plmarl.agent").info("running under SCHED_FIFO, priority %d", args.rt_priority)
-    return asyncio.run(_fly(agent))
+    try:
+        return asyncio.run(_fly(agent))
+    finally:
+        # The stop path has run (vehicle held, stats written); what is left is the interpreter's
+        # exit, which takes a second or more with torch loaded on a busy machine. The closed loop
+        # has put the default signal actions back, so a second SIGTERM (or SIGUSR1) there (a
+        # launcher stopping its fleet) would turn a clean exit into "killed by a signal".
+        for sig in STOP_SIGNALS:
+            signal.signal(sig, signal.SIG_IGN)
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)  # stop (hold the vehicle); SIGUSR1: release it
 
 
 async def _fly(agent) -> int:  # noqa: ANN001 - core.Agent, imported lazily
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, agent.stop_event.set)
+    loop.add_signal_handler(signal.SIGUSR1, agent.release)
     return await agent.run()
 
 

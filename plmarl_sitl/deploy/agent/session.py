@@ -42,6 +42,9 @@ log = logging.getLogger("plmarl.agent")
 # SITL world of 20 vehicles at speedup 10 for no gain in a policy acting every 3 s.
 TELEMETRY_HZ = 10.0
 TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
+# Lockstep: the world may hold the clock (and so the telemetry) while it waits out a
+# straggling agent; the vehicle is lost only if silent much longer than that bound.
+LOCKSTEP_TELEMETRY_TIMEOUT_S = 120.0
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
 SYSTEM_TIME_ID = 2  # MAVLINK_MSG_ID_SYSTEM_TIME
@@ -85,7 +88,7 @@ class Link(Protocol):
     async def set_mode(self, name: str) -> None: ...
     async def arm(self, force: bool = ...) -> None: ...
     async def takeoff(self, alt_rel_m: float | None = ..., home_amsl_m: float | None = ...) -> None: ...
-    def send_accel_ned(self, north: float, east: float, down: float) -> None: ...
+    def send_accel_ned(self, north: float, east: float, down: float, time_boot_ms: int = ...) -> None: ...
     def send_heartbeat(self) -> None: ...
 
 
@@ -123,6 +126,7 @@ class VehicleSession:
         self.flying = False  # streaming setpoints
         self.last_send_wall = 0.0
         self.reengaged = 0
+        self.leave_to_autopilot = False  # stop without commanding the stop mode (Agent.release)
         self._last_reengage = 0.0
         self._reengage_task: asyncio.Task | None = None
 
@@ -137,8 +141,12 @@ class VehicleSession:
         return self.home_local[2] - ego_local_down
 
     # ------------------------------------------------------------------ setpoints
-    def send_setpoint(self) -> None:
-        self.link.send_accel_ned(*self.decision.command())
+    def send_setpoint(self, time_boot_ms: int = 0) -> None:
+        """The command in force; `time_boot_ms` (lockstep): the telemetry it answers."""
+        if time_boot_ms:
+            self.link.send_accel_ned(*self.decision.command(), time_boot_ms=time_boot_ms)
+        else:
+            self.link.send_accel_ned(*self.decision.command())
         self.last_send_wall = time.perf_counter()
 
     async def watchdog(self) -> None:
@@ -156,9 +164,11 @@ class VehicleSession:
             await asyncio.sleep(1.0)
 
     # ------------------------------------------------------------------ startup
-    async def _telemetry(self, timeout: float = TELEMETRY_TIMEOUT_S) -> None:
+    async def _telemetry(self, timeout: float | None = None) -> None:
         """Hand the newest position to the agent (older queued ones are stale)."""
         assert self.positions is not None
+        if timeout is None:
+            timeout = LOCKSTEP_TELEMETRY_TIMEOUT_S if self.cfg.lockstep else TELEMETRY_TIMEOUT_S
         self.on_telemetry(await self.positions.newest(timeout))
 
     async def _wait_until(self, what: str, cond: Callable[[], bool], timeout_s: float) -> None:
@@ -407,9 +417,20 @@ class VehicleSession:
 
     async def hold(self) -> None:
         """Stop: hand a flying vehicle to the personality's stop mode (PX4 AUTO.LOITER,
-        ArduPilot BRAKE)."""
+        ArduPilot BRAKE). A vehicle its autopilot took over (a failsafe left the offboard
+        mode for LAND, say after a GPS loss) or disarmed is left to its autopilot."""
         if self.personality is None or not self.flying:
             return
+        if self.leave_to_autopilot:
+            log.warning("stopped: vehicle left to its autopilot (the UAV is out of the mission)")
+            return
+        hb = self.link.latest.get("HEARTBEAT")
+        if hb is not None and hb.get_srcComponent() == 1:
+            now = self.personality.mode_by_custom(hb.custom_mode)
+            if not hb.base_mode & ARMED or (now is not None and now.name == self.personality.land_mode):
+                log.warning("stopped: vehicle left to its autopilot (%s, %s)", now.name if now else hb.custom_mode,
+                            "armed" if hb.base_mode & ARMED else "disarmed")
+                return
         mode = self.personality.stop_mode
         try:
             async with asyncio.timeout(3.0):

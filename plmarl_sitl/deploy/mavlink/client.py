@@ -302,16 +302,18 @@ class VehicleLink:
     def send_heartbeat(self) -> None:
         self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))
 
-    def _setpoint(self, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0)) -> None:
+    def _setpoint(self, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0), time_boot_ms: int = 0) -> None:
         self.send(
             self.codec.mav.set_position_target_local_ned_encode(
-                0, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0
+                time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0
             )
         )
 
-    def send_accel_ned(self, north: float, east: float, down: float) -> None:
-        """Net acceleration setpoint (m/s^2, gravity compensated); (0,0,0) keeps velocity."""
-        self._setpoint(ACCEL_ONLY, acc=(north, east, down))
+    def send_accel_ned(self, north: float, east: float, down: float, time_boot_ms: int = 0) -> None:
+        """Net acceleration setpoint (m/s^2, gravity compensated); (0,0,0) keeps velocity.
+        `time_boot_ms`: the vehicle time of the telemetry this setpoint answers (a lockstep
+        SITL world waits for it); 0: not stamped."""
+        self._setpoint(ACCEL_ONLY, acc=(north, east, down), time_boot_ms=time_boot_ms)
 
     def send_velocity_ned(self, north: float, east: float, down: float) -> None:
         self._setpoint(VELOCITY_ONLY, vel=(north, east, down))

@@ -13,6 +13,7 @@ object) and use constants from `dialect`, so no other module needs to import pym
 
 from __future__ import annotations
 
+import hashlib
 import struct
 import time
 from collections.abc import Callable, Iterable
@@ -38,6 +39,44 @@ FAULTS = (
 
 # Seconds between the Unix epoch and the MAVLink signing epoch (2015-01-01 00:00:00 UTC).
 _SIGNING_EPOCH = 1420070400
+# A new signing stream is accepted only if its timestamp is at most this far behind ours
+# (10 us ticks: 60 s, MAVLINK_SIGNING_TIMESTAMP_LIMIT of the C library and pymavlink).
+_NEW_STREAM_LIMIT = 60 * 100_000
+MAX_SIGNING_STREAMS = 16  # MAVLINK_MAX_SIGNING_STREAMS: (sysid, compid, link id) triples remembered
+
+
+def signing_timestamp(unix_s: float | None = None) -> int:
+    """A MAVLink 2 signing timestamp: 10 us ticks since 2015-01-01 (now, or at `unix_s`)."""
+    return int(((time.time() if unix_s is None else unix_s) - _SIGNING_EPOCH) * 100_000)
+
+
+class _MAVLink(dialect.MAVLink):
+    """pymavlink's MAVLink with the signature check in the order of the C library (the
+    one ArduPilot and PX4 run): the signature first, then the stream's timestamp.
+
+    pymavlink records a stream's timestamp *before* it checks the signature, so one
+    forged frame with a timestamp near 2^48 and a genuine sender's (sysid, compid, link
+    id) would make every later genuine frame of that sender an "old timestamp": anyone
+    could cut the agent off its vehicle without the key. Here a frame that does not
+    verify changes nothing."""
+
+    def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:
+        s = self.signing
+        assert s.secret_key is not None
+        if hashlib.sha256(s.secret_key + bytes(msgbuf[:-6])).digest()[:6] != bytes(msgbuf[-6:]):
+            return False
+        link_id = msgbuf[-13]
+        timestamp = int.from_bytes(msgbuf[-12:-6], "little")
+        stream = (link_id, srcSystem, srcComponent)
+        last = s.stream_timestamps.get(stream)
+        if last is None:
+            if len(s.stream_timestamps) >= MAX_SIGNING_STREAMS or timestamp + _NEW_STREAM_LIMIT < s.timestamp:
+                return False
+        elif timestamp <= last:
+            return False  # a replay, or a reordered frame
+        s.stream_timestamps[stream] = timestamp
+        s.timestamp = max(s.timestamp, timestamp)  # our next timestamp is at least the newest seen
+        return True
 
 
 @dataclass
@@ -65,8 +104,11 @@ class Codec:
     """Encoder and per-datagram decoder for one MAVLink endpoint (sysid, compid).
 
     With `signing_key`, outgoing frames are signed and incoming frames must carry a good
-    signature, except the message ids in `allow_unsigned` (heartbeats, so a ground
-    station without the key still sees who is there, as ArduPilot allows).
+    signature with a fresh timestamp (a stream's timestamps only go up; a new stream may
+    be at most 60 s behind), except the message ids in `allow_unsigned` (ArduPilot: radio
+    status reports). A frame signed under another key, or replayed, is `bad_signature`;
+    one without a signature `unsigned`. Outgoing timestamps follow the wall clock (and
+    never fall behind what a peer sent), as the MAVLink signing spec asks.
     """
 
     def __init__(
@@ -77,7 +119,7 @@ class Codec:
         allow_unsigned: Iterable[int] = (),
         link_id: int = 0,
     ) -> None:
-        self.mav = dialect.MAVLink(None, sysid, compid)
+        self.mav = _MAVLink(None, sysid, compid)
         self.mav.robust_parsing = True
         self._allow_unsigned = frozenset(allow_unsigned)
         if signing_key is not None:
@@ -102,14 +144,26 @@ class Codec:
         s.secret_key = bytes(key)
         s.sign_outgoing = True
         s.link_id = link_id
-        # Timestamps count 10 us ticks since 2015; starting at "now" lets peers that
-        # remember an older stream accept us (pymavlink rejects streams > 60 s behind).
-        s.timestamp = int((time.time() - _SIGNING_EPOCH) * 100_000)
+        s.timestamp = max(s.timestamp, signing_timestamp())
+        s.stream_timestamps.clear()
         allow = self._allow_unsigned
         s.allow_unsigned_callback = lambda _mav, msgid: msgid in allow
 
+    def clear_signing_key(self) -> None:
+        """Stop signing and accept unsigned frames again."""
+        s = self.mav.signing
+        s.secret_key = None
+        s.sign_outgoing = False
+        s.allow_unsigned_callback = None
+        s.stream_timestamps.clear()
+
     def encode(self, msg: Message) -> bytes:
         """Pack `msg` with this endpoint's ids, sequence number and (optional) signature."""
+        s = self.mav.signing
+        if s.sign_outgoing:
+            # pymavlink only adds 1 per frame; a timestamp that lagged the clock by more
+            # than 60 s would be refused by every peer that opens a new stream with us.
+            s.timestamp = max(s.timestamp, signing_timestamp())
         buf = msg.pack(self.mav)
         self.mav.seq = (self.mav.seq + 1) & 0xFF
         return buf

@@ -107,6 +107,12 @@ class Personality:
     base_mode_flags: int  # HEARTBEAT base_mode bits besides SAFETY_ARMED
     arm_texts: tuple[str, str]  # STATUSTEXT on arming, on disarming
     boot_timeline: BootTimeline | None  # measured start-up of the real one (None: not measured)
+    # Message ids a signing vehicle still accepts unsigned (or badly signed): reports from
+    # radios and traffic receivers that cannot sign, never a command. ArduPilot:
+    # accept_unsigned_callback in GCS_Signing.cpp; PX4: unsigned_messages in mavlink_sign_control.cpp.
+    accept_unsigned: tuple[int, ...] = ()
+    # SETUP_SIGNING is refused while armed (ArduPilot: "ERROR: Won't setup signing when armed")
+    setup_signing_disarmed_only: bool = False
 
     def mode(self, name: str) -> ModeSpec:
         for m in self.modes:
@@ -193,6 +199,8 @@ PX4 = Personality(
     base_mode_flags=dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
     arm_texts=("Armed", "Disarmed"),
     boot_timeline=None,
+    accept_unsigned=(dialect.MAVLINK_MSG_ID_RADIO_STATUS, dialect.MAVLINK_MSG_ID_ADSB_VEHICLE,
+                     dialect.MAVLINK_MSG_ID_COLLISION),
 )
 
 ARDUPILOT = Personality(
@@ -261,6 +269,8 @@ ARDUPILOT = Personality(
         origin_s=19.0,
         position_s=40.0,
     ),
+    accept_unsigned=(dialect.MAVLINK_MSG_ID_RADIO_STATUS, dialect.MAVLINK_MSG_ID_RADIO),
+    setup_signing_disarmed_only=True,
 )
 
 PERSONALITIES = {p.name: p for p in (PX4, ARDUPILOT)}

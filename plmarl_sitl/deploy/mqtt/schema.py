@@ -17,10 +17,12 @@ import math
 import struct
 from dataclasses import dataclass, field
 
-# The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12); the
-# messages of version 1 are unchanged and keep their own version byte, VERSION.
+# The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12) and
+# signed messages (issue 14: version byte / "v" 2 and an authentication trailer, `auth.py`,
+# `wire.py`); the messages of version 1 are unchanged and keep their version byte, VERSION.
 SCHEMA_VERSION = 2
 VERSION = 1
+SIGNED_VERSION = 2
 KIND_STATE = ord("S")
 KIND_SENSE = ord("U")
 MAX_ABS_POS_M = 1.0e6
@@ -32,6 +34,11 @@ MAX_SENSED_USERS = 4096
 # emulator closes an instant whose updates are not all in after half that wall bound.
 INSTANT_WAIT_MIN_S = 0.2
 INSTANT_WAIT_WALL_S = 0.15
+
+# Signed state messages only: the freshness window around the receiver's own mission time.
+# A state older than T_up + this (the next instant's state has superseded it) or newer than
+# this (no sender can be ahead of the receiver's clock by more) is `out_of_window`.
+WINDOW_SLACK_S = 5.0
 
 # version, kind, sender, session, seq, t_ms, p_n, p_e, p_d, v_n, v_e, v_d
 _STATE = struct.Struct("<BBHHIi6f")
@@ -88,17 +95,18 @@ def decode_state(payload: bytes) -> StateMsg:
     return StateMsg(sender, session, seq, t_ms, tuple(s))  # type: ignore[arg-type]
 
 
-def split_states(payload: bytes) -> list[bytes]:
+def split_states(payload: bytes, size: int = STATE_SIZE) -> list[bytes]:
     """The state messages of an rx payload: one, or several back to back (the SITL link
-    emulator delivers an instant's updates to a receiver in one message). Raises
-    Malformed("length") when the payload is not whole messages; each part is then
-    decoded (and counted if malformed) on its own."""
+    emulator delivers an instant's updates to a receiver in one message), each `size`
+    bytes (a signed one is longer: `wire.Wire.state_size`). Raises Malformed("length")
+    when the payload is not whole messages; each part is then decoded (and counted if
+    malformed) on its own."""
     n = len(payload)
-    if n <= STATE_SIZE:
+    if n <= size:
         return [payload]
-    if n % STATE_SIZE:
+    if n % size:
         raise Malformed("length")
-    return [payload[i : i + STATE_SIZE] for i in range(0, n, STATE_SIZE)]
+    return [payload[i : i + size] for i in range(0, n, size)]
 
 
 def peek_sender(payload: bytes) -> int:
@@ -132,18 +140,18 @@ def decode_sense(payload: bytes) -> SenseMsg:
     return SenseMsg(receiver, t_ms, tuple(zip(flat[0::2], flat[1::2], strict=True)))
 
 
-def encode_json(obj: dict) -> bytes:
-    return json.dumps({"v": VERSION, **obj}, separators=(",", ":")).encode()
+def encode_json(obj: dict, version: int = VERSION) -> bytes:
+    return json.dumps({"v": version, **obj}, separators=(",", ":")).encode()
 
 
-def decode_json(payload: bytes) -> dict:
+def decode_json(payload: bytes, version: int = VERSION) -> dict:
     try:
         obj = json.loads(payload)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise Malformed("json") from exc
     if not isinstance(obj, dict):
         raise Malformed("json")
-    if obj.get("v") != VERSION:
+    if obj.get("v") != version:
         raise Malformed("version")
     return obj
 
@@ -183,6 +191,11 @@ class Topics:
         return f"{self.root}/ctl"
 
     @property
+    def tick(self) -> str:
+        """Lockstep SITL only: the world has published everything of a boot second (retained)."""
+        return f"{self.root}/tick"
+
+    @property
     def closed(self) -> str:
         """SITL only: the link emulator has delivered everything of a signalling instant."""
         return f"{self.root}/closed"
@@ -203,14 +216,28 @@ class RxCounters:
     malformed: int = 0
     self_echo: int = 0
     unknown_sender: int = 0
+    # Authentication (signed wire, schema version 2): dropped before anything is read.
+    unsigned: int = 0  # a version-1 message without a trailer
+    wrong_key: int = 0  # signed under another key id
+    forged: int = 0  # our key id, a tag that does not verify
+    out_of_window: int = 0  # a signed state too old or too new for the receiver's clock
+    misattributed: int = 0  # a sender (receiver) id that disagrees with the topic
     reasons: dict[str, int] = field(default_factory=dict)
+    auth_reasons: dict[str, int] = field(default_factory=dict)
 
     def bad(self, reason: str) -> None:
         self.malformed += 1
         self.reasons[reason] = self.reasons.get(reason, 0) + 1
 
+    def refused(self, reason: str, what: str) -> None:
+        """An authentication failure `reason` (a counter above) of a message of class `what`."""
+        setattr(self, reason, getattr(self, reason) + 1)
+        key = f"{what}_{reason}"
+        self.auth_reasons[key] = self.auth_reasons.get(key, 0) + 1
+
     def as_dict(self) -> dict[str, int]:
-        return {k: v for k, v in self.__dict__.items() if k != "reasons"} | {f"malformed_{k}": v for k, v in self.reasons.items()}
+        plain = {k: v for k, v in self.__dict__.items() if k not in ("reasons", "auth_reasons")}
+        return plain | {f"malformed_{k}": v for k, v in self.reasons.items()} | {f"auth_{k}": v for k, v in self.auth_reasons.items()}
 
 
 class SeqFilter:

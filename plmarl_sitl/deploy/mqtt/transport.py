@@ -70,6 +70,7 @@ class MqttBus:
         keepalive_s: int = 5,
         queue_size: int = 1024,
         name: str = "bus",
+        credentials: tuple[str, str] | None = None,
     ) -> None:
         self.host, self.port = parse_broker_url(url)
         self.url = url
@@ -80,7 +81,9 @@ class MqttBus:
         self.connect_timeout_s = connect_timeout_s
         self.keepalive_s = keepalive_s
         self.name = name
+        self.credentials = credentials  # (username, password) the broker knows this client by
         self.connected = asyncio.Event()
+        self.on_connection: Callable[[bool], None] | None = None  # told when the connection comes up or goes
         self.stats = BusStats()
         self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
         self._sticky: dict[str, bytes] = {}
@@ -111,6 +114,15 @@ class MqttBus:
         return True
 
     # ------------------------------------------------------------------ connection
+    def _set_connected(self, up: bool) -> None:
+        was = self.connected.is_set()
+        if up:
+            self.connected.set()
+        else:
+            self.connected.clear()
+        if was != up and self.on_connection is not None:
+            self.on_connection(up)
+
     async def run(self) -> None:
         """Connect, serve, reconnect with backoff; returns only when cancelled."""
         delay = self.backoff_min_s
@@ -125,7 +137,7 @@ class MqttBus:
                 else:
                     self._unreachable(str(exc))
             except TimeoutError:
-                self.connected.clear()
+                self._set_connected(False)
                 self._unreachable("connect timed out")
             # Jittered exponential backoff: a swarm of agents must not reconnect in lockstep.
             await asyncio.sleep(delay * (0.5 + self._rng.random()))
@@ -150,6 +162,8 @@ class MqttBus:
             self.host,
             self.port,
             identifier=self.client_id,
+            username=self.credentials[0] if self.credentials else None,
+            password=self.credentials[1] if self.credentials else None,
             keepalive=self.keepalive_s,
             timeout=self.connect_timeout_s,
             clean_session=True,
@@ -157,6 +171,13 @@ class MqttBus:
         )
         try:
             async with asyncio.timeout(self.connect_timeout_s * 2) as connecting, client:
+                if connecting.expired():
+                    # The deadline fired just as the connection completed (a loaded machine), and
+                    # Python 3.11's asyncio.wait_for inside aiomqtt swallowed its cancellation: the
+                    # timeout cannot be rescheduled any more. A cancellation still pending lands in
+                    # the sleep; either way this attempt ends as timed out and run() retries.
+                    await asyncio.sleep(0)
+                    raise TimeoutError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
                 try:
@@ -165,7 +186,7 @@ class MqttBus:
                     self._was_connected = self.connected.is_set()
                     if self._was_connected:
                         self.stats.disconnects += 1
-                    self.connected.clear()
+                    self._set_connected(False)
         except aiomqtt.MqttError:
             # Closing a connection whose broker is gone can fail too (aiomqtt's __aexit__
             # raises); while we are being cancelled (Ctrl-C also stops a local broker) that
@@ -185,7 +206,7 @@ class MqttBus:
         for topic, payload in self._sticky.items():
             await client.publish(topic, payload, qos=0, retain=True)
         self.stats.connects += 1
-        self.connected.set()
+        self._set_connected(True)
         self._unreachable_since = None
         log.info("%s: connected to %s", self.name, self.url)
         # Plain tasks, not a TaskGroup: when the connection breaks while this task is

@@ -42,6 +42,11 @@ class InputCounters:
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
+    def drops(self) -> dict[str, int]:
+        """Only the drop counts, by reason: what a mission's record keeps (the traffic volume
+        includes the start-up, which follows wall time even in lockstep)."""
+        return {f: getattr(self, f) for f in FAULTS}
+
     def summary(self) -> str:
         """Non-zero drop counts as `reason=n` pairs, for a log line."""
         parts = [f"{f}={getattr(self, f)}" for f in FAULTS if getattr(self, f)]

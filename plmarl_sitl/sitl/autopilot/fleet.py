@@ -13,6 +13,7 @@ All vehicles are stepped in one batched call of the shared point-mass dynamics
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import Mapping
@@ -23,7 +24,7 @@ import torch
 from plmarl_sitl.model.vehicle import Limits, step_point_mass
 from plmarl_sitl.sitl.autopilot.boot import Boot
 from plmarl_sitl.sitl.autopilot.guidance import Guidance, Kind
-from plmarl_sitl.sitl.autopilot.schedule import Scheduler
+from plmarl_sitl.sitl.autopilot.schedule import STREAM_PHASES, Scheduler
 
 ON_GROUND_ALT_M = 0.05
 # Kinds that end at ground contact; a vehicle flying one is always watched.
@@ -37,7 +38,8 @@ class Fleet:
     `boot` the start-up stages all vehicles go through together (default: ready at once).
     """
 
-    def __init__(self, count: int, limits: Limits, rates: Mapping[int, float], boot: Boot | None = None) -> None:
+    def __init__(self, count: int, limits: Limits, rates: Mapping[int, float], boot: Boot | None = None,
+                 stream_phases: int = STREAM_PHASES) -> None:
         self.limits = limits
         self.boot = boot or Boot(None)
         self.now = 0.0  # sim seconds since boot
@@ -50,7 +52,12 @@ class Fleet:
         self.sp_deadline = np.full(count, np.inf)  # sim time each vehicle's setpoint stream times out
         self._watched: dict[int, None] = {}  # insertion-ordered set
         self.default_rates = dict(rates)
-        self.streams = Scheduler()
+        self.streams = Scheduler(stream_phases)
+        # Lockstep (`sitl.lockstep`): the time_boot_ms of the last LOCAL_POSITION_NED each
+        # vehicle sent, and of the telemetry its last setpoint answered (-1: none yet).
+        self.telemetry_ms = np.full(count, -1, dtype=np.int64)
+        self.answered_ms = np.full(count, -1, dtype=np.int64)
+        self.answers = asyncio.Event()  # set whenever a vehicle gets a stamped setpoint
         for i in range(count):
             for msgid, hz in self.default_rates.items():
                 self.streams.set_rate(i, msgid, hz, 0.0)

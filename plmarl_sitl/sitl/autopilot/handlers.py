@@ -22,6 +22,8 @@ d = dialect
 UNSUPPORTED = d.MAV_RESULT_UNSUPPORTED
 Addr = tuple[str, int]
 
+SIGNATURE_FAULTS = ("unsigned", "bad_signature")
+
 # Sanity bounds on setpoint fields: beyond these a value is garbage, not a wish to clip.
 MAX_ABS = {Kind.POSITION: 1e6, Kind.VELOCITY: 1e3, Kind.ACCEL: 1e3}
 
@@ -34,6 +36,11 @@ def on_datagram(v: Vehicle, data: bytes, addr: Addr) -> None:
     decoded = v.codec.decode_datagram(data)
     if decoded.fault is not None:
         v.drop(decoded.fault, f"{len(data)} bytes from {addr[0]}:{addr[1]}")
+        if decoded.fault in SIGNATURE_FAULTS:
+            # Well-formed MAVLink without the key: the sender still gets the telemetry (signed,
+            # readable without the key), as the UDP port of a real autopilot answers whoever
+            # speaks; it sees the vehicle and the STATUSTEXT that its input was dropped.
+            v.remember_peer(addr)
     for msg in decoded.messages:
         v.counters.messages += 1
         v.remember_peer(addr)
@@ -85,6 +92,9 @@ def _setpoint(v: Vehicle, msg: Message, addr: Addr) -> None:
             v.drop("bad_value", f"{kind.name.lower()} setpoint {vec}")
             return
         v.accept_setpoint(kind, (float(vec[0]), float(vec[1]), float(vec[2])), mask)
+        if msg.time_boot_ms > 0:  # a lockstep agent stamps the telemetry it answers (sitl.lockstep)
+            v.fleet.answered_ms[v.index] = msg.time_boot_ms
+            v.fleet.answers.set()
         return
     v.drop("bad_value", f"type_mask 0x{mask:04x} ignores everything")
 
@@ -342,6 +352,17 @@ def _ftp(v: Vehicle, msg: Message, addr: Addr) -> None:
     )
 
 
+def _setup_signing(v: Vehicle, msg: Message, addr: Addr) -> None:
+    """SETUP_SIGNING (no answer, as on the real ones). It takes effect at once on the
+    vehicle's link; a signed vehicle takes it only signed with the current key."""
+    if not _for_me(v, msg):
+        return
+    if v.armed and v.personality.setup_signing_disarmed_only:
+        v.statustext("ERROR: Won't setup signing when armed", d.MAV_SEVERITY_WARNING)
+        return
+    v.setup_signing(bytes(msg.secret_key), msg.initial_timestamp)
+
+
 Handler = Callable[[Vehicle, Message, Addr], None]
 
 HANDLERS: dict[int, Handler] = {
@@ -357,4 +378,5 @@ HANDLERS: dict[int, Handler] = {
     d.MAVLINK_MSG_ID_MISSION_COUNT: _mission_count,
     d.MAVLINK_MSG_ID_TIMESYNC: _timesync,
     d.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: _ftp,
+    d.MAVLINK_MSG_ID_SETUP_SIGNING: _setup_signing,
 }

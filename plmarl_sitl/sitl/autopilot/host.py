@@ -31,6 +31,8 @@ from plmarl_sitl.sitl.autopilot import handlers, telemetry
 from plmarl_sitl.sitl.autopilot.boot import Boot, boot_timeline
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.fleet import Fleet
+from plmarl_sitl.sitl.autopilot.guidance import Kind
+from plmarl_sitl.sitl.autopilot.schedule import STREAM_PHASES
 from plmarl_sitl.sitl.autopilot.vehicle import Vehicle
 
 log = logging.getLogger("plmarl.autopilot")
@@ -75,6 +77,9 @@ class _VehicleProtocol(asyncio.DatagramProtocol):
 class AutopilotHost:
     """Hosts `count` vehicles; vehicle i has sysid i + 1 (or `sysids[i]`) and listens on base_port + i.
 
+    `signing_key` signs every vehicle's MAVLink with one key, `signing_keys[i]` vehicle i's
+    with its own (None: unsigned); a signing vehicle drops and counts unsigned and badly
+    signed input but the personality's `accept_unsigned` reports.
     `home_offsets_ned[i]` is where vehicle i's home (and local NED origin) sits in the
     mission frame, whose geodetic origin is `origin`. `streams` overrides the default
     telemetry rates (message name or id -> Hz of sim time; 0 disables). `boot` is "instant"
@@ -92,11 +97,13 @@ class AutopilotHost:
         base_port: int = 14540,
         bind_host: str = "127.0.0.1",
         signing_key: bytes | None = None,
+        signing_keys: Sequence[bytes | None] | None = None,
         gcs: tuple[str, int] | None = None,
         physics_hz: float = 50.0,
         streams: Mapping[str | int, float] | None = None,
         sysids: Sequence[int] | None = None,
         boot: str = "instant",
+        stream_phases: int = STREAM_PHASES,
     ) -> None:
         if count < 1:
             raise ValueError("count must be >= 1")
@@ -106,6 +113,9 @@ class AutopilotHost:
                 f"need {count} system ids in 1..{MAX_SYSID} (MAVLink has 8-bit ids: more than {MAX_SYSID} "
                 "vehicles need repeated ids, each on its own port)"
             )
+        keys = list(signing_keys) if signing_keys is not None else [signing_key] * count
+        if len(keys) != count:
+            raise ValueError(f"{len(keys)} signing keys for {count} vehicles")
         if physics_hz < 50.0:
             raise ValueError("physics_hz must be >= 50 (the contract is >= 50 Hz of sim time)")
         self.personality: Personality = personality(personality_name)
@@ -124,17 +134,18 @@ class AutopilotHost:
             rates[telemetry.message_id(k)] = float(hz)
         self.boot = boot
         self.fleet = Fleet(count, Limits.ground_to_ceiling(self.model), rates,
-                           Boot(boot_timeline(self.personality, boot)))
+                           Boot(boot_timeline(self.personality, boot)), stream_phases)
         self.vehicles = [
             Vehicle(
                 self.fleet, i, sysids[i], self.personality, self.model,
                 ned_to_geodetic(o.lat_deg, o.lon_deg, o.alt_m, offsets[i][0], offsets[i][1], 0.0),
-                gcs=gcs, signing_key=signing_key, heartbeat=telemetry.heartbeat,
+                gcs=gcs, signing_key=keys[i], heartbeat=telemetry.heartbeat,
             )
             for i in range(count)
         ]
         self._transports: list[asyncio.DatagramTransport] = []
         self._logged_drops: dict[int, int] = {}
+        self._gps_lost: set[int] = set()  # vehicles whose GPS is dark (their EKF reacts as time goes on)
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -218,9 +229,35 @@ class AutopilotHost:
         """Node failure: vehicle i stops answering and sending, and falls if airborne."""
         self.vehicles[i].kill()
 
+    def place(self, i: int, pos_local: tuple[float, float, float]) -> None:
+        """Put vehicle i at rest at `pos_local` (its local NED frame) with a zero acceleration
+        setpoint in force, as if its companion had just sent one: a lockstep world starts the
+        mission from the twin's start state exactly (the take-off before it is not lockstepped)."""
+        f = self.fleet
+        f.pos_np[i] = pos_local
+        f.vel_np[i] = 0.0
+        f.acc_np[i] = 0.0
+        v = self.vehicles[i]
+        if v.setpoint is not None and v.setpoint[0] == Kind.ACCEL:
+            v.accept_setpoint(Kind.ACCEL, (0.0, 0.0, 0.0), v.setpoint[2])
+
     def set_gnss_noise(self, i: int, std_m: float) -> None:
         """GNSS noise: vehicle i's reported position gets Gaussian noise of `std_m` per axis (0: none)."""
         self.vehicles[i].gnss_noise_std_m = float(std_m)
+
+    def set_gps(self, i: int, on: bool) -> None:
+        """gps_loss: vehicle i's GPS receiver goes dark (on=False) or comes back."""
+        v = self.vehicles[i]
+        if on:
+            v.restore_gps()
+            self._gps_lost.discard(i)
+        else:
+            v.lose_gps()
+            self._gps_lost.add(i)
+
+    def fail_motor(self, i: int) -> None:
+        """motor_failure: one of vehicle i's motors stops for good."""
+        self.vehicles[i].fail_motor()
 
     def counters(self) -> list[InputCounters]:
         return [v.counters for v in self.vehicles]
@@ -251,6 +288,8 @@ class AutopilotHost:
                 f.unwatch(i)
         for i in f.setpoints_lost():
             self.vehicles[i].check_setpoint_loss(f.now)
+        for i in self._gps_lost:
+            self.vehicles[i].gps_update(f.now)
         self._boot_events()
         due: dict[int, list[int]] = {}
         for vi, msgid in f.streams.pop_due(f.now):

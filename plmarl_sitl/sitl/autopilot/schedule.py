@@ -19,7 +19,8 @@ STREAM_PHASES = 5
 class Scheduler:
     """Heap of (due sim time, vehicle, message) over all vehicles of a host."""
 
-    def __init__(self) -> None:
+    def __init__(self, phases: int = STREAM_PHASES) -> None:
+        self.phases = phases  # 1: every vehicle's streams on the same grid points (lockstep SITL)
         self._heap: list[tuple[float, int, int, int, int]] = []
         self._tie = itertools.count()
         self._gen: dict[tuple[int, int], int] = {}
@@ -38,7 +39,7 @@ class Scheduler:
             self._interval.pop(key, None)
             return
         self._interval[key] = 1.0 / hz
-        phase = (vehicle % STREAM_PHASES) * STREAM_GRID_S / STREAM_PHASES
+        phase = (vehicle % self.phases) * STREAM_GRID_S / self.phases
         first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
         heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
 

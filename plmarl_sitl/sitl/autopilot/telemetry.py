@@ -50,7 +50,9 @@ DEFAULT_RATES: dict[int, float] = {
 
 
 def _ms(v: Vehicle) -> int:
-    return int(v.fleet.now * 1000) & 0xFFFFFFFF
+    # Rounded, not truncated: the clock is a sum of float substeps, and a whole second
+    # summed to 11.999999999 s must still read 12000 ms.
+    return int(v.fleet.now * 1000 + 0.5) & 0xFFFFFFFF
 
 
 def heartbeat(v: Vehicle) -> Message:
@@ -113,11 +115,13 @@ def attitude(v: Vehicle) -> Message:
 
 
 def local_position_ned(v: Vehicle) -> Message | None:
-    if not v.fleet.boot.position(v.fleet.now):
-        return None  # the EKF does not use GPS yet
+    if not v.fleet.boot.position(v.fleet.now) or v.aiding_stopped:
+        return None  # the EKF does not use GPS yet, or no more (ArduCopter keeps GLOBAL_POSITION_INT)
     x, y, z = v.nav_position()
     vx, vy, vz = v.velocity()
-    return v.codec.mav.local_position_ned_encode(_ms(v), x, y, z, vx, vy, vz)
+    ms = _ms(v)
+    v.fleet.telemetry_ms[v.index] = ms  # a lockstep agent owes a setpoint stamped with it
+    return v.codec.mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz)
 
 
 def global_position_int(v: Vehicle) -> Message | None:

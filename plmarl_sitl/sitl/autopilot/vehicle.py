@@ -22,6 +22,7 @@ from plmarl_sitl.config import VehicleModel
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
 from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
 from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, POSITION_ONLY, VELOCITY_ONLY
+from plmarl_sitl.model.events import GPS_AIDING_STOPS_S, GPS_FAILSAFE_S
 from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.fleet import Fleet
@@ -41,8 +42,9 @@ TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
 LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
-# Messages a signed vehicle still accepts unsigned: presence only, nothing that acts.
-ALLOW_UNSIGNED = (d.MAVLINK_MSG_ID_HEARTBEAT, d.MAVLINK_MSG_ID_RADIO_STATUS)
+# SETUP_SIGNING: a vehicle's signing timestamp starts this far past the one given (10 us
+# ticks), as ArduPilot's load_signing_key does against replays across a reboot.
+SETUP_SIGNING_AHEAD = 60 * 100_000
 # POSITION_TARGET_LOCAL_NED's type_mask for what the vehicle tracks (a landing: a velocity).
 ECHO_MASK = {Kind.POSITION: POSITION_ONLY, Kind.VELOCITY: VELOCITY_ONLY, Kind.ACCEL: ACCEL_ONLY, Kind.LAND: VELOCITY_ONLY}
 
@@ -72,7 +74,7 @@ class Vehicle:
         self.index = index
         self.personality = personality
         self.model = model
-        self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, ALLOW_UNSIGNED)
+        self.codec = Codec(sysid, d.MAV_COMP_ID_AUTOPILOT1, signing_key, personality.accept_unsigned)
         self.params = ParamStore(model, personality, sysid)
         self.counters = InputCounters()
         self.home_geodetic = home_geodetic
@@ -82,6 +84,12 @@ class Vehicle:
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.killed = False
         self.gnss_noise_std_m = 0.0
+        # Autopilot faults (gps_loss, motor_failure mission events): see "autopilot faults" below.
+        self.gps_lost_at: float | None = None
+        self.ekf_failsafe = False
+        self.aiding_stopped = False  # the EKF has no position: LOCAL_POSITION_NED stops
+        self.motor_failed = False
+        self.texts: list[tuple[float, str]] | None = None  # STATUSTEXTs kept for the world (None: not kept)
         self._noise_rng = random.Random(sysid)
         self.tlog: BinaryIO | None = None  # every message sent and received, as a .tlog
         self._armed = False
@@ -247,6 +255,8 @@ class Vehicle:
             self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + raw)
 
     def statustext(self, text: str, severity: int = d.MAV_SEVERITY_INFO) -> None:
+        if self.texts is not None:
+            self.texts.append((self.fleet.now, text))
         self.send(self.codec.mav.statustext_encode(severity, text[:50].encode()))
 
     def remember_peer(self, addr: tuple[str, int]) -> None:
@@ -257,6 +267,17 @@ class Vehicle:
         peers[addr] = None
         if len(peers) > MAX_PEERS:
             peers.popitem(last=False)
+
+    def setup_signing(self, key: bytes, initial_timestamp: int) -> None:
+        """SETUP_SIGNING: sign with `key` from now on (an all-zero key and timestamp: stop
+        signing), as ArduPilot's handle_setup_signing and PX4's MavlinkSignControl do."""
+        if initial_timestamp == 0 and not any(key):
+            self.codec.clear_signing_key()
+            log.warning("vehicle %d: MAVLink signing disabled by SETUP_SIGNING", self.sysid)
+            return
+        self.codec.set_signing_key(key)
+        self.codec.mav.signing.timestamp = initial_timestamp + SETUP_SIGNING_AHEAD
+        log.info("vehicle %d: MAVLink signing key set by SETUP_SIGNING", self.sysid)
 
     def drop(self, fault: str, detail: str = "") -> None:
         """Count a dropped input; the first of each kind is logged and announced."""
@@ -278,6 +299,8 @@ class Vehicle:
             self.fleet.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
 
     def _guide(self, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
+        if self.motor_failed:  # whatever it is asked, a quadrotor with a dead motor falls, or lies where it fell
+            kind, target = (Kind.IDLE if self.on_ground() else Kind.FALL), None
         self.fleet.guide(self.index, kind, target, watch=self.taking_off)
         self._apply_limits()
 
@@ -318,8 +341,9 @@ class Vehicle:
 
     # ------------------------------------------------------------------ actions
     def _position_ok(self) -> bool:
-        """Whether the navigation filter has a position (late on the real boot timeline)."""
-        return self.fleet.boot.position(self.fleet.now)
+        """Whether the navigation filter has a position (late on the real boot timeline; gone
+        once the EKF stops aiding after a GPS loss)."""
+        return self.fleet.boot.position(self.fleet.now) and not self.aiding_stopped
 
     def set_mode(self, spec: ModeSpec) -> int:
         if spec.behaviour == Behaviour.TAKEOFF:
@@ -429,6 +453,50 @@ class Vehicle:
         self.taking_off = False
         self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
 
+    # ------------------------------------------------------------------ autopilot faults
+    # What a real ArduCopter 4.7 SITL does, measured in GUIDED flight (docs/RESULTS.md,
+    # "Autopilot faults"): with SIM_GPS1_ENABLE 0 it dead-reckons; GPS_FAILSAFE_S later its
+    # EKF failsafe switches to LAND; GPS_AIDING_STOPS_S later the EKF stops aiding and
+    # LOCAL_POSITION_NED stops; it lands blind and disarms. GPS back: the EKF uses it again,
+    # the stream resumes, the mode stays LAND. With SIM_ENGINE_FAIL on one motor it falls,
+    # hits the ground and stays armed in its mode. The PX4 personality does the same (PX4's
+    # own reaction was not measured).
+    def lose_gps(self) -> None:
+        if self.gps_lost_at is None:
+            self.gps_lost_at = self.fleet.now
+
+    def restore_gps(self) -> None:
+        if self.gps_lost_at is None:
+            return
+        self.gps_lost_at = None
+        if self.aiding_stopped or self.ekf_failsafe:
+            self.statustext("EKF3 IMU0 is using GPS")
+        if self.ekf_failsafe:
+            self.statustext("EKF Failsafe Cleared", d.MAV_SEVERITY_CRITICAL)
+        self.aiding_stopped = self.ekf_failsafe = False
+
+    def gps_update(self, now: float) -> None:
+        """The EKF's reaction to the GPS loss, as time goes on (called by the host)."""
+        if self.gps_lost_at is None or self.killed:
+            return
+        lost_s = now - self.gps_lost_at
+        if not self.ekf_failsafe and lost_s >= GPS_FAILSAFE_S:
+            self.ekf_failsafe = True
+            self.statustext("EKF variance", d.MAV_SEVERITY_CRITICAL)
+            if self.armed and (self.mode_spec.needs_position or self.behaviour == Behaviour.OFFBOARD):
+                self.mode_spec = self.personality.mode(self.personality.land_mode)
+                self.taking_off = False
+                self._start_land()
+                self.statustext("EKF Failsafe: changed to LAND Mode", d.MAV_SEVERITY_CRITICAL)
+        if not self.aiding_stopped and lost_s >= GPS_AIDING_STOPS_S:
+            self.aiding_stopped = True
+            self.statustext("EKF3 IMU0 stopped aiding")
+
+    def fail_motor(self) -> None:
+        self.motor_failed = True
+        self.taking_off = False
+        self._guide(Kind.FALL)
+
     # ------------------------------------------------------------------ per substep
     def update(self, now: float) -> bool:
         """Takeoff/landing/falling progress after a physics substep. False: stop watching me.
@@ -455,6 +523,11 @@ class Vehicle:
         return False
 
     def _touchdown(self) -> None:
+        if self.motor_failed:  # measured: ArduCopter stays armed in its mode where it crashed
+            self.fleet.guide(self.index, Kind.IDLE)
+            self.statustext("SIM Hit ground")
+            self.statustext("Potential Thrust Loss (1)", d.MAV_SEVERITY_EMERGENCY)
+            return
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
         self.fleet.guide(self.index, Kind.IDLE)

@@ -12,17 +12,18 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import json
 import signal
 
 from plmarl_sitl.sitl.network.broker import EmbeddedBroker
 
 
-async def _serve(host: str, port: int) -> None:
+async def _serve(host: str, port: int, plugins: dict | None) -> None:
     stop = asyncio.Event()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    async with EmbeddedBroker(host, port):
+    async with EmbeddedBroker(host, port, plugins):
         await stop.wait()
 
 
@@ -30,8 +31,10 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--host", default="127.0.0.1")
     p.add_argument("--port", type=int, required=True)
+    p.add_argument("--plugins", default=None, help="JSON file: amqtt's plugins configuration (default: anonymous)")
     args = p.parse_args()
-    asyncio.run(_serve(args.host, args.port))
+    plugins = json.loads(open(args.plugins).read()) if args.plugins else None  # noqa: SIM115, PTH123
+    asyncio.run(_serve(args.host, args.port, plugins))
 
 
 if __name__ == "__main__":

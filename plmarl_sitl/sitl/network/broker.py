@@ -2,13 +2,18 @@
 
 amqtt 0.12's `Broker(config_dict)` takes `listeners` and a `plugins` mapping; only the
 anonymous-auth plugin is loaded (the default set adds $SYS publishing and packet logging,
-which cost CPU for nothing here).
+which cost CPU for nothing here), or, with a `BrokerAccess` (`access.py`), its password
+and topic-ACL plugins. A mosquitto child with a `BrokerAccess` gets a password file, an
+ACL file, no anonymous clients, and each client's username as its client id (a login
+cannot take over another client's session by reusing its id).
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import getpass
+import json
 import logging
 import shutil
 import socket
@@ -20,6 +25,7 @@ from collections.abc import AsyncIterator
 from pathlib import Path
 
 from plmarl_sitl.proc import die_with_parent
+from plmarl_sitl.sitl.network.access import BrokerAccess
 
 MOSQUITTO = shutil.which("mosquitto") or "/usr/sbin/mosquitto"
 
@@ -56,9 +62,10 @@ def free_udp_ports(count: int, host: str = "127.0.0.1", tries: int = 200) -> int
 class EmbeddedBroker:
     """amqtt broker in this process's event loop: `async with EmbeddedBroker() as b: b.url`."""
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, plugins: dict | None = None) -> None:
         self.host = host
         self.port = port or free_port(host)
+        self.plugins = plugins or {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}}
         self._broker = None
 
     @property
@@ -73,7 +80,7 @@ class EmbeddedBroker:
         self._broker = Broker(
             {
                 "listeners": {"default": {"type": "tcp", "bind": f"{self.host}:{self.port}", "max_connections": 0}},
-                "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+                "plugins": self.plugins,
             }
         )
         await self._broker.start()
@@ -98,9 +105,10 @@ class _BrokerChild:
 
     what = "broker"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, access: BrokerAccess | None = None) -> None:
         self.host = host
         self.port = port or free_port(host)
+        self.access = access  # None: anonymous clients may do anything
         self.proc: subprocess.Popen[bytes] | None = None
         self._dir: tempfile.TemporaryDirectory[str] | None = None
 
@@ -113,7 +121,7 @@ class _BrokerChild:
         raise NotImplementedError
 
     def start(self, timeout_s: float = 5.0) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix=f"plmarl-{self.what}-")
+        self._dir = tempfile.TemporaryDirectory(prefix=f"plmarl-{self.what}-")  # 0700: the password files stay ours
         workdir = Path(self._dir.name)
         # stderr to a file, not a pipe: nobody reads a pipe once the broker runs, and a
         # chatty broker (amqtt logs every dropped client) would block on a full one.
@@ -157,17 +165,25 @@ class _BrokerChild:
 
 
 class MosquittoBroker(_BrokerChild):
-    """A mosquitto child process on a free port (anonymous, localhost only)."""
+    """A mosquitto child process on a free port, localhost only: anonymous, or with the
+    logins and ACL of a `BrokerAccess`."""
 
     what = "mosquitto"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 0, binary: str = MOSQUITTO) -> None:
-        super().__init__(host, port)
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, binary: str = MOSQUITTO, access: BrokerAccess | None = None) -> None:
+        super().__init__(host, port, access)
         self.binary = binary
 
     def command(self, workdir: Path) -> list[str]:
         conf = workdir / "mosquitto.conf"
-        conf.write_text(f"listener {self.port} {self.host}\nallow_anonymous true\npersistence false\nlog_dest stderr\nlog_type error\n"
+        if self.access is None:
+            auth = "allow_anonymous true\n"
+        else:
+            passwd, acl = self.access.write_mosquitto(workdir)
+            auth = (f"allow_anonymous false\npassword_file {passwd}\nacl_file {acl}\nuse_username_as_clientid true\n"
+                    # As root, mosquitto would drop to the `mosquitto` user, which cannot read our 0600 files.
+                    f"user {getpass.getuser()}\n")
+        conf.write_text(f"listener {self.port} {self.host}\n{auth}persistence false\nlog_dest stderr\nlog_type error\n"
                         # Nagle's algorithm on the broker's side holds small deliveries for the
                         # subscriber's delayed ACK (40 ms): a signalling hop must not wait.
                         "set_tcp_nodelay true\n")
@@ -181,7 +197,12 @@ class AmqttProcess(_BrokerChild):
     what = "amqtt"
 
     def command(self, workdir: Path) -> list[str]:
-        return [sys.executable, "-m", "plmarl_sitl.sitl.network.amqtt_child", "--host", self.host, "--port", str(self.port)]
+        cmd = [sys.executable, "-m", "plmarl_sitl.sitl.network.amqtt_child", "--host", self.host, "--port", str(self.port)]
+        if self.access is not None:
+            plugins = workdir / "plugins.json"
+            plugins.write_text(json.dumps(self.access.write_amqtt(workdir)))
+            cmd += ["--plugins", str(plugins)]
+        return cmd
 
 
 @contextlib.asynccontextmanager

@@ -1,9 +1,11 @@
 """A TCP relay in front of the MQTT broker, so a mission can take the broker away.
 
 Every client of a launched swarm (world and agents) connects through the gate. An outage
-closes every relayed connection and refuses new ones until it ends: from the clients'
-side exactly a broker that stopped and restarted. It works the same for the embedded
-broker and for an external one the launcher cannot restart.
+closes every relayed connection and stops listening until it ends, so a new connection is
+refused by the kernel: from the clients' side exactly a broker that stopped and restarted.
+(Accepting and closing at once is not the same: aiomqtt ignores a hang-up that comes before
+the CONNACK and waits out its whole connect timeout, which outlasted short outages.) It
+works the same for the embedded broker and for an external one the launcher cannot restart.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import socket
 
 log = logging.getLogger("plmarl.gate")
 
@@ -20,9 +23,8 @@ class BrokerGate:
         self.upstream = (upstream_host, upstream_port)
         self.host, self.port = host, port
         self.down = False
-        self.refused = 0
-        self.relayed = 0
         self._server: asyncio.Server | None = None
+        self._restart: asyncio.Task | None = None  # the task that serves again after an outage
         self._writers: set[asyncio.StreamWriter] = set()
 
     @property
@@ -30,8 +32,7 @@ class BrokerGate:
         return f"mqtt://{self.host}:{self.port}"
 
     async def start(self) -> None:
-        self._server = await asyncio.start_server(self._client, self.host, self.port)
-        self.port = self._server.sockets[0].getsockname()[1]
+        await self._serve(self._listen())
 
     async def close(self) -> None:
         self._drop_all()
@@ -42,11 +43,28 @@ class BrokerGate:
                     await self._server.wait_closed()
 
     def outage(self, on: bool) -> None:
-        """Start (drop everything, refuse new connections) or end an outage."""
-        self.down = on
-        if on:
+        """Start (drop everything, stop listening) or end an outage (listen again on the same
+        port). Called from the event loop's thread."""
+        if on and not self.down:
+            assert self._server is not None
+            self._server.close()  # closes the listening socket now: new connections are refused
             self._drop_all()
+        elif self.down and not on:
+            # The socket listens (and queues connections) from here; accepting starts with the task.
+            self._restart = asyncio.get_running_loop().create_task(self._serve(self._listen()))
+        self.down = on
         log.warning("broker %s", "unreachable (outage)" if on else "back")
+
+    def _listen(self) -> socket.socket:
+        sock = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # the same port again after an outage
+        sock.bind((self.host, self.port))
+        sock.listen(128)
+        self.port = sock.getsockname()[1]
+        return sock
+
+    async def _serve(self, sock: socket.socket) -> None:
+        self._server = await asyncio.start_server(self._client, sock=sock)
 
     def _drop_all(self) -> None:
         for w in list(self._writers):
@@ -54,17 +72,11 @@ class BrokerGate:
         self._writers.clear()
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        if self.down:
-            self.refused += 1
-            writer.close()
-            return
         try:
             up_reader, up_writer = await asyncio.open_connection(*self.upstream)
         except OSError:
-            self.refused += 1
             writer.close()
             return
-        self.relayed += 1
         self._writers.update((writer, up_writer))
         try:
             async with asyncio.TaskGroup() as tg:

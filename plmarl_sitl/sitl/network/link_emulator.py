@@ -26,6 +26,13 @@ class LinkCounters:
     lost: int = 0  # random loss
     cut: int = 0  # a cut-links event
     malformed: int = 0  # tx payloads that were not valid state messages
+    # Signed wire (schema version 2): tx payloads refused before relaying.
+    unsigned: int = 0
+    wrong_key: int = 0
+    forged: int = 0
+    misattributed: int = 0  # the sender field disagrees with the tx topic
+    replayed: int = 0  # a (session, seq) not newer than the sender's last relayed one
+    out_of_window: int = 0  # an instant too old or too new for the world's mission clock
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
