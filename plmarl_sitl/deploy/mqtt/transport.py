@@ -178,6 +178,11 @@ class MqttBus:
                     # the sleep; either way this attempt ends as timed out and run() retries.
                     await asyncio.sleep(0)
                     raise TimeoutError
+                if asyncio.current_task().cancelling():  # type: ignore[union-attr]
+                    # We were cancelled (stop, Ctrl-C) as the CONNACK came in, and the same
+                    # wait_for swallowed it: without this the bus would serve for ever and the
+                    # agent's stop would hang.
+                    raise asyncio.CancelledError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
                 try:
