@@ -106,3 +106,26 @@ def test_credentials_files_are_private(tmp_path: Path) -> None:
     for name, p in paths.items():
         assert stat.S_IMODE(p.stat().st_mode) == 0o600 and load_credentials(p) == access[name].credentials
     assert "user agent1\ntopic write plmarl/sitl/tx/1\ntopic read plmarl/sitl/rx/1" in access.acl_text()
+
+
+def test_a_20_uav_swarm_logs_in_at_once_within_the_connect_timeout() -> None:
+    """All 20 agents, the world and the monitor log in together, as `swarm up` does. amqtt
+    checks each password in its event loop: at argon2's default cost (0.3 s each here) the
+    22 logins held it past every client's 3-s connect timeout and the swarm never formed."""
+    access = BrokerAccess("sitl", 20)
+    b = AmqttProcess(access=access)
+    b.start(timeout_s=20)
+    names = [f"agent{i}" for i in range(20)] + ["world", "monitor"]
+
+    async def login(name: str) -> None:
+        creds = access[name].credentials
+        async with aiomqtt.Client(b.host, b.port, username=creds[0], password=creds[1], identifier=f"t-{name}", timeout=3):
+            pass
+
+    async def main() -> None:
+        await asyncio.gather(*(login(n) for n in names))
+
+    try:
+        asyncio.run(main())
+    finally:
+        b.stop()
