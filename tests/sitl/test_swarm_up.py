@@ -128,11 +128,12 @@ def test_broker_outage_with_mosquitto(tmp_path):
         _outage(tmp_path, "--broker", broker.url)
 
 
-def test_ctrl_c_leaves_no_process_behind(tmp_path):
+@pytest.mark.parametrize("pace", [[], ["--lockstep"]], ids=["free", "lockstep"])
+def test_ctrl_c_leaves_no_process_behind(tmp_path, pace):
     mission = ROOT / "missions" / "paper_urban.yaml"
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "plmarl_sitl.cli", "swarm", "up", str(mission), "--speedup", "5",
-                             "--headless", "--out", str(out)], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             "--headless", "--out", str(out), *pace], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True)
     try:
         deadline = time.time() + 120
