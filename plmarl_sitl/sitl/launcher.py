@@ -152,8 +152,7 @@ class LauncherEvents:
                 self.killed.add(ev.uav)
                 if ev.uav in self.fleet.procs:
                     self.fleet.kill(ev.uav)
-            elif ev.type == "broker_outage":
-                assert self.gate is not None  # swarm_up puts a gate in front of the broker for this event
+            elif ev.type == "broker_outage" and self.gate is not None:  # lockstep: no gate, the world emulates it
                 self.gate.outage(self.schedule.broker_down(second))  # down while any outage lasts
             t = float(second)
             if not change.ends:
@@ -318,9 +317,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
     log.info("%s", guarantees)
     # Every byte through the gate costs this process's event loop two hops, which at
-    # N = 20 and 15x delays signalling; only a mission with a broker outage needs it.
+    # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
+    # needs it (a lockstep world emulates the outage: `SitlWorld._outage_emulated`).
     schedule = EventSchedule.of(mission)
-    gate = BrokerGate(up_host, up_port) if schedule.has("broker_outage") else None
+    gate = BrokerGate(up_host, up_port) if schedule.has("broker_outage") and not opts.lockstep else None
     bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
     script: LauncherEvents | None = None

@@ -20,6 +20,8 @@ import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:  # the CLI reads DEFAULT_STRAGGLER_S without importing torch
     from plmarl_sitl.sitl.autopilot.fleet import Fleet
 
@@ -27,28 +29,33 @@ DEFAULT_STRAGGLER_S = 10.0  # wall s an agent may owe an answer before it is dec
 
 
 class Barrier:
+    """Which members the clock waits for. Called every physics substep with 20+ vehicles,
+    so the bookkeeping is numpy masks over the fleet's arrays, not per-vehicle Python."""
+
     def __init__(self, fleet: Fleet, straggler_s: float = DEFAULT_STRAGGLER_S) -> None:
         if not straggler_s > 0:
             raise ValueError("straggler_s must be > 0")
         self.fleet = fleet
         self.straggler_s = straggler_s
         self.failed: dict[int, str] = {}  # vehicle -> why its agent was declared failed
+        self._failed_mask = np.zeros(len(fleet.answered_ms), dtype=bool)
         self._owed_since: dict[int, tuple[int, float]] = {}  # vehicle -> (telemetry ms owed, wall s first seen owing)
 
-    def joined(self, i: int) -> bool:
-        return int(self.fleet.answered_ms[i]) > 0
+    def _member_mask(self, alive: Sequence[bool]) -> np.ndarray:
+        return np.asarray(alive, dtype=bool) & (self.fleet.answered_ms > 0) & ~self._failed_mask
 
     def members(self, alive: Sequence[bool]) -> list[int]:
-        return [i for i, a in enumerate(alive) if a and self.joined(i) and i not in self.failed]
+        return np.flatnonzero(self._member_mask(alive)).tolist()
 
     def all_joined(self, alive: Sequence[bool]) -> bool:
         """Every live vehicle's agent has joined (or failed): the clock no longer needs a wall pace."""
-        return all(self.joined(i) or i in self.failed for i, a in enumerate(alive) if a)
+        waiting = np.asarray(alive, dtype=bool) & (self.fleet.answered_ms <= 0) & ~self._failed_mask
+        return not waiting.any()
 
     def owing(self, alive: Sequence[bool]) -> list[int]:
         """Members whose latest telemetry is not answered yet."""
         f = self.fleet
-        return [i for i in self.members(alive) if int(f.answered_ms[i]) < int(f.telemetry_ms[i])]
+        return np.flatnonzero(self._member_mask(alive) & (f.answered_ms < f.telemetry_ms)).tolist()
 
     def overdue(self, owing: Sequence[int], wall_s: float) -> list[int]:
         """Members that have owed the same answer for straggler_s or more."""
@@ -72,4 +79,5 @@ class Barrier:
 
     def fail(self, i: int, why: str) -> None:
         self.failed.setdefault(i, why)
+        self._failed_mask[i] = True
         self._owed_since.pop(i, None)

@@ -241,10 +241,32 @@ class SitlWorld:
         self._tx_wait_since: float | None = None
         self._instant_tup = self.tup_s
         self._place_pending = False
+        self._bus_cut = False  # lockstep: this second lies in an emulated broker outage
+        self._held_retained: dict[str, bytes] = {}  # retained messages held by it (topic -> newest)
         self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
 
     # ------------------------------------------------------------------ events
+    def _outage_emulated(self, k: int) -> bool:
+        """Lockstep: mission second k lies in a broker outage, which the world emulates.
+
+        A free-running swarm cuts the broker's TCP connections (the launcher's gate), and the
+        agents reconnect with a jittered wall-clock backoff: which seconds each one misses
+        would then depend on machine load. In lockstep the world instead drops what the
+        outage would: no sensing and no relayed state reaches an agent for the outage's
+        seconds, and retained messages (the demand map, T_up changes) are held and go out
+        when it ends, as a broker's retained copy would reach a reconnecting agent. The
+        lockstep tick is the SITL clock, not signalling, and goes on."""
+        schedule = self.cfg.events
+        return self.barrier is not None and schedule is not None and schedule.broker_down(k)
+
+    def _publish_retained(self, topic: str, payload: bytes) -> None:
+        """A retained message, held while an emulated outage lasts (`_outage_emulated`)."""
+        if self._bus_cut:
+            self._held_retained[topic] = payload  # the newest per topic, as a broker retains
+        else:
+            self.bus.publish(topic, payload, sticky=True)
+
     def apply_events(self, second: int) -> None:
         """Apply what the event schedule changes at this mission second, where it is the
         world's to apply (the launcher acts on the same changes for its processes)."""
@@ -318,7 +340,7 @@ class SitlWorld:
         self.tup_s = int(tup_s)
         self.ctl_seq += 1  # signed: agents apply only a ctl newer than the last (a replay is not)
         ctl = {"tup_s": self.tup_s, "seq": self.ctl_seq} if self.wire.signed else {"tup_s": self.tup_s}
-        self.bus.publish(self.topics.ctl, self.wire.json("ctl", ctl), sticky=True)
+        self._publish_retained(self.topics.ctl, self.wire.json("ctl", ctl))
 
     def stop(self) -> None:
         self._stop.set()
@@ -426,6 +448,9 @@ class SitlWorld:
     def _deliver_due(self) -> None:
         while self._pending and self._pending[0][0] <= self.now:
             _, _, topic, payload = heapq.heappop(self._pending)
+            if self._bus_cut:  # lockstep: an emulated outage swallows deliveries still under way
+                self.links.counters.outage += 1
+                continue
             self._publish_signal(topic, payload)
 
     # ------------------------------------------------------------------ per-second work
@@ -468,7 +493,7 @@ class SitlWorld:
         counts = demand_map(users.xy[0], m.area.north_m, m.area.east_m, m.demand.cell_m)
         rows, cols = grid_shape(m.area.north_m, m.area.east_m, m.demand.cell_m)
         payload = self.wire.demand(self.map_seq, k * 1000, m.demand.cell_m, rows, cols, counts.round().long().tolist())
-        self.bus.publish(self.topics.demand, payload, sticky=True)
+        self._publish_retained(self.topics.demand, payload)
         self.map_seq += 1
 
     def _step_users(self, k: int) -> None:
@@ -492,6 +517,11 @@ class SitlWorld:
         k: int | None = None
         if self.t0 is not None and second >= self.t0 - 1e-6:
             k = int(round(second - self.t0))
+            self._bus_cut = self._outage_emulated(k)
+            if not self._bus_cut:
+                for topic, payload in self._held_retained.items():
+                    self.bus.publish(topic, payload, sticky=True)
+                self._held_retained.clear()
             self._step_users(k)
             self.mission_t = k
         pos = self.positions()
@@ -503,7 +533,7 @@ class SitlWorld:
         if k is not None and k >= 1:
             self.summary.coverage.append(cov)
             self.summary.lambda2.append(lam2)
-        if k is not None and self.cfg.publish_sense:
+        if k is not None and self.cfg.publish_sense and not self._bus_cut:
             t_ms = k * 1000
             r2 = m.radii.sensing_m**2
             for i in range(self.n):
@@ -608,6 +638,7 @@ class SitlWorld:
         dt = self.host.physics_dt
         wall0, sim0 = time.perf_counter(), self.now
         next_tick = float(math.floor(self.now + 1e-9) + 1)
+        joined = False
         while not self._stop.is_set():
             await self._settle()
             if self._stop.is_set():
@@ -623,7 +654,8 @@ class SitlWorld:
                 self._tick_due = next_tick
                 next_tick += 1.0
             self._deliver_due()
-            if self.barrier.all_joined(self.alive().tolist()):
+            joined = joined or self.barrier.all_joined(self.alive().tolist())  # once all have joined, for good
+            if joined:
                 wall0, sim0 = time.perf_counter(), self.now
                 await asyncio.sleep(0)
             else:
@@ -642,6 +674,9 @@ class SitlWorld:
         relayed) and every member has answered its telemetry; stragglers are declared failed."""
         assert self.host is not None and self.barrier is not None
         b, wake = self.barrier, self.host.fleet.answers
+        # Fast path, taken at most substeps: no tick to publish and no member owes an answer.
+        if self._tick_due is None and not b.owing(self.alive().tolist()):
+            return
         while not self._stop.is_set():
             wake.clear()
             wall = time.perf_counter()
@@ -685,6 +720,9 @@ class SitlWorld:
     def _relay_instant(self, k: float) -> None:
         """Relay instant k's states in sender order, then close it (one rx per receiver, closed)."""
         held = self._held.pop(k, {})
+        if self._outage_emulated(int(k)):
+            self.links.counters.outage += len(held)
+            held = {}
         pos, alive = self.vehicles.positions(), self.alive()
         batch = self._batches.setdefault(k, {})
         for sender in sorted(held):

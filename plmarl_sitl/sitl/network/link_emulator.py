@@ -33,6 +33,7 @@ class LinkCounters:
     misattributed: int = 0  # the sender field disagrees with the tx topic
     replayed: int = 0  # a (session, seq) not newer than the sender's last relayed one
     out_of_window: int = 0  # an instant too old or too new for the world's mission clock
+    outage: int = 0  # lockstep: states an emulated broker outage swallowed (sitl.world)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
