@@ -8,12 +8,13 @@ import sys
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
-from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
+from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER_S, speedup_or_default
 
 UP_EPILOG = """\
 examples:
   plmarl swarm up missions/paper_urban.yaml --speedup 10
   plmarl swarm up missions/node_failure.yaml --speedup 10 --headless --out runs/failure
+  plmarl swarm up missions/scale_20.yaml --lockstep --headless    # deterministic, as fast as the agents compute
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
   plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
       --speedup 5 --headless    # one real ArduCopter SITL per UAV
@@ -39,8 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
-    up.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1, real time; "
-                    "with --lockstep: the pace of the start-up only)")
+    up.add_argument("--speedup", type=float, default=None, help="sim seconds per wall second (default 1, real time; "
+                    f"with --lockstep: the pace of the start-up only, default {DEFAULT_STARTUP_SPEEDUP:g})")
     up.add_argument("--lockstep", action="store_true",
                     help="lockstep SITL: vehicle time waits for every agent's answer to each telemetry sample, so the run "
                          "is as fast as the agents compute, never late, and the same mission and seed give the same "
@@ -130,6 +131,7 @@ def run_up(args: argparse.Namespace) -> int:
     from plmarl_sitl.sitl.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
     from plmarl_sitl.sitl.launcher import run_up as launch
 
+    args.speedup = speedup_or_default(args.speedup, args.lockstep)
     if args.speedup <= 0:
         raise UserError("--speedup must be > 0")
     check_boot(args.personality, args.boot)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed
 from plmarl_sitl.errors import UserError
-from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
+from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER_S, speedup_or_default
 
 EPILOG = """\
 examples:
@@ -61,8 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1; with --lockstep: "
-                   "the pace of the start-up only)")
+    p.add_argument("--speedup", type=float, default=None, help="sim seconds per wall second (default 1; with --lockstep: "
+                   f"the pace of the start-up only, default {DEFAULT_STARTUP_SPEEDUP:g})")
     p.add_argument("--lockstep", action="store_true",
                    help="lockstep: vehicle time waits for every agent's answer to each telemetry sample (agents run with "
                         "--lockstep), as fast as they compute; same mission and seed, same outputs (emulated vehicles only)")
@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.mission import load_mission
     from plmarl_sitl.sitl.autopilot.boot import check_boot
 
+    args.speedup = speedup_or_default(args.speedup, args.lockstep)
     if not args.speedup > 0:
         raise UserError("--speedup must be > 0")
     check_boot(args.personality, args.boot)

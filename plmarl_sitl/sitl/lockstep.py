@@ -26,6 +26,17 @@ if TYPE_CHECKING:  # the CLI reads DEFAULT_STRAGGLER_S without importing torch
     from plmarl_sitl.sitl.autopilot.fleet import Fleet
 
 DEFAULT_STRAGGLER_S = 10.0  # wall s an agent may owe an answer before it is declared failed
+# Start-up (arming, take-off) is a wall-clock exchange and is not lockstepped: it runs at
+# --speedup. At real time it would add ~35 s of wall time to every lockstep run; 10x is
+# what free-running swarms of 20 keep up with on a 2-core machine.
+DEFAULT_STARTUP_SPEEDUP = 10.0
+
+
+def speedup_or_default(speedup: float | None, lockstep: bool) -> float:
+    """--speedup as given, else real time (free-running) or DEFAULT_STARTUP_SPEEDUP (lockstep)."""
+    if speedup is not None:
+        return speedup
+    return DEFAULT_STARTUP_SPEEDUP if lockstep else 1.0
 
 
 class Barrier:
