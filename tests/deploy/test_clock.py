@@ -130,6 +130,33 @@ def test_a_new_tup_aligns_the_next_instant() -> None:
     assert not clock.second_due(35, 35.0, False, always)  # ... 35 does
 
 
+@pytest.mark.parametrize("telemetry_first", [False, True], ids=["change-first", "telemetry-first"])
+@pytest.mark.parametrize(("change_at", "new_tup", "published"), [
+    (10, 5, [0, 15, 20, 25]),  # 10 is a multiple of the new T_up only: not an instant (the world's rule)
+    (15, 5, [0, 15, 20, 25]),  # 15 is an instant under the old T_up: still owed, then multiples of 5
+    (15, 10, [0, 15, 20]),
+])
+def test_lockstep_tup_change_is_independent_of_arrival_order(telemetry_first, change_at, new_tup, published) -> None:
+    """Lockstep: the change arrives in second `change_at` (before its tick); whether that
+    second's first telemetry came before it is wall-clock order and must not matter."""
+    clock = MissionClock(TUP, TAU, SETTLE_MIN, SETTLE_WALL, lockstep=True)
+    clock.observe(0.0, 0.0)
+    clock.set_t0(0.0)
+    out = []
+    for tenth in range(0, 260):
+        tm = tenth / 10
+        k = math.floor(tm + 1e-9)
+        if k == change_at and tenth % 10 == 0 and not telemetry_first:
+            clock.set_tup(new_tup)
+        clock.observe(tm, 0.0)
+        out += clock.states_due(tm)
+        if k == change_at and tenth % 10 == 0 and telemetry_first:
+            clock.set_tup(new_tup)
+        if tenth % 10 == 0:
+            clock.next_k = k + 1  # second k processed at its first sample, after its tick
+    assert out == published
+
+
 def test_grace_is_half_a_wall_second_within_the_wait_bound_and_half_tup() -> None:
     clock = started()
     assert clock.grace_s() == 0.5

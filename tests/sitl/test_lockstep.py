@@ -17,9 +17,10 @@ import pytest
 pytestmark = [pytest.mark.integration, pytest.mark.slow]  # whole SITL swarms, 20-90 s each
 ROOT = Path(__file__).resolve().parents[2]
 
-# Scripted events early in a short mission: a link blackout, a node failure and a broker
-# outage over a signalling instant (lockstep emulates it in the world: sitl/world.py).
+# Scripted events early in a short mission: a link blackout, T_up 15 -> 5, a node failure
+# and a broker outage over a signalling instant (lockstep emulates it in the world).
 EVENTS = ("  - {type: link_blackout, at_s: 6, duration_s: 5, uavs: [0]}\n"
+          "  - {type: tup_change, at_s: 10, tup_s: 5}\n"
           "  - {type: node_failure, at_s: 14, uav: 2}\n"
           "  - {type: broker_outage, at_s: 15, duration_s: 5}\n")
 
@@ -67,10 +68,10 @@ def test_same_seed_same_outputs_with_a_cpu_hog_beside_one_run(tmp_path):
     rows = [json.loads(x) for x in (tmp_path / "quiet" / "metrics.jsonl").read_text().splitlines()]
     assert [r["t"] for r in rows] == list(range(26))
     events = [json.loads(x)["type"] for x in (tmp_path / "quiet" / "events.jsonl").read_text().splitlines()]
-    assert events == ["link_blackout", "node_failure", "broker_outage", "broker_outage_end"]
-    # T_up 15: states go out at the instants t = 0 and 15 (counted in the next second's row);
-    # the outage swallowed those of t = 15.
-    assert [r["t"] for r in rows if r["messages"]] == [1], [r["messages"] for r in rows]
+    assert events == ["link_blackout", "tup_change", "node_failure", "broker_outage", "broker_outage_end"]
+    # States go out at the instants 0, then (T_up 5 from t = 11 on) 15, 20 and 25, each
+    # counted in the next second's row; the outage swallowed those of t = 15.
+    assert [r["t"] for r in rows if r["messages"]] == [1, 21], [r["messages"] for r in rows]
     assert digests[0] == digests[1]
 
 

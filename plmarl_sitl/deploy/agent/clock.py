@@ -76,12 +76,27 @@ class MissionClock:
         return k
 
     def set_tup(self, tup: int) -> None:
-        """A new signalling interval: the next instant is the next multiple of it."""
+        """A new signalling interval: the next instant is the next multiple of it.
+
+        Lockstep: the world's instant at the second the change arrives in (`next_k`: its
+        tick, which follows the change, is not in yet) follows the interval before the
+        change, and the new one counts from the next second on. An instant still owed
+        there under the old interval stays owed; nothing depends on whether that second's
+        first telemetry came before the change, which is wall-clock order."""
         self.tup = tup
-        if self.t0 is not None:
-            k = math.ceil(self.boot_s - self.t0)
-            self.next_pub_k = next_multiple(k, tup)
-            self.next_close = self.next_pub_k
+        if self.t0 is None:
+            return
+        if self.lockstep:
+            k = self.next_k
+            after = next_multiple(k + 1, tup)
+            if self.next_pub_k != k:
+                self.next_pub_k = after
+            if self.next_close != k:
+                self.next_close = after
+            return
+        k = math.ceil(self.boot_s - self.t0)
+        self.next_pub_k = next_multiple(k, tup)
+        self.next_close = self.next_pub_k
 
     def on_closed(self, t_s: float) -> None:
         """The SITL link emulator closed instant t_s (a late, older announcement moves nothing back)."""
@@ -122,7 +137,7 @@ class MissionClock:
         due = []
         while self.next_pub_k is not None and tm >= self.next_pub_k - EPS:
             due.append(self.next_pub_k)
-            self.next_pub_k += self.tup
+            self.next_pub_k = next_multiple(self.next_pub_k + 1, self.tup)  # an old interval's instant may precede
         return due
 
     def second_due(self, k: int, tm: float, awaiting_sensing: bool, delivered: Callable[[int], bool],
@@ -163,5 +178,5 @@ class MissionClock:
         due = []
         while self.next_close is not None and self.next_close + self.grace_s() <= k + sub_s:
             due.append(self.next_close)
-            self.next_close += self.tup
+            self.next_close = next_multiple(self.next_close + 1, self.tup)
         return due
