@@ -14,6 +14,11 @@ late by construction, so only the gap is judged) and the first seed twice, and r
 the lockstep wall time next to the best on-time free-running one, the lockstep coverage
 gap, and whether the two runs' outputs (metrics.jsonl, events.jsonl, the summary without
 its run directory) hash the same.
+
+Every row also says what share of the 10 Hz telemetry the agents answered after the
+start ("answered"): a free-running agent that falls behind skips to the newest sample,
+which keeps it on time by the criteria above while it does less work per vehicle second
+than a lockstep one, which answers all of them.
 """
 
 from __future__ import annotations
@@ -67,6 +72,24 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bo
     return summary, time.perf_counter() - t0
 
 
+def answered_share(run_dir: Path) -> float | None:
+    """Telemetry samples the agents answered after the start, over mission seconds x the
+    rate they asked for (from agents/*.stats.json); None without stats."""
+    from plmarl_sitl.deploy.agent.session import TELEMETRY_HZ
+
+    samples = seconds = 0
+    for f in (run_dir / "agents").glob("*.stats.json"):
+        st = json.loads(f.read_text())
+        samples += int(st.get("mission_samples", 0))
+        seconds += int(st.get("seconds", 0))
+    return samples / (seconds * TELEMETRY_HZ) if seconds else None
+
+
+def _mean_answered(flights: list[tuple[dict, float]]) -> float | None:
+    shares = [answered_share(Path(f[0]["run_dir"])) for f in flights]
+    return float(np.mean(shares)) if shares and None not in shares else None
+
+
 def outputs_hash(run_dir: Path) -> str:
     """SHA-256 over a run's metrics.jsonl, events.jsonl and summary.json without run_dir."""
     summary = json.loads((run_dir / "summary.json").read_text())
@@ -87,6 +110,7 @@ def _lockstep(path: str, policy: str, seeds: list[int], twin_mean: float, free_w
     hashes = [outputs_hash(Path(f[0]["run_dir"])) for f in (flights[0], again)]
     return {"wall_s": wall, "x_faster_than_free": free_wall_s / wall, "sitl_coverage": sitl,
             "coverage_gap": abs(sitl - twin_mean), "sitl_by_seed": [f[0]["coverage_mean"] for f in flights],
+            "answered": _mean_answered(flights),
             "hash_runs": hashes, "identical": hashes[0] == hashes[1]}
 
 
@@ -115,14 +139,14 @@ def run(args: argparse.Namespace) -> dict:
             ok = gap <= args.max_gap and lag is not None and lag <= args.max_lag and delay is not None and delay <= args.max_delay
             tried.append({"speedup": k, "wall_s": float(np.mean([f[1] for f in flights])), "coverage_gap": gap, "sitl": sitl,
                           "sitl_by_seed": [f[0]["coverage_mean"] for f in flights], "sensing_lag_max_s": lag,
-                          "decision_delay_p95_s": delay, "ok": ok})
+                          "decision_delay_p95_s": delay, "answered": _mean_answered(flights), "ok": ok})
             if ok:
                 break
         best = tried[-1]
         rows.append({"n": n, "speedup": best["speedup"], "wall_s": best["wall_s"], "coverage_gap": best["coverage_gap"],
                      "twin_coverage": twin_mean, "twin_by_seed": twin, "sitl_coverage": best["sitl"],
                      "sensing_lag_max_s": best["sensing_lag_max_s"], "decision_delay_p95_s": best["decision_delay_p95_s"],
-                     "ok": best["ok"], "tried": tried})
+                     "answered": best["answered"], "ok": best["ok"], "tried": tried})
         if getattr(args, "lockstep", False):
             rows[-1]["lockstep"] = _lockstep(path, args.policy, seeds, twin_mean, best["wall_s"], args.broker)
     return {"rows": rows, "machine": machine_info(), "seeds": seeds, "broker": getattr(args, "broker", "embedded")}
@@ -133,20 +157,25 @@ def print_table(res: dict) -> None:
     from rich.table import Table
 
     t = Table(title=f"200 s mission as a SITL swarm ({res['machine']}, seeds {res['seeds']}; wall = mean per run)")
-    for col in ("N", "speedup", "wall", "twin C", "SITL C", "gap", "delay p95", "sensing age", "ok"):
+    for col in ("N", "speedup", "wall", "twin C", "SITL C", "gap", "delay p95", "sensing age", "answered", "ok"):
         t.add_column(col, justify="right")
     for r in res["rows"]:
         t.add_row(str(r["n"]), f"{r['speedup']:g}x", f"{r['wall_s']:.1f} s", f"{r['twin_coverage']:.3f}",
-                  f"{r['sitl_coverage']:.3f}", f"{r['coverage_gap']:.3f}", f"{r['decision_delay_p95_s']} s", f"{r['sensing_lag_max_s']} s", "yes" if r["ok"] else "no")
+                  f"{r['sitl_coverage']:.3f}", f"{r['coverage_gap']:.3f}", f"{r['decision_delay_p95_s']} s", f"{r['sensing_lag_max_s']} s",
+                  _pct(r["answered"]), "yes" if r["ok"] else "no")
     Console().print(t)
     if any("lockstep" in r for r in res["rows"]):
         lt = Table(title="the same missions in lockstep (--lockstep), next to the best on-time free-running speedup above")
-        for col in ("N", "free wall", "lockstep wall", "x faster", "SITL C", "gap", "2 runs identical", "hash"):
+        for col in ("N", "free wall", "lockstep wall", "x faster", "SITL C", "gap", "answered", "2 runs identical", "hash"):
             lt.add_column(col, justify="right")
         for r in res["rows"]:
             ls = r.get("lockstep")
             if ls is not None:
                 lt.add_row(str(r["n"]), f"{r['wall_s']:.1f} s", f"{ls['wall_s']:.1f} s", f"{ls['x_faster_than_free']:.1f}",
-                           f"{ls['sitl_coverage']:.3f}", f"{ls['coverage_gap']:.3f}", "yes" if ls["identical"] else "no",
-                           ls["hash_runs"][0][:12])
+                           f"{ls['sitl_coverage']:.3f}", f"{ls['coverage_gap']:.3f}", _pct(ls["answered"]),
+                           "yes" if ls["identical"] else "no", ls["hash_runs"][0][:12])
         Console().print(lt)
+
+
+def _pct(x: float | None) -> str:
+    return "-" if x is None else f"{100 * x:.0f} %"

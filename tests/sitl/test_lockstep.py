@@ -14,6 +14,8 @@ from pathlib import Path
 import psutil
 import pytest
 
+from plmarl_sitl.bench.swarm import answered_share
+
 pytestmark = [pytest.mark.integration, pytest.mark.slow]  # whole SITL swarms, 20-90 s each
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -73,6 +75,8 @@ def test_same_seed_same_outputs_with_a_cpu_hog_beside_one_run(tmp_path):
     # counted in the next second's row; the outage swallowed those of t = 15.
     assert [r["t"] for r in rows if r["messages"]] == [1, 21], [r["messages"] for r in rows]
     assert digests[0] == digests[1]
+    # Lockstep answers every telemetry sample (what `plmarl bench swarm` reports as "answered").
+    assert answered_share(tmp_path / "quiet") == pytest.approx(1.0, abs=0.05)
 
 
 def _wait_rows(proc: subprocess.Popen, out: Path, rows: int, timeout_s: float = 180) -> None:

@@ -27,12 +27,17 @@ class LoopStats:
     startup_s: float | None = None
     decisions: int = 0
     seconds: int = 0
+    # Telemetry samples answered after the mission start: against seconds x the telemetry
+    # rate, the share a free-running agent keeps up with (it skips to the newest sample
+    # when it falls behind; a lockstep one answers every sample).
+    mission_samples: int = 0
 
-    def tick(self, t_in: float, c_in: float, decided: bool, rx_ns: int | None) -> None:
+    def tick(self, t_in: float, c_in: float, decided: bool, rx_ns: int | None, in_mission: bool = False) -> None:
         """One telemetry message handled, from perf_counter t_in and thread_time c_in (its
         datagram arrived at time_ns rx_ns, when the link stamps arrivals)."""
         dt_ms = (time.perf_counter() - t_in) * 1e3
         self.all_ms.append(dt_ms)
+        self.mission_samples += in_mission
         if decided:
             self.decision_ms.append(dt_ms)
             self.decision_cpu_ms.append((time.thread_time() - c_in) * 1e3)
@@ -58,6 +63,7 @@ class LoopStats:
             "startup_s": self.startup_s,
             "decisions": self.decisions,
             "seconds": self.seconds,
+            "mission_samples": self.mission_samples,
         }
 
 
