@@ -428,7 +428,11 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    return summary
+    # Wall-clock figures go to the caller only: summary.json stays identical between
+    # lockstep runs of one seed.
+    mission_wall = world.summary.mission_wall_s if world is not None else None
+    return {**summary, "mission_wall_s": mission_wall,
+            "achieved_speedup": summary["duration_s"] / mission_wall if mission_wall else None}
 
 
 async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float,

@@ -114,6 +114,8 @@ def print_summary(summary: dict, console, title: str) -> None:  # noqa: ANN001 -
     t.add_row("coverage mean", f"{summary['coverage_mean']:.3f}")
     t.add_row("coverage min", f"{summary['coverage_min']:.3f}")
     t.add_row("duration", f"{summary['duration_s']:.0f} s (speedup {summary['speedup']})")
+    if summary.get("mission_wall_s"):  # a run just flown (not in summary.json: it is wall-clock)
+        t.add_row("mission wall time", f"{summary['mission_wall_s']:.1f} s ({summary['achieved_speedup']:.1f}x achieved)")
     t.add_row("events", str(len(summary["events"])))
     for f in summary.get("node_failures", []):
         settle = "never" if f["restabilize_s"] is None else f"{f['restabilize_s']:.0f} s"

@@ -142,6 +142,10 @@ class WorldSummary:
     wall_s: float = 0.0
     sim_s: float = 0.0
     links: dict[str, int] = field(default_factory=dict)
+    # Wall seconds from mission second 0 to the last: the pace actually achieved. A free
+    # world that cannot keep its --speedup falls behind (bounded catch-up), so the nominal
+    # speedup overstates it on a loaded machine.
+    mission_wall_s: float | None = None
 
     @property
     def mean_coverage(self) -> float:
@@ -232,6 +236,7 @@ class SitlWorld:
         self._stop = asyncio.Event()
         self._next_second = 1.0  # boot seconds before t0, mission seconds after
         self.started_wall: float | None = None
+        self._t0_wall: float | None = None  # perf_counter at mission second 0
         self._sim0: float | None = None  # the vehicles' clock when the run began (sim_s is counted from it)
         # Lockstep state: the states of each open instant by sender (relayed in sender order
         # when it closes), the boot second whose tick is not yet out, since when (wall) the
@@ -562,7 +567,11 @@ class SitlWorld:
             self.apply_events(k)
         if self.on_metrics is not None:
             self.on_metrics(metrics)
+        if k == 0:
+            self._t0_wall = time.perf_counter()
         if k is not None and self.cfg.episode_s is not None and k >= self.cfg.episode_s:
+            if self._t0_wall is not None:
+                self.summary.mission_wall_s = time.perf_counter() - self._t0_wall
             self._stop.set()
 
     # ------------------------------------------------------------------ clock

@@ -67,6 +67,9 @@ def test_same_seed_same_outputs_with_a_cpu_hog_beside_one_run(tmp_path):
                 p.wait()
         assert r.returncode == 0, r.stderr[-2000:]
         digests.append(_digest(out))
+        flown = json.loads(r.stdout.strip().splitlines()[-1])  # wall-clock figures: printed, not in summary.json
+        assert flown["achieved_speedup"] == pytest.approx(25 / flown["mission_wall_s"])
+        assert "mission_wall_s" not in json.loads((out / "summary.json").read_text())
     rows = [json.loads(x) for x in (tmp_path / "quiet" / "metrics.jsonl").read_text().splitlines()]
     assert [r["t"] for r in rows] == list(range(26))
     events = [json.loads(x)["type"] for x in (tmp_path / "quiet" / "events.jsonl").read_text().splitlines()]
