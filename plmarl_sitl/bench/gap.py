@@ -28,6 +28,8 @@ from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
+START_WALL_S = 120.0
+
 
 def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[float]:
     from plmarl_sitl.learning.eval.controllers import LearnedController
@@ -57,15 +59,21 @@ async def sitl_coverage(
     fleet = AgentFleet(tmp, nice=SITL_AGENT_NICE)
     key = create_key_file(tmp / "swarm.key")  # signed, as `plmarl swarm up` flies
     async with local_broker() as broker:
+        # Every vehicle must fly the whole mission for the gap to mean anything: wait up to
+        # START_WALL_S of wall time for all of them (the world's default, 300 vehicle s, is
+        # 30 s at 10x, shorter than the agents' start-up on a loaded 2-core machine).
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
-                                      episode_s=mission.timing.episode_s, swarm_key=key, lockstep=lockstep))
+                                      episode_s=mission.timing.episode_s, swarm_key=key, lockstep=lockstep,
+                                      start_timeout_s=START_WALL_S * speedup))
         try:
             await world.start()
             for i in range(n):
                 await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir,
                                   swarm_key=tmp / "swarm.key", extra=["--lockstep"] if lockstep else None)
-            async with asyncio.timeout(60 + 3 * mission.timing.episode_s / speedup + 60):
+            async with asyncio.timeout(START_WALL_S + 3 * mission.timing.episode_s / speedup + 60):
                 summary = await world.run()
+            if summary.not_ready_at_start:  # a gap measured without every vehicle means nothing
+                raise RuntimeError(f"seed {seed}: the mission started without {'; '.join(summary.not_ready_at_start)}")
         finally:
             await world.shutdown(fleet)
     stats = {i: ap.stats() for i, ap in fleet.procs.items()}
@@ -86,8 +94,12 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         t = time.perf_counter()
         twin = twin_coverage(mission, args.policy, seed)
-        sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
-                                                 lockstep=args.lockstep))
+        try:
+            sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
+                                                     lockstep=args.lockstep))
+        except RuntimeError as exc:
+            print(f"gap: error: {exc}", file=sys.stderr)
+            return 1
         tw, st = sum(twin) / len(twin), (sum(sitl) / len(sitl) if sitl else float("nan"))
         rows.append({"seed": seed, "twin": tw, "sitl": st, "gap": st - tw, "sitl_seconds": len(sitl), "wall_s": time.perf_counter() - t})
         print(f"seed {seed}: twin {tw:.4f}  sitl {st:.4f}  gap {st - tw:+.4f}  ({len(sitl)} s, {rows[-1]['wall_s']:.0f} s wall)",

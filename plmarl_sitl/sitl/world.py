@@ -142,6 +142,7 @@ class WorldSummary:
     wall_s: float = 0.0
     sim_s: float = 0.0
     links: dict[str, int] = field(default_factory=dict)
+    not_ready_at_start: list[str] = field(default_factory=list)  # vehicles left behind by the start timeout
 
     @property
     def mean_coverage(self) -> float:
@@ -448,6 +449,7 @@ class SitlWorld:
         if self._ready() or now >= self.cfg.start_timeout_s:
             if not self._ready():
                 log.warning("start timeout: starting the mission with the vehicles that are ready")
+                self.summary.not_ready_at_start = self.not_ready()
             margin = max(self.cfg.start_margin_s, self.cfg.start_margin_wall_s * self.cfg.speedup)
             self.t0 = float(math.ceil(now + margin))
             self.summary.t0_boot_s = self.t0
