@@ -3,7 +3,9 @@
 Twin: `CoverageEnv(mission, 1, seed)` driven by `LearnedController` (the evaluation's
 controller). SITL: `SitlWorld(seed=seed)` (same users: same generator seeding and
 per-second stepping) with one `plmarl agent` child per UAV over a real broker. Both
-report the mean of C(t) over mission seconds 1..episode_s.
+report the mean of C(t) over mission seconds 1..episode_s. With --lockstep the SITL swarm
+runs in lockstep (`plmarl swarm up --lockstep`: vehicle time waits for every agent, so the
+result does not depend on the machine's load; the speedup paces only the start-up).
 
     python -m plmarl_sitl.bench.gap missions/paper_urban.yaml --policy policies/pl-marl --seeds 0 1 2
 """
@@ -26,6 +28,8 @@ from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
+START_WALL_S = 120.0
+
 
 def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[float]:
     from plmarl_sitl.learning.eval.controllers import LearnedController
@@ -45,7 +49,8 @@ def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[f
 
 
 async def sitl_coverage(
-    mission_path: str | Path, policy_dir: str | Path, seed: int, *, speedup: float = 10.0, workdir: Path | None = None
+    mission_path: str | Path, policy_dir: str | Path, seed: int, *, speedup: float = 10.0, workdir: Path | None = None,
+    lockstep: bool = False,
 ) -> tuple[list[float], dict]:
     mission = load_mission(mission_path)
     n = mission.n_uavs
@@ -54,15 +59,21 @@ async def sitl_coverage(
     fleet = AgentFleet(tmp, nice=SITL_AGENT_NICE)
     key = create_key_file(tmp / "swarm.key")  # signed, as `plmarl swarm up` flies
     async with local_broker() as broker:
+        # Every vehicle must fly the whole mission for the gap to mean anything: wait up to
+        # START_WALL_S of wall time for all of them (the world's default, 300 vehicle s, is
+        # 30 s at 10x, shorter than the agents' start-up on a loaded 2-core machine).
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
-                                      episode_s=mission.timing.episode_s, swarm_key=key))
+                                      episode_s=mission.timing.episode_s, swarm_key=key, lockstep=lockstep,
+                                      start_timeout_s=START_WALL_S * speedup))
         try:
             await world.start()
             for i in range(n):
                 await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir,
-                                  swarm_key=tmp / "swarm.key")
-            async with asyncio.timeout(60 + 3 * mission.timing.episode_s / speedup + 60):
+                                  swarm_key=tmp / "swarm.key", extra=["--lockstep"] if lockstep else None)
+            async with asyncio.timeout(START_WALL_S + 3 * mission.timing.episode_s / speedup + 60):
                 summary = await world.run()
+            if summary.not_ready_at_start:  # a gap measured without every vehicle means nothing
+                raise RuntimeError(f"seed {seed}: the mission started without {'; '.join(summary.not_ready_at_start)}")
         finally:
             await world.shutdown(fleet)
     stats = {i: ap.stats() for i, ap in fleet.procs.items()}
@@ -75,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--policy", default="policies/pl-marl")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--speedup", type=float, default=10.0)
+    p.add_argument("--lockstep", action="store_true", help="fly the SITL side in lockstep (deterministic, load-independent)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     mission = load_mission(args.mission)
@@ -82,14 +94,19 @@ def main(argv: list[str] | None = None) -> int:
     for seed in args.seeds:
         t = time.perf_counter()
         twin = twin_coverage(mission, args.policy, seed)
-        sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup))
+        try:
+            sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
+                                                     lockstep=args.lockstep))
+        except RuntimeError as exc:
+            print(f"gap: error: {exc}", file=sys.stderr)
+            return 1
         tw, st = sum(twin) / len(twin), (sum(sitl) / len(sitl) if sitl else float("nan"))
         rows.append({"seed": seed, "twin": tw, "sitl": st, "gap": st - tw, "sitl_seconds": len(sitl), "wall_s": time.perf_counter() - t})
         print(f"seed {seed}: twin {tw:.4f}  sitl {st:.4f}  gap {st - tw:+.4f}  ({len(sitl)} s, {rows[-1]['wall_s']:.0f} s wall)",
               file=sys.stderr, flush=True)
     mt = sum(r["twin"] for r in rows) / len(rows)
     ms = sum(r["sitl"] for r in rows) / len(rows)
-    out = {"mission": mission.name, "policy": str(args.policy), "seeds": args.seeds, "twin_mean": mt, "sitl_mean": ms,
+    out = {"mission": mission.name, "policy": str(args.policy), "seeds": args.seeds, "lockstep": args.lockstep, "twin_mean": mt, "sitl_mean": ms,
            "gap": ms - mt, "max_abs_seed_gap": max(abs(r["gap"]) for r in rows), "per_seed": rows}
     print(json.dumps(out) if args.json else json.dumps(out, indent=1))
     return 0

@@ -9,7 +9,11 @@ so machine load hits them equally; report the median and the 99th percentile.
 
 The shipped policies/<method>/ files are used when present; otherwise freshly
 initialised modules of the same architecture (latency does not depend on the weights)
-and the row says `weights: untrained`.
+and the row says `weights: untrained`. The wave-1 PL-MARL files (policies/wave1/pl-marl,
+the map-memorising policy shipped before issue 12) are timed in the same run as the row
+`pl-marl-wave1`, the baseline the decision's cost is judged against. Each file is called
+with the inputs of its version (docs/POLICY_IO.md): five for version 1, the demand map for
+version 2, and the team-plan target where it takes one.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.errors import UserError
 from plmarl_sitl.machine import machine_info
 
 DEFAULT_N = "4,8,12,16,20"
@@ -29,16 +34,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
     p.add_argument("--methods", default="pl-marl,gru", help="methods to time side by side (default: pl-marl,gru)")
     p.add_argument("--policies", default="policies", help="directory with <method>/predictor.pt, policy.pt")
+    p.add_argument("--baseline", default="policies/wave1/pl-marl", metavar="DIR",
+                   help="policy timed beside them as pl-marl-wave1 ('' for none; default: policies/wave1/pl-marl)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default: 0)")
 
 
-def _modules(method: str, policies: Path):
+BASELINE = "pl-marl-wave1"
+
+
+def _modules(method: str, d: Path):
     from plmarl_sitl.learning.nn.deploy import fuse_tracker
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 
-    d = policies / method
     if (d / "card.yaml").is_file():
         lp = load_policy(d)
         return lp.tracker, lp.policy, "trained"
@@ -56,6 +65,7 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
+    from plmarl_sitl.learning.nn.io import input_version, takes_plan
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
@@ -68,6 +78,9 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     fail = torch.tensor(False)
     # A published demand map of 4 clusters over 100 m cells: ~16 nonzero cells on the wire.
     demand = torch.cat([torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
+    target = torch.tensor([520.0, 480.0])  # the agent's team-plan point
+    extra = {m: (() if input_version(policy) < 2 else (demand, target) if takes_plan(policy) else (demand,))
+             for m, (_, policy, _) in mods.items()}
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
     with torch.inference_mode():
@@ -80,7 +93,7 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
             tracker, policy, _ = mods[m]
             buf, seen = state[m]
             belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
-            policy(ego, belief, mask, sense, fail, demand)
+            policy(ego, belief, mask, sense, fail, *extra[m])
 
         for _ in range(300):  # warm-up (TorchScript's profiling runs)
             for m in mods:
@@ -102,12 +115,16 @@ def run(args: argparse.Namespace) -> dict:
 
     torch.set_num_threads(1)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    mods = {m: _modules(m, Path(args.policies)) for m in methods}
+    mods = {m: _modules(m, Path(args.policies) / m) for m in methods}
+    if args.baseline:
+        if not (Path(args.baseline) / "card.yaml").is_file():
+            raise UserError(f"--baseline {args.baseline}: no card.yaml there")
+        mods[BASELINE] = _modules("pl-marl", Path(args.baseline))
     gen = torch.Generator().manual_seed(args.seed)
     rows = []
     for n in args.n:
         rows += _time_n(mods, n, args.calls, gen)
-    return {"rows": rows, "weights": {m: mods[m][2] for m in methods}, "machine": machine_info(), "torch_threads": 1,
+    return {"rows": rows, "weights": {m: mods[m][2] for m in mods}, "baseline": args.baseline or None, "machine": machine_info(), "torch_threads": 1,
             "calls": args.calls}
 
 
@@ -127,4 +144,6 @@ def print_table(res: dict) -> None:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:
             msg += f"; gru / pl-marl at N={ns[-1]}: {by[('gru', ns[-1])] / by[('pl-marl', ns[-1])]:.2f}x"
+        if (BASELINE, ns[-1]) in by:
+            msg += f"; pl-marl / {BASELINE} at N={ns[-1]}: {by[('pl-marl', ns[-1])] / by[(BASELINE, ns[-1])]:.2f}x"
         Console().print(msg)

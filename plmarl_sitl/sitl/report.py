@@ -89,20 +89,83 @@ def draw(run_dir: Path, metrics: list[dict], events: list[dict]) -> list[Path]:
     fig.savefig(out[-1], dpi=120)
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
-    for uid in ids:
+    fig = trajectory_figure(plt, run_dir, metrics)
+    out.append(run_dir / "trajectories.png")
+    fig.savefig(out[-1], dpi=120, bbox_inches="tight")  # the legend sits outside the axes
+    plt.close(fig)
+    return out
+
+
+def trajectory_figure(plt, run_dir: Path, metrics: list[dict]):  # noqa: ANN001, ANN201 - pyplot -> Figure
+    """The UAVs' tracks over the run's users (at t = 0 and at the end) and the U2U links of
+    the last second, with a legend; without the run's mission.yaml, the tracks alone."""
+    ids = sorted({u["id"] for r in metrics for u in r["uavs"]})
+    fig, ax = plt.subplots(figsize=(9, 6))
+    mission = _run_mission(run_dir)
+    if mission is not None:
+        first, last = replay_users(mission, _run_seed(run_dir, mission), int(metrics[-1]["t"]))
+        ax.scatter(first[:, 1], first[:, 0], s=3, color="0.75", label="users at t = 0")
+        ax.scatter(last[:, 1], last[:, 0], s=3, color="0.35", label=f"users at t = {metrics[-1]['t']:g} s")
+        _draw_links(ax, metrics[-1], mission.radii.comm_m)
+        ax.set(xlim=(0, mission.area.east_m), ylim=(0, mission.area.north_m))
+    for k, uid in enumerate(ids):
         pts = [u["pos_ned"] for r in metrics for u in r["uavs"] if u["id"] == uid]
         if pts:
-            ax.plot([p[1] for p in pts], [p[0] for p in pts], lw=1, label=f"UAV {uid}")
-            ax.plot(pts[-1][1], pts[-1][0], "o", ms=4)
+            label = f"UAV {uid}" if len(ids) <= 8 else ("UAVs (one colour each)" if k == 0 else None)
+            line, = ax.plot([p[1] for p in pts], [p[0] for p in pts], lw=1, label=label)
+            ax.plot(pts[-1][1], pts[-1][0], "o", ms=5, color=line.get_color())
+    ax.plot([], [], "o", ms=5, color="0.2", label="UAV at the end")
     ax.set(xlabel="east [m]", ylabel="north [m]", title="Trajectories (mission frame)")
     ax.set_aspect("equal")
     ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     fig.tight_layout()
-    out.append(run_dir / "trajectories.png")
-    fig.savefig(out[-1], dpi=120)
-    plt.close(fig)
-    return out
+    return fig
+
+
+def _run_mission(run_dir: Path):  # noqa: ANN202 - Mission | None
+    """The run's own copy of its mission (written by `plmarl swarm up`), or None."""
+    from plmarl_sitl.mission import load_mission
+
+    try:
+        return load_mission(run_dir / "mission.yaml")
+    except (OSError, UserError):  # a bad mission file is a ConfigError
+        return None
+
+
+def _run_seed(run_dir: Path, mission) -> int:  # noqa: ANN001
+    try:
+        return int(json.loads((run_dir / "summary.json").read_text())["seed"])
+    except (OSError, KeyError, TypeError, ValueError):
+        return mission.seed
+
+
+def replay_users(mission, seed: int, seconds: int):  # noqa: ANN001, ANN201 - Mission -> (U, 2) arrays
+    """(north, east) of every user at t = 0 and after `seconds`: the users depend only on
+    the mission and the seed (the SITL world and the twin step them with a generator of
+    their own, `sitl/world.py`), so the run's users are replayed exactly, not recorded."""
+    import torch
+
+    from plmarl_sitl.model.users import init_users, step_users
+
+    gen = torch.Generator().manual_seed(seed)
+    users = init_users(mission, 1, gen, torch.float32)
+    first = users.xy[0].numpy().copy()
+    for _ in range(seconds):
+        users = step_users(users, mission, mission.timing.dt_s, gen)
+    return first, users.xy[0].numpy()
+
+
+def _draw_links(ax, row: dict, comm_m: float) -> None:  # noqa: ANN001 - matplotlib Axes
+    """U2U links at the row's second: pairs of live UAVs within R_comm (the swarm graph)."""
+    live = [u["pos_ned"] for u in row["uavs"] if u.get("alive", True)]
+    label = f"U2U link (<= R_comm = {comm_m:g} m) at t = {row['t']:g} s"
+    for a in range(len(live)):
+        for b in range(a + 1, len(live)):
+            pa, pb = live[a], live[b]
+            if (pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 <= comm_m**2:
+                ax.plot([pa[1], pb[1]], [pa[0], pb[0]], ls="--", lw=0.8, color="tab:gray", label=label)
+                label = None
 
 
 def print_summary(summary: dict, console, title: str) -> None:  # noqa: ANN001 - rich Console

@@ -146,6 +146,7 @@ class WorldSummary:
     # world that cannot keep its --speedup falls behind (bounded catch-up), so the nominal
     # speedup overstates it on a loaded machine.
     mission_wall_s: float | None = None
+    not_ready_at_start: list[str] = field(default_factory=list)  # vehicles left behind by the start timeout
 
     @property
     def mean_coverage(self) -> float:
@@ -478,6 +479,7 @@ class SitlWorld:
         if self._ready() or now >= self.cfg.start_timeout_s:
             if not self._ready():
                 log.warning("start timeout: starting the mission with the vehicles that are ready")
+                self.summary.not_ready_at_start = self.not_ready()
             margin = max(self.cfg.start_margin_s, self.cfg.start_margin_wall_s * self.cfg.speedup)
             self.t0 = float(math.ceil(now + margin))
             self.summary.t0_boot_s = self.t0

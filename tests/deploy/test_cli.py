@@ -56,3 +56,19 @@ def test_bad_lists_are_argparse_errors(argv: list[str], needle: str, capsys: pyt
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+def test_bench_infer_times_the_shipped_files_beside_the_wave_1_baseline(capsys: pytest.CaptureFixture[str],
+                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each file is called with the inputs of its version: the shipped policies (team plan,
+    input version 2) and the wave-1 PL-MARL (version 1) in the same run."""
+    import json
+    from pathlib import Path
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[2])
+    assert main(["bench", "infer", "--n", "4", "--calls", "5", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert {r["method"] for r in res["rows"]} == {"pl-marl", "gru", "pl-marl-wave1"}
+    assert res["weights"] == {"pl-marl": "trained", "gru": "trained", "pl-marl-wave1": "trained"}
+    assert main(["bench", "infer", "--baseline", "/nope"]) == 2
+    assert "--baseline /nope: no card.yaml there" in capsys.readouterr().err

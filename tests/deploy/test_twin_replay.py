@@ -135,6 +135,6 @@ def test_flag_booked_late_still_equals_the_twins(v2_policy_dir: Path) -> None:
 
 
 def test_a_version_1_policy_runs_as_it_was_trained() -> None:
-    """The policies shipped before issue 12: no demand argument, f = a neighbour dropped."""
-    seen = replay(ROOT / "policies" / "pl-marl", 0, 50.0)
+    """The policies shipped before issue 12 (policies/wave1): no demand argument, f = a neighbour dropped."""
+    seen = replay(ROOT / "policies" / "wave1" / "pl-marl", 0, 50.0)
     assert seen["decisions"] > 100 and seen["f"] > 0

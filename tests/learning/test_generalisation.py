@@ -196,10 +196,10 @@ def test_plan_input_is_relative_and_absent_before_a_plan():
 
 
 def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
-    """policies/general/* were exported before the team plan: the twin calls them without it."""
+    """policies/tag-mappo was exported before the team plan: the twin calls it without it."""
     from plmarl_sitl.learning.nn.io import load_policy
 
-    lp = load_policy("policies/general/tag-mappo")
+    lp = load_policy("policies/tag-mappo")
     assert lp.input_version == 2 and not lp.takes_plan
     ctl = LearnedController(lp.tracker, lp.policy, MISSION)
     assert ctl.plan is None

@@ -4,6 +4,7 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
@@ -96,6 +97,48 @@ def test_summarize_and_report_cli(tmp_path):
     for png in ("coverage.png", "aoi.png", "trajectories.png"):
         data = (tmp_path / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+
+
+def test_trajectory_plot_shows_users_links_and_a_legend(tmp_path):
+    """With the run's mission.yaml the plot has the users (t = 0 and the end), the U2U links of
+    the last second (UAVs 0 and 2 are 100 m apart, UAV 1 is dead) and a legend naming them."""
+    import shutil
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plmarl_sitl.sitl.report import trajectory_figure
+
+    shutil.copy(Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml", tmp_path / "mission.yaml")
+    fig = trajectory_figure(plt, tmp_path, _rows())
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    plt.close(fig)
+    assert labels == ["users at t = 0", "users at t = 59 s", "U2U link (<= R_comm = 350 m) at t = 59 s", "UAV 0", "UAV 1", "UAV 2",
+                      "UAV at the end"]
+    fig = trajectory_figure(plt, tmp_path / "no-mission", _rows())  # an old run without mission.yaml: tracks only
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["UAV 0", "UAV 1", "UAV 2", "UAV at the end"]
+    plt.close(fig)
+
+
+def test_report_replays_the_users_of_the_run():
+    """The plotted users are the world's and the twin's: same generator, stepped once a second."""
+    import torch
+
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.sitl.report import replay_users
+    from plmarl_sitl.twin.env import CoverageEnv
+
+    for path in ("missions/paper_urban.yaml", "missions/suite/random_layout.yaml"):
+        m = load_mission(Path(__file__).resolve().parents[2] / path)
+        env = CoverageEnv(m, 1, 3)
+        first, _ = replay_users(m, 3, 0)
+        assert np.array_equal(first, env.users.xy[0].numpy())
+        for _ in range(5):
+            env.step(torch.zeros(1, m.n_uavs, 3))
+        _, last = replay_users(m, 3, env.t)
+        assert np.array_equal(last, env.users.xy[0].numpy())
 
 
 def test_report_bad_input_is_one_line(tmp_path):

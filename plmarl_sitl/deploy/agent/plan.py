@@ -6,6 +6,13 @@ the same information, so the agent's target equals its twin's: the plan starts a
 decision that has a map, from the states received at the first decision (the launch line;
 the decision at the first instant waits for every neighbour), and follows each new map
 when a decision first uses it.
+
+The first instant's wait is bounded, and on a busy bus its states can arrive a second or
+two after it (late states count as delivered, docs/SIGNALLING.md). A launch line fitted
+without them gives several agents the same point for the whole mission (seen in SITL at
+load 20: three of four UAVs on one cluster), so states of the first instant that arrive
+later, while the plan still follows its first map, are added and the plan restarted from
+that map: the plan the twin, which hears them at once, started with.
 """
 
 from __future__ import annotations
@@ -23,26 +30,46 @@ class AgentPlan:
         self.me, self.n = me, mission.n_uavs
         self.grid = service_grid(mission)
         self.plans = TeamPlans(self.grid, self.n)
-        self.launch: np.ndarray | None = None  # (n, 2) the launch line as heard at the first decision
+        self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
+        self.first_k: int | None = None  # the first decision's second (its signalling instant)
+        self.heard_xy: dict[int, np.ndarray] = {}  # identity -> position in its state of that instant (me included)
         self.map_t: float | None = None  # snapshot time of the map the plan follows
+        self.first_counts: np.ndarray | None = None  # the first map, while the plan still follows it
         self.started = False
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
                demand: tuple[float, torch.Tensor] | None) -> torch.Tensor | None:
         """At a decision at second k: (2,) float32 north, east of this agent's point, or None
         before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table."""
-        if self.launch is None:
-            heard = (t_rx == float(k)).numpy()
-            heard[self.me] = False
-            self.launch = heard_launch(ego[:2].double().numpy(), held[:, :2].double().numpy(), heard, self.me)
+        if self.first_k is None:
+            self.first_k = k
+            self.heard_xy[self.me] = ego[:2].double().numpy()
+        late = self.hear_first_instant(held, t_rx)
         if demand is None:
             return None
         t_map, cells = demand
         counts = grid_counts(cells.double().numpy(), self.grid)[None]
         if not self.started:
             self.plans.start(self.launch[None, None], counts)
-            self.started = True
+            self.started, self.first_counts = True, counts
         elif t_map != self.map_t:
             self.plans.on_map(counts)
+            self.first_counts = None  # the plan has moved on: too late to restart it
+        elif late and self.first_counts is not None:
+            self.plans.start(self.launch[None, None], self.first_counts)
         self.map_t = t_map
         return torch.from_numpy(self.plans.targets(np.array([self.me]))[0, 0]).to(torch.float32)
+
+    def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
+        """Add the neighbours whose state of the first instant is now held and refit the launch
+        line; True if a state arrived after the first decision (the line changed)."""
+        new = [j for j in range(self.n) if j not in self.heard_xy and float(t_rx[j]) == float(self.first_k)]
+        for j in new:
+            self.heard_xy[j] = held[j, :2].double().numpy()
+        if self.launch is not None and not new:
+            return False
+        heard = np.array([j in self.heard_xy and j != self.me for j in range(self.n)])
+        xy = np.stack([self.heard_xy.get(j, np.zeros(2)) for j in range(self.n)])
+        late = self.launch is not None
+        self.launch = heard_launch(self.heard_xy[self.me], xy, heard, self.me)
+        return late
