@@ -128,12 +128,13 @@ def plan_inputs(n: int, seed: int) -> PlanInputs:
     return PlanInputs(m, *first, wire, period // int(m.timing.decision_every_s))
 
 
-def _call_args(policy, ego, belief, mask, sense, fail, demand, target) -> tuple:  # noqa: ANN001
+def _extra_inputs(policy, demand, target) -> tuple:  # noqa: ANN001
+    """The inputs after (ego, beliefs, mask, sense, fail) that this policy file takes (docs/POLICY_IO.md)."""
     from plmarl_sitl.learning.nn.io import input_version, takes_plan
 
     if input_version(policy) < 2:
-        return (ego, belief, mask, sense, fail)
-    return (ego, belief, mask, sense, fail, demand, target) if takes_plan(policy) else (ego, belief, mask, sense, fail, demand)
+        return ()
+    return (demand, target) if takes_plan(policy) else (demand,)
 
 
 def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
@@ -156,10 +157,11 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     pi = plan_inputs(n, seed) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
-    plan, map_no = None, [0]
+    plan, map_no, target = None, [0], None
     if pi is not None:
         plan = AgentPlan(pi.mission, 0)
         target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]))  # the plan starts
+    extra = {m: _extra_inputs(p, demand, target) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
 
     def plan_decision() -> None:
         plan.target(0, pi.ego, pi.held, pi.t_rx, (float(map_no[0]), pi.maps[map_no[0] % 2]))
@@ -182,7 +184,7 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
             tracker, policy, _ = mods[m]
             buf, seen = state[m]
             belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
-            policy(*_call_args(policy, ego, belief, mask, sense, fail, demand, target if pi is not None else None))
+            policy(ego, belief, mask, sense, fail, *extra[m])
 
         def timed(label: str, fn) -> None:  # noqa: ANN001
             t0 = time.perf_counter_ns()
