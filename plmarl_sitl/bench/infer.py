@@ -4,43 +4,72 @@ One decision of one deployed agent with M = N - 1 neighbours: one belief-tracker
 (predictor.pt over the M neighbours, Algorithm 1) followed by one policy.pt call
 (policy input, attention fusion, actor), both TorchScript (the fused deployment form of
 plmarl_sitl/learning/nn/deploy.py, as exported), torch on ONE thread, no
-autograd (inference_mode). Methods are timed interleaved, call by call, in the same run,
-so machine load hits them equally; report the median and the 99th percentile.
+autograd (inference_mode). Each policy file is called with the inputs of its version
+(docs/POLICY_IO.md): version 1 without the demand map, version 2 with it, and a policy that
+takes the team plan with its plan point too. Methods are timed interleaved, call by call,
+in the same run, so machine load hits them equally; report the median and the 99th percentile.
 
-The shipped policies/<method>/ files are used when present; otherwise freshly
-initialised modules of the same architecture (latency does not depend on the weights)
-and the row says `weights: untrained`. The wave-1 PL-MARL files (policies/wave1/pl-marl,
-the map-memorising policy shipped before issue 12) are timed in the same run as the row
-`pl-marl-wave1`, the baseline the decision's cost is judged against. Each file is called
-with the inputs of its version (docs/POLICY_IO.md): five for version 1, the demand map for
-version 2, and the team-plan target where it takes one.
+The team plan (model/service.py, what `deploy/agent/plan.py::AgentPlan` runs beside the
+policy) is timed as two extra rows, interleaved the same way, when any timed policy takes it:
+
+* `team plan / decision`: `AgentPlan.target` at a decision whose map the plan already
+  follows (the map's cells onto the plan grid, the own point looked up);
+* `team plan / new map`: `AgentPlan.target` at the first decision with a new map (the
+  re-placement of N service points and, when it serves more users, the re-assignment).
+  A map arrives every `demand.refresh_s` (30 s, every 10th decision at tau = 3 s), so it is
+  timed at every 10th iteration.
+
+Its inputs are a real twin instant: the paper's area with N UAVs on their launch line and N
+clusters of 60 users on a 200 m lattice (as the suite's zero-shot families), the maps of
+t = 0 and of the next map instant alternating. The amortised plan row is plan per decision + plan per map / decisions per map (add it to
+a method's decision). The plan is numpy: run the bench with OPENBLAS_NUM_THREADS=1, as every
+deployed agent runs (deploy/agent/program.py); a multi-threaded BLAS on a loaded machine
+makes a re-placement 10-100x slower. The result records the setting.
+
+A method is a name looked up as <--policies>/<name>/, or LABEL=DIR for any policy
+directory (to time, say, the shipped and an earlier file set in one run). Without a card
+there, freshly initialised modules of the method's architecture are timed (latency does
+not depend on the weights) and the row says `weights: untrained`.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import os
 import time
 from pathlib import Path
 
 from plmarl_sitl.cmdline import comma_list
-from plmarl_sitl.errors import UserError
 from plmarl_sitl.machine import machine_info
 
 DEFAULT_N = "4,8,12,16,20"
+WAVE1 = "pl-marl-wave1"  # the map-memorising PL-MARL shipped before issue 12 (version-1 inputs)
+DEFAULT_METHODS = f"pl-marl,gru,{WAVE1}=policies/wave1/pl-marl"
+PLAN_DECISION = "team plan / decision"
+PLAN_MAP = "team plan / new map"
+PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
+PAPER = Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", default=DEFAULT_N, type=comma_list(int, "swarm size", positive=True),
                    help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
-    p.add_argument("--methods", default="pl-marl,gru", help="methods to time side by side (default: pl-marl,gru)")
+    p.add_argument("--methods", default=DEFAULT_METHODS,
+                   help=f"methods to time side by side: NAME (<--policies>/NAME) or LABEL=DIR (default: {DEFAULT_METHODS}: "
+                        "the shipped files and the wave-1 PL-MARL, the baseline the decision's cost is judged against)")
     p.add_argument("--policies", default="policies", help="directory with <method>/predictor.pt, policy.pt")
-    p.add_argument("--baseline", default="policies/wave1/pl-marl", metavar="DIR",
-                   help="policy timed beside them as pl-marl-wave1 ('' for none; default: policies/wave1/pl-marl)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default: 0)")
 
 
-BASELINE = "pl-marl-wave1"
+def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
+    """'pl-marl,old=runs/x/pl-marl' -> {label: (method name for untrained modules, directory)}."""
+    out = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        label, _, where = part.partition("=")
+        out[label] = (label, policies / label) if not where else (label, Path(where))
+    return out
 
 
 def _modules(method: str, d: Path):
@@ -56,16 +85,67 @@ def _modules(method: str, d: Path):
     from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
 
     torch.manual_seed(0)
-    tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR[method]), 10, 1.0)
+    tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR.get(method, "mlp")), 10, 1.0)
     policy = DeployedPolicy(Actor(), 150.0, 20.0, 5.0, 350.0, 100.0, 60.0)
     return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(policy, POLICY_ATTRS), "untrained"
 
 
-def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
+def lattice_mission(n: int):  # noqa: ANN201 - Mission
+    """The paper's area with N UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
+    from plmarl_sitl.mission import load_mission
+
+    m = load_mission(PAPER)
+    users = dataclasses.replace(m.users, count=n * m.users.cluster_size, layout="lattice", cluster_centers=(),
+                                cluster_spacing_m=200.0)
+    return dataclasses.replace(m, n_uavs=n, users=users, launch=dataclasses.replace(m.launch, spacing_m=25.0))
+
+
+@dataclasses.dataclass
+class PlanInputs:
+    """Agent 0's view at the first decision, and the two maps it alternates between (wire form: nonzero cells)."""
+
+    mission: object
+    ego: object
+    held: object
+    t_rx: object
+    maps: list
+    decisions_per_map: int
+
+
+def plan_inputs(n: int, seed: int) -> PlanInputs:
+    import torch
+
+    from plmarl_sitl.model.demand import map_period
+    from plmarl_sitl.twin.env import CoverageEnv
+
+    m = lattice_mission(n)
+    env = CoverageEnv(m, 1, seed)
+    obs = env.reset()
+    first = (obs.ego[0, 0].clone(), obs.nbr_state[0, 0].clone(), obs.nbr_t_rx[0, 0].clone())
+    period = map_period(m.demand.refresh_s, m.timing.decision_every_s)
+    maps = [obs.demand[0].clone()]
+    while obs.t < period:
+        obs, _, _ = env.step(torch.zeros(1, n, 3))
+    maps.append(obs.demand[0].clone())
+    wire = [c[c[:, 2] > 0] for c in maps]
+    return PlanInputs(m, *first, wire, period // int(m.timing.decision_every_s))
+
+
+def _extra_inputs(policy, demand, target) -> tuple:  # noqa: ANN001
+    """The inputs after (ego, beliefs, mask, sense, fail) that this policy file takes (docs/POLICY_IO.md)."""
+    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+
+    if input_version(policy) < 2:
+        return ()
+    return (demand, target) if takes_plan(policy) else (demand,)
+
+
+def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
-    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+    from plmarl_sitl.deploy.agent.plan import AgentPlan
+    from plmarl_sitl.learning.nn.io import takes_plan
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
@@ -76,13 +156,27 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
-    # A published demand map of 4 clusters over 100 m cells: ~16 nonzero cells on the wire.
-    demand = torch.cat([torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
-    target = torch.tensor([520.0, 480.0])  # the agent's team-plan point
-    extra = {m: (() if input_version(policy) < 2 else (demand, target) if takes_plan(policy) else (demand,))
-             for m, (_, policy, _) in mods.items()}
+    with_plan = any(takes_plan(p) for _, p, _ in mods.values())
+    pi = plan_inputs(n, seed) if with_plan else None
+    demand = pi.maps[0] if pi is not None else torch.cat(
+        [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
+    plan, map_no, target = None, [0], None
+    if pi is not None:
+        plan = AgentPlan(pi.mission, 0)
+        target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]))  # the plan starts
+    extra = {m: _extra_inputs(p, demand, target) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
+
+    def plan_decision() -> None:
+        plan.target(0, pi.ego, pi.held, pi.t_rx, (float(map_no[0]), pi.maps[map_no[0] % 2]))
+
+    def plan_map() -> None:
+        map_no[0] += 1
+        plan_decision()
+
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
+    if pi is not None:
+        times[PLAN_DECISION], times[PLAN_MAP] = [], []
     with torch.inference_mode():
         for m, (tracker, _, _) in mods.items():
             buf, seen = tracker.init_state(held)
@@ -95,18 +189,34 @@ def _time_n(mods: dict, n: int, calls: int, gen) -> list[dict]:  # noqa: ANN001
             belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
             policy(ego, belief, mask, sense, fail, *extra[m])
 
-        for _ in range(300):  # warm-up (TorchScript's profiling runs)
+        def timed(label: str, fn) -> None:  # noqa: ANN001
+            t0 = time.perf_counter_ns()
+            fn()
+            times[label].append(time.perf_counter_ns() - t0)
+
+        for i in range(300):  # warm-up (TorchScript's profiling runs)
             for m in mods:
                 decide(m)
-        for _ in range(calls):
+            if pi is not None:
+                plan_decision()
+                if i % 30 == 0:
+                    plan_map()
+        for i in range(calls):
             for m in mods:
-                t0 = time.perf_counter_ns()
-                decide(m)
-                times[m].append(time.perf_counter_ns() - t0)
+                timed(m, lambda m=m: decide(m))
+            if pi is not None:
+                timed(PLAN_DECISION, plan_decision)
+                if i % pi.decisions_per_map == 0:
+                    timed(PLAN_MAP, plan_map)
     rows = []
-    for m in mods:
-        a = np.asarray(times[m]) / 1e3
-        rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99))})
+    for m, ts in times.items():
+        a = np.asarray(ts) / 1e3
+        rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
+                     "calls": len(ts)})
+    if pi is not None:
+        med = {r["method"]: r["median_us"] for r in rows}
+        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": pi.decisions_per_map,
+                     "median_us": med[PLAN_DECISION] + med[PLAN_MAP] / pi.decisions_per_map, "p99_us": None, "calls": 0})
     return rows
 
 
@@ -114,18 +224,18 @@ def run(args: argparse.Namespace) -> dict:
     import torch
 
     torch.set_num_threads(1)
-    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    mods = {m: _modules(m, Path(args.policies) / m) for m in methods}
-    if args.baseline:
-        if not (Path(args.baseline) / "card.yaml").is_file():
-            raise UserError(f"--baseline {args.baseline}: no card.yaml there")
-        mods[BASELINE] = _modules("pl-marl", Path(args.baseline))
+    load_start = [float(x) for x in os.getloadavg()]
+    methods = parse_methods(args.methods, Path(args.policies))
+    mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)
     rows = []
     for n in args.n:
-        rows += _time_n(mods, n, args.calls, gen)
-    return {"rows": rows, "weights": {m: mods[m][2] for m in mods}, "baseline": args.baseline or None, "machine": machine_info(), "torch_threads": 1,
-            "calls": args.calls}
+        rows += _time_n(mods, n, args.calls, gen, args.seed)
+    weights = {m: mods[m][2] for m in mods}
+    return {"rows": rows, "weights": weights, "dirs": {m: str(d) for m, (_, d) in methods.items()},
+            "machine": machine_info(), "torch_threads": 1, "calls": args.calls,
+            "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
+            "load_avg_start": load_start, "load_avg": [float(x) for x in os.getloadavg()]}
 
 
 def print_table(res: dict) -> None:
@@ -136,14 +246,15 @@ def print_table(res: dict) -> None:
     for c in ("method", "N", "median (us)", "p99 (us)", "weights"):
         t.add_column(c, justify="right" if c != "method" else "left")
     for r in res["rows"]:
-        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", f"{r['p99_us']:.1f}", res["weights"][r["method"]])
+        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", "-" if r["p99_us"] is None else f"{r['p99_us']:.1f}", res["weights"].get(r["method"], ""))
     Console().print(t)
+    Console().print(f"load average {res['load_avg_start']} at the start, {res['load_avg']} at the end, OPENBLAS_NUM_THREADS={res['openblas_threads']}")
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:
             msg += f"; gru / pl-marl at N={ns[-1]}: {by[('gru', ns[-1])] / by[('pl-marl', ns[-1])]:.2f}x"
-        if (BASELINE, ns[-1]) in by:
-            msg += f"; pl-marl / {BASELINE} at N={ns[-1]}: {by[('pl-marl', ns[-1])] / by[(BASELINE, ns[-1])]:.2f}x"
+        if (WAVE1, ns[-1]) in by:
+            msg += f"; pl-marl / {WAVE1} at N={ns[-1]}: {by[('pl-marl', ns[-1])] / by[(WAVE1, ns[-1])]:.2f}x"
         Console().print(msg)

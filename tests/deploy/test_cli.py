@@ -68,7 +68,5 @@ def test_bench_infer_times_the_shipped_files_beside_the_wave_1_baseline(capsys: 
     monkeypatch.chdir(Path(__file__).resolve().parents[2])
     assert main(["bench", "infer", "--n", "4", "--calls", "5", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert {r["method"] for r in res["rows"]} == {"pl-marl", "gru", "pl-marl-wave1"}
+    assert {"pl-marl", "gru", "pl-marl-wave1"} <= {r["method"] for r in res["rows"]}
     assert res["weights"] == {"pl-marl": "trained", "gru": "trained", "pl-marl-wave1": "trained"}
-    assert main(["bench", "infer", "--baseline", "/nope"]) == 2
-    assert "--baseline /nope: no card.yaml there" in capsys.readouterr().err

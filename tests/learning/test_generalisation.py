@@ -4,6 +4,7 @@ predicted-in-range failure flag, the training distribution, and a tiny training 
 from __future__ import annotations
 
 import math
+from typing import Optional
 
 import numpy as np
 import torch
@@ -195,13 +196,28 @@ def test_plan_input_is_relative_and_absent_before_a_plan():
     assert torch.equal(none[-5:], torch.zeros(5)) and a[-1] == 1.0
 
 
-def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
-    """policies/tag-mappo was exported before the team plan: the twin calls it without it."""
-    from plmarl_sitl.learning.nn.io import load_policy
+class _SixInputs(torch.nn.Module):
+    """A version-2 file of before the team plan (no `takes_plan`): six inputs, no target."""
 
-    lp = load_policy("policies/tag-mappo")
-    assert lp.input_version == 2 and not lp.takes_plan
-    ctl = LearnedController(lp.tracker, lp.policy, MISSION)
+    def __init__(self, inner: DeployedPolicy) -> None:
+        super().__init__()
+        self.inner = inner
+        self.r_comm = inner.r_comm
+        self.input_version = 2
+
+    def forward(self, ego: torch.Tensor, beliefs: torch.Tensor, mask: torch.Tensor, sense: torch.Tensor,
+                fail_flag: torch.Tensor, demand: Optional[torch.Tensor] = None) -> torch.Tensor:  # noqa: UP045
+        return self.inner(ego, beliefs, mask, sense, fail_flag, demand, None)
+
+
+def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
+    """Version-2 files exported before the team plan take six inputs: the twin calls them without it."""
+    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+
+    policy = script(_SixInputs(DeployedPolicy(Actor(), *FeatureScales.from_mission(MISSION))))
+    assert input_version(policy) == 2 and not takes_plan(policy)
+    tracker = BeliefTracker(make_predictor("hold"), MISSION.signalling.buffer_len, MISSION.timing.dt_s)
+    ctl = LearnedController(tracker, policy, MISSION)
     assert ctl.plan is None
     env = CoverageEnv(MISSION, 2, 0)
     ctl.reset()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 import torch
 
 from plmarl_sitl.learning.nn import BeliefTracker, make_predictor
@@ -68,3 +69,28 @@ def test_imitation_tup_chunks_cover_the_choices() -> None:
     args = ImitationArgs(rounds=2, episodes_per_round=3, epochs=1, tup_choices=(5, 10, 50), tup_chunks=3, seed=1)
     res = imitate_oracle(Actor(), tracker, mission, args, log=lambda s: None)
     assert res["episodes"] == 6 and sorted(res["tups"][:3]) == [5, 10, 50] and sorted(res["tups"][3:]) == [5, 10, 50]
+
+
+@pytest.mark.parametrize("method", ["pl-marl", "gru", "tag-mappo"])
+def test_every_method_exports_a_policy_that_takes_the_team_plan(tmp_path: Path, monkeypatch, method: str) -> None:
+    """The three learnt methods share one actor and differ only in the tracker, so each
+    exported policy.pt takes the team-plan target, and the target moves its action."""
+    from plmarl_sitl.learning.nn.io import load_policy
+    from plmarl_sitl.learning.pipeline import run_training
+    from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
+
+    monkeypatch.chdir(tmp_path)  # run_training keeps its intermediate files under ./runs
+    state = None
+    if METHOD_PREDICTOR[method] in ("mlp", "gru"):
+        state = str(tmp_path / "predictor.pt")
+        torch.save(make_predictor(METHOD_PREDICTOR[method]).state_dict(), state)
+    run_training(method, str(ROOT / "missions" / "paper_urban.yaml"), episodes=2, seed=3, out=tmp_path / "out",
+                 num_envs=2, predictor_state=state, eval_episodes=0, log=lambda _: None,
+                 args_overrides={"imitation_rounds": 0, "validate_every": 0, "critic_warmup_iters": 0})
+    lp = load_policy(tmp_path / "out")
+    assert lp.takes_plan and lp.card["io"]["takes_plan"] and lp.card["method"] == method
+    with torch.no_grad():
+        belief, _, _, _ = lp.tracker(0.0, torch.zeros(2, 6), torch.zeros(2), *lp.tracker.init_state(torch.zeros(2, 6)))
+        args = (torch.tensor([500.0, 500.0, -100.0, 0.0, 0.0, 0.0]), belief, torch.ones(2, dtype=torch.bool),
+                torch.zeros(4), torch.tensor(False), torch.tensor([[450.0, 450.0, 60.0]]))
+        assert not torch.equal(lp.policy(*args, torch.tensor([900.0, 500.0])), lp.policy(*args, torch.tensor([100.0, 500.0])))

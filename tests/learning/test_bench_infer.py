@@ -1,0 +1,41 @@
+"""`plmarl bench infer`: every policy file called with the inputs of its version, and the team plan timed."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import pytest
+
+from plmarl_sitl.bench import infer
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_methods_are_names_or_label_dir_pairs() -> None:
+    got = infer.parse_methods("pl-marl, old=runs/x/pl-marl", Path("policies"))
+    assert got == {"pl-marl": ("pl-marl", Path("policies/pl-marl")), "old": ("old", Path("runs/x/pl-marl"))}
+
+
+def test_team_plan_inputs_are_a_twin_instant() -> None:
+    pi = infer.plan_inputs(6, 0)
+    assert pi.mission.n_uavs == 6 and pi.mission.users.count == 360
+    assert pi.decisions_per_map == 10  # a map every 30 s, a decision every 3 s
+    assert len(pi.maps) == 2 and all((m[:, 2] > 0).all() for m in pi.maps)  # wire form: nonzero cells
+    assert pi.held.shape == (6, 6) and pi.t_rx.shape == (6,)
+
+
+@pytest.mark.parametrize("shipped", ["policies/wave1/pl-marl", "policies/pl-marl"])
+def test_plan_rows_and_versions(tmp_path: Path, shipped: str) -> None:
+    """A plan-taking file (untrained here) and a shipped one (any input version) run side by side."""
+    if not (ROOT / shipped / "card.yaml").is_file():
+        pytest.skip(f"{shipped} is not in this checkout")
+    args = argparse.Namespace(n=[4], methods=f"untrained={tmp_path / 'none'},shipped={ROOT / shipped}",
+                              policies="policies", calls=12, seed=0)
+    res = infer.run(args)
+    rows = {r["method"]: r for r in res["rows"]}
+    assert res["weights"] == {"untrained": "untrained", "shipped": "trained"}
+    assert {"untrained", "shipped", infer.PLAN_DECISION, infer.PLAN_MAP, infer.PLAN_AMORTISED} <= set(rows)
+    assert rows[infer.PLAN_DECISION]["calls"] == 12 and rows[infer.PLAN_MAP]["calls"] == 2  # every 10th decision
+    want = rows[infer.PLAN_DECISION]["median_us"] + rows[infer.PLAN_MAP]["median_us"] / 10
+    assert rows[infer.PLAN_AMORTISED]["median_us"] == pytest.approx(want)
