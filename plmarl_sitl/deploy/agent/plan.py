@@ -48,7 +48,10 @@ class AgentPlan:
         if demand is None:
             return None
         t_map, cells = demand
-        counts = grid_counts(cells.double().numpy(), self.grid)[None]
+        # The map onto the plan grid only when the plan takes a new map (~120 us at N = 20):
+        # a decision on the map the plan follows needs only the lookup below.
+        new_map = not self.started or t_map != self.map_t
+        counts = grid_counts(cells.double().numpy(), self.grid)[None] if new_map else None
         if not self.started:
             self.plans.start(self.launch[None, None], counts)
             self.started, self.first_counts = True, counts
