@@ -44,10 +44,17 @@ async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.
     lines: list[str] = []
     interrupted = False
 
+    def signal_agent() -> None:
+        # os.kill, not proc.send_signal: Popen.send_signal polls first, and that waitpid can
+        # reap the child before asyncio's child watcher does, which then reports exit 255
+        # ("Unknown child process") instead of the agent's own code.
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(proc.pid, sig)
+
     def interrupt() -> None:
         nonlocal interrupted
         if not interrupted and proc.returncode is None:
-            proc.send_signal(sig)
+            signal_agent()
             interrupted = True
 
     async def poll() -> None:
@@ -57,8 +64,7 @@ async def run_agent(argv: list[str], *, cwd: Path = ROOT, timeout_s: float = 90.
             await asyncio.sleep(0.2)
         while repeat_every_s is not None and proc.returncode is None:
             if interrupted:
-                with contextlib.suppress(ProcessLookupError):
-                    proc.send_signal(sig)
+                signal_agent()
             await asyncio.sleep(repeat_every_s)
 
     poller = asyncio.create_task(poll())
