@@ -88,9 +88,15 @@ def answered_share(run_dir: Path) -> float | None:
     return samples / (seconds * TELEMETRY_HZ) if seconds else None
 
 
-def _mean_answered(flights: list[tuple[dict, float]]) -> float | None:
+def _flown(flights: list[tuple[dict, float]]) -> dict:
+    """What every row says of a set of runs (one per seed): means over them."""
     shares = [answered_share(Path(f[0]["run_dir"])) for f in flights]
-    return float(np.mean(shares)) if shares and None not in shares else None
+    return {"wall_s": float(np.mean([f[1] for f in flights])),
+            "sitl": float(np.mean([f[0]["coverage_mean"] for f in flights])),
+            "sitl_by_seed": [f[0]["coverage_mean"] for f in flights],
+            "mission_wall_s": float(np.mean([f[0]["mission_wall_s"] for f in flights])),
+            "achieved_speedup": float(np.mean([f[0]["achieved_speedup"] for f in flights])),
+            "answered": float(np.mean(shares)) if None not in shares else None}
 
 
 def outputs_hash(run_dir: Path) -> str:
@@ -109,14 +115,12 @@ def _lockstep(path: str, policy: str, seeds: list[int], twin_mean: float, free_w
     """Every seed in lockstep, and the first one again: wall, gap, the two runs' hashes."""
     flights = [_fly(path, policy, 10.0, s, lockstep=True, broker=broker) for s in seeds]
     again = _fly(path, policy, 10.0, seeds[0], lockstep=True, broker=broker)
-    wall = float(np.mean([f[1] for f in flights]))
-    sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
-    hashes = [outputs_hash(Path(f[0]["run_dir"])) for f in (flights[0], again)]
-    mission_wall = float(np.mean([f[0]["mission_wall_s"] for f in flights]))
-    return {"wall_s": wall, "x_faster_than_free": free_wall_s / wall, "sitl_coverage": sitl,
-            "mission_wall_s": mission_wall, "achieved_speedup": float(np.mean([f[0]["achieved_speedup"] for f in flights])),
-            "coverage_gap": abs(sitl - twin_mean), "sitl_by_seed": [f[0]["coverage_mean"] for f in flights],
-            "answered": _mean_answered(flights), "x_faster_than_free_mission": free_mission_wall_s / mission_wall,
+    f = _flown(flights)
+    hashes = [outputs_hash(Path(fl[0]["run_dir"])) for fl in (flights[0], again)]
+    return {"wall_s": f["wall_s"], "x_faster_than_free": free_wall_s / f["wall_s"], "sitl_coverage": f["sitl"],
+            "mission_wall_s": f["mission_wall_s"], "achieved_speedup": f["achieved_speedup"],
+            "coverage_gap": abs(f["sitl"] - twin_mean), "sitl_by_seed": f["sitl_by_seed"], "answered": f["answered"],
+            "x_faster_than_free_mission": free_mission_wall_s / f["mission_wall_s"],
             "hash_runs": hashes, "identical": hashes[0] == hashes[1]}
 
 
@@ -135,19 +139,16 @@ def run(args: argparse.Namespace) -> dict:
         tried = []
         for k in args.speedups:
             flights = [_fly(path, args.policy, k, s, broker=getattr(args, "broker", "embedded")) for s in seeds]
-            sitl = float(np.mean([f[0]["coverage_mean"] for f in flights]))
+            flown = _flown(flights)
             on_time = [f[0]["timeliness"] for f in flights]
             lags = [t["sensing_age_s"]["max"] for t in on_time if t["sensing_age_s"]]
             delays = [t["decision_delay_s"]["p95"] for t in on_time if t["decision_delay_s"]]
             lag = max(lags) if len(lags) == len(seeds) else None
             delay = max(delays) if len(delays) == len(seeds) else None
-            gap = abs(sitl - twin_mean)
+            gap = abs(flown["sitl"] - twin_mean)
             ok = gap <= args.max_gap and lag is not None and lag <= args.max_lag and delay is not None and delay <= args.max_delay
-            tried.append({"speedup": k, "wall_s": float(np.mean([f[1] for f in flights])), "coverage_gap": gap, "sitl": sitl,
-                          "mission_wall_s": float(np.mean([f[0]["mission_wall_s"] for f in flights])),
-                          "achieved_speedup": float(np.mean([f[0]["achieved_speedup"] for f in flights])),
-                          "sitl_by_seed": [f[0]["coverage_mean"] for f in flights], "sensing_lag_max_s": lag,
-                          "decision_delay_p95_s": delay, "answered": _mean_answered(flights), "ok": ok})
+            tried.append({"speedup": k, **flown, "coverage_gap": gap, "sensing_lag_max_s": lag,
+                          "decision_delay_p95_s": delay, "ok": ok})
             if ok:
                 break
         best = tried[-1]

@@ -685,9 +685,6 @@ class SitlWorld:
         relayed) and every member has answered its telemetry; stragglers are declared failed."""
         assert self.host is not None and self.barrier is not None
         b, wake = self.barrier, self.host.fleet.answers
-        # Fast path, taken at most substeps: no tick to publish and no member owes an answer.
-        if self._tick_due is None and not b.owing(self.alive().tolist()):
-            return
         while not self._stop.is_set():
             wake.clear()
             wall = time.perf_counter()
@@ -696,9 +693,11 @@ class SitlWorld:
                 self.bus.publish(self.topics.tick, self.wire.json("tick", {"boot_s": self._tick_due}), sticky=True)
                 self._tick_due = None
             owing = b.owing(alive)
-            for i in b.overdue(owing, wall):
+            late = b.overdue(owing, wall)
+            for i in late:
                 self.agent_failed(i, f"no answer to its telemetry for {b.straggler_s:g} s")
-            owing = b.owing(alive)
+            if late:  # a failed agent owes nothing any more
+                owing = b.owing(alive)
             if self._tick_due is None and not owing:
                 return
             left = b.wait_left(owing, wall)

@@ -55,7 +55,7 @@ class AgentPlan:
         if not self.started:
             self.plans.start(self.launch[None, None], counts)
             self.started, self.first_counts = True, counts
-        elif t_map != self.map_t:
+        elif new_map:
             self.plans.on_map(counts)
             self.first_counts = None  # the plan has moved on: too late to restart it
         elif late and self.first_counts is not None:
