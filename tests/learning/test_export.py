@@ -105,6 +105,15 @@ def test_mismatched_files_are_named(tmp_path: Path, mission) -> None:
     assert issubclass(PolicyFileError, UserError)  # the CLI prints it as one line, exit 2
 
 
+def test_a_mission_with_other_cluster_sizes_flies_the_policy(tmp_path: Path, mission) -> None:
+    """demand_unit is the policy's own unit of the map's counts, not a property of the vehicle:
+    a mission with clusters of 40 loads a policy trained on clusters of 60 (and it keeps 60)."""
+    _export(tmp_path, mission)
+    users = dataclasses.replace(mission.users, count=160, cluster_size=40)
+    lp = load_policy(tmp_path, dataclasses.replace(mission, users=users))
+    assert float(lp.policy.demand_unit) == float(mission.users.cluster_size)
+
+
 def test_agent_with_no_neighbour_slots(tmp_path: Path, mission) -> None:
     """M = 0 (an isolated agent): both files run and the policy still acts."""
     _export(tmp_path, mission)

@@ -57,6 +57,10 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
 TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
 SCALES = ["alt_max", "v_max", "a_max", "r_comm", "claim_m", "demand_unit"]
 POLICY_ATTRS = SCALES + ["input_version", "takes_plan"]
+# Scales that describe the scenario, not the vehicle, radio or sensor: the policy keeps the
+# value it was trained with as its own unit (demand_unit: users per unit of the demand map's
+# counts), so a mission with other cluster sizes flies it instead of being refused.
+SCENARIO_SCALES = ("demand_unit",)
 
 
 def freeze(module: nn.Module, keep: list[str]) -> torch.jit.ScriptModule:
@@ -189,6 +193,8 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
 
         ms = FeatureScales.from_mission(mission)._asdict() | {"area_n": mission.area.north_m, "area_e": mission.area.east_m}  # v1: area
         for k, v in scales.items():
+            if k in SCENARIO_SCALES:
+                continue
             if abs(v - ms[k]) > 1e-6:
                 raise PolicyFileError(str(d / "policy.pt"), f"mismatched with mission {mission.name!r}: {k} = {v}, mission has {ms[k]}")
         if buffer_len != mission.signalling.buffer_len:
