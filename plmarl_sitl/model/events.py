@@ -128,6 +128,15 @@ class EventSchedule:
                 tup = e.tup_s
         return tup
 
+    def instant_tup(self, t: int) -> int:
+        """The interval that decides whether second t is a signalling instant.
+
+        A change counts from the second after its own, as in the SITL world and agent
+        (`deploy/agent/clock.py::MissionClock.set_tup`: the change reaches the agents during
+        its second, whose instant follows the interval before it). Second 0 is always an
+        instant."""
+        return self.tup_at(t - 1) if t > 0 else self.tup_s
+
     def broker_down(self, t: int) -> bool:
         return bool(self.active("broker_outage", t))
 

@@ -152,7 +152,7 @@ class CoverageEnv:
         """The signalling instant at the current second, if it is one: every UAV broadcasts
         its (navigation) state and what each neighbour hears goes into its holdings."""
         m, t = self.mission, self.t
-        if not is_signalling_instant(t, self.events.tup_at(t)):
+        if not is_signalling_instant(t, self.events.instant_tup(t)):
             return
         rx, _ = link_mask(self.pos, self.alive, m.channel, m.radii.comm_m)
         if self.events.broker_down(t):

@@ -118,13 +118,14 @@ def _sitl_seconds(mission: Mission, positions: list[torch.Tensor]) -> list[tuple
     for t, pos in enumerate(positions):
         if t > 0:
             world.host.advance(1.0)  # mission second t is boot second t here (t0 = 0)
+        tup = world.tup_s  # the instant of second t follows T_up before its events (SitlWorld._instant_tup)
         world.apply_events(t)  # what SitlWorld does at every mission second, then the launcher:
         launcher.tick(t)
         alive = world.alive()
         dead = {i for i in range(world.n) if not alive[i]}
         assert set(fleet.killed) == dead  # the agent goes with its vehicle
         delivered = set()
-        if is_signalling_instant(t, world.tup_s) and not gate.down:
+        if is_signalling_instant(t, tup) and not gate.down:
             for j in range(world.n):
                 if alive[j]:
                     delivered |= {(i, j) for i in world.links.receivers(j, pos, alive, world.host.now)}

@@ -124,6 +124,21 @@ def test_tup_change_moves_the_signalling_instants():
     assert instants == {5, 10, 16, 24, 32, 40}
 
 
+def test_tup_change_counts_from_the_next_second_as_in_sitl():
+    """T_up 15 -> 5 at t = 10: 10 is a multiple of the new interval, yet the change's own second
+    follows the old one, as the SITL world and agent do (SitlWorld._instant_tup,
+    tests/deploy/test_clock.py), so the instants are 0, 15, 20, 25."""
+    m = _events_mission({"type": "tup_change", "at_s": 10, "tup_s": 5}).with_tup(15)
+    env = CoverageEnv(m, 1, seed=0)
+    env.reset()
+    instants = {0}
+    while env.t < 26:
+        env.physics_step(torch.zeros(1, env.n, 3))
+        if float(env.holdings.t_rx[0, 0, 1]) == env.t:
+            instants.add(env.t)
+    assert instants == {0, 15, 20, 25}
+
+
 def test_gnss_noise_perturbs_reported_positions_only():
     env = CoverageEnv(_events_mission({"type": "gnss_noise", "at_s": 0, "std_m": 5.0, "uavs": (0,)}), 1, seed=0)
     obs = env.reset()
