@@ -113,20 +113,23 @@ def fuse_tracker(tracker: BeliefTracker) -> nn.Module:
     return FusedKinematicTracker(tracker.eval(), w1, p.l1.bias, p.l2.weight, p.l2.bias, p.l3.weight, p.l3.bias, p.KG)
 
 
-# The raw ego vector of the fused policy: [ego (6), target (2), sense, f (1), descriptor, near (2)].
+# The raw ego vector of the fused policy: [ego (6), target (2), sense, f (1), histogram, near (2)].
+# The histogram has three columns per bin: all users, free users, and (unused, weight 0) the
+# sum of the cells' nearer-neighbour counts, which rides along so that one log1p serves both.
+_HIST_COLS = 3
 _RAW_TARGET = 6
 _RAW_SENSE = 8
 _RAW_FAIL = _RAW_SENSE + SENSING_FEATURES
 _RAW_DESC = _RAW_FAIL + 1
-_RAW_NEAR = _RAW_DESC + 2 * DEMAND_BINS
+_RAW_NEAR = _RAW_DESC + _HIST_COLS * DEMAND_BINS
 _RAW_FEATURES = _RAW_NEAR + 2
 
 
 def _ego_feature_map(alt_max: float, v_max: float, r_comm: float) -> tuple[torch.Tensor, torch.Tensor]:
     """(S, o) with ego_x = S raw + o: `build_policy_input`'s ego features with a known plan.
 
-    The raw descriptor is the fused histogram (bins, 2) flattened: [bin 0 all, bin 0 free,
-    bin 1 all, ...]; ego_x has all users' bins, then the free users' bins."""
+    The raw descriptor is the fused histogram (bins, 3) flattened: [bin 0 all, bin 0 free,
+    bin 0 unused, bin 1 all, ...]; ego_x has all users' bins, then the free users' bins."""
     s, o = torch.zeros(EGO_FEATURES, _RAW_FEATURES), torch.zeros(EGO_FEATURES)
     s[0, 2], o[0] = -2.0 / alt_max, -1.0  # altitude 0..alt_max -> [-1, 1] (z is down)
     for i in range(3):
@@ -136,7 +139,7 @@ def _ego_feature_map(alt_max: float, v_max: float, r_comm: float) -> tuple[torch
     desc = 4 + SENSING_FEATURES + 1
     for b in range(DEMAND_BINS):
         for k in range(2):
-            s[desc + k * DEMAND_BINS + b, _RAW_DESC + 2 * b + k] = 1.0
+            s[desc + k * DEMAND_BINS + b, _RAW_DESC + _HIST_COLS * b + k] = 1.0
     plan = desc + 2 * DEMAND_BINS
     for i in range(2):
         s[plan + i, _RAW_TARGET + i], s[plan + i, i] = 1.0 / r_comm, -1.0 / r_comm  # (target - p) / R_comm
@@ -195,8 +198,11 @@ class FusedPolicy(nn.Module):
         self.w_rel_t = torch.cat([(wc[:, 0:3] + wc[:, 6:9]) / r, wc[:, 3:6] / self.v_max], 1).t().contiguous()
         self.b_rel = c["whh_b"].clone()
         self.a2, self.w_a1 = c["a2"].contiguous(), c["wa1"].contiguous()
-        # demand tokens [dn, de, log1p(count / unit), clamp(nearest - own, +-2 R_comm), log1p(nearer)]
-        self.w_tok_t = (c["tok_w"] * torch.tensor([1.0 / r, 1.0 / r, 1.0, 1.0 / r, 1.0])).t().contiguous()
+        # demand tokens [dn, de, log1p(count / unit), clamp(nearest - own, +-2 R_comm), log1p(nearer)],
+        # fed as [dn, de, log1p(count / unit), log1p(free, unused), log1p(nearer), clamp(nearest - own)]
+        tw = c["tok_w"]
+        self.w_tok_t = torch.stack([tw[:, 0] / r, tw[:, 1] / r, tw[:, 2], torch.zeros_like(tw[:, 2]), tw[:, 4],
+                                    tw[:, 3] / r], 1).t().contiguous()
         self.b_tok = c["tok_b"].clone()
         self.w_q = (c["key_w"].t() @ c["query_w"] * (1.0 / d**0.5)).contiguous()  # v . q, q = K^T Q h / sqrt(d)
         proj, bias, w = _bin_map(DEMAND_RING_EDGES_M)
@@ -229,7 +235,7 @@ class FusedPolicy(nn.Module):
         cu = demand.narrow(1, 2, 1).mul(self.inv_unit)  # (K, 1) users per unit
         dpos = dem2 - ego2  # (K, 2) cell offsets
         z = torch.addmm(self.bin_bias, torch.cat([dpos, dpos * dpos], 1), self.bin_proj)
-        bins = z.gt(self.zero).mul(self.bin_w).sum(1, keepdim=True)  # (K, 1) long: octant + 8 ring
+        bins = z.gt(self.zero).mul(self.bin_w).sum(1)  # (K,) long: octant + 8 ring
         own_sq = z.narrow(1, 6, 1)  # (K, 1) the cell's squared ground distance
         diff = dem2.unsqueeze(1) - beliefs.narrow(1, 0, 2)
         theirs_sq = diff.mul_(diff).sum(2)  # (K, M) squared: the comparisons need no root
@@ -237,7 +243,8 @@ class FusedPolicy(nn.Module):
         nearer = torch.lt(theirs_sq, own_sq).logical_and_(mask).sum(1, keepdim=True, dtype=torch.float32)
         # the descriptor: all users, and the users of cells no believed neighbour claims
         free = torch.where(nearest_sq <= self.claim_sq, self.zero, cu)
-        hist = torch.zeros(self.n_bins, 2).scatter_add_(0, bins.expand(-1, 2), torch.cat([cu, free], 1))
+        x = torch.cat([cu, free, nearer], 1)  # (K, 3)
+        hist = torch.zeros(self.n_bins, 3).index_add_(0, bins, x)
         near = torch.sub(target, ego2).clamp_(-self.near_m, self.near_m)
         raw = torch.cat([ego, target, sense, fail_flag.view(1), hist.view(-1).log1p_(), near])  # bool f: cat promotes
         h = torch.addmv(self.b_h, self.w_h, raw).tanh_()
@@ -248,7 +255,7 @@ class FusedPolicy(nn.Module):
         m = F.elu_(torch.mv(whh.t(), alpha))
         # demand attention over the cells
         adv = torch.sub(nearest_sq.sqrt_(), own_sq.sqrt()).clamp_(-self.adv_max, self.adv_max)
-        v = torch.addmm(self.b_tok, torch.cat([dpos, cu.log1p(), adv, nearer.log1p_()], 1), self.w_tok_t).tanh_()
+        v = torch.addmm(self.b_tok, torch.cat([dpos, x.log1p(), adv], 1), self.w_tok_t).tanh_()
         live = cu.view(-1) > self.zero
         ed = torch.mv(v, torch.mv(self.w_q, h))
         beta = torch.where(live, torch.softmax(torch.where(live, ed, self.neg), 0), self.zero)
