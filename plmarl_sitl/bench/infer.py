@@ -27,9 +27,10 @@ deployed agent runs (deploy/agent/program.py); a multi-threaded BLAS on a loaded
 makes a re-placement 10-100x slower. The result records the setting.
 
 A method is a name looked up as <--policies>/<name>/, or LABEL=DIR for any policy
-directory (to time, say, the shipped and an earlier file set in one run). Without a card
-there, freshly initialised modules of the method's architecture are timed (latency does
-not depend on the weights) and the row says `weights: untrained`.
+directory (to time, say, the shipped and an earlier file set in one run; a DIR that does
+not exist is an error). Without a card there, freshly initialised modules of the method's
+architecture are timed (latency does not depend on the weights) and the row says
+`weights: untrained`.
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", default=DEFAULT_N, type=comma_list(int, "swarm size", positive=True),
                    help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
     p.add_argument("--methods", default=DEFAULT_METHODS,
-                   help=f"methods to time side by side: NAME (<--policies>/NAME) or LABEL=DIR (default: {DEFAULT_METHODS}: "
+                   help=f"methods to time side by side: NAME (<--policies>/NAME; without a card.yaml there, untrained modules "
+                        f"of that method) or LABEL=DIR (DIR must exist) (default: {DEFAULT_METHODS}: "
                         "the shipped files and the wave-1 PL-MARL, the baseline the decision's cost is judged against)")
     p.add_argument("--policies", default="policies", help="directory with <method>/predictor.pt, policy.pt")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
@@ -64,11 +66,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
-    """'pl-marl,old=runs/x/pl-marl' -> {label: (method name for untrained modules, directory)}."""
+    """'pl-marl,old=runs/x/pl-marl' -> {label: (method name for untrained modules, directory)}.
+
+    A directory given as LABEL=DIR must exist (UserError): a mistyped path would otherwise
+    time untrained modules under the label the user meant for a file set. A bare NAME
+    without <policies>/NAME/card.yaml is timed untrained, as the help says."""
+    from plmarl_sitl.errors import UserError
+
     out = {}
     for part in (p.strip() for p in text.split(",") if p.strip()):
-        label, _, where = part.partition("=")
-        out[label] = (label, policies / label) if not where else (label, Path(where))
+        label, eq, where = part.partition("=")
+        if not eq:
+            out[label] = (label, policies / label)
+            continue
+        if not label.strip() or not where.strip():
+            raise UserError(f"--methods {part!r}: give LABEL=DIR")
+        if not Path(where).is_dir():
+            raise UserError(f"--methods {part}: no such directory {where}")
+        out[label] = (label, Path(where))
     return out
 
 

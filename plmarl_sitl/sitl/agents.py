@@ -48,6 +48,18 @@ class AgentProc:
 SITL_AGENT_NICE = 5
 
 
+def _signal(p: asyncio.subprocess.Process | ForkedProcess, sig: int) -> None:
+    """Signal a running agent with os.kill. Not `p.send_signal`/`p.kill`: for an exec'd agent
+    they are `Popen.send_signal`, which polls first, and that waitpid can reap an agent that
+    has just exited before asyncio's child watcher does; the watcher then reports exit 255
+    ("Unknown child process") instead of the agent's own code. An exited agent keeps its pid
+    until it is reaped; the one window left is the instant between the watcher's reap and its
+    callback setting returncode (pids are handed out in sequence: a reuse within it is remote)."""
+    if p.returncode is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(p.pid, sig)
+
+
 @dataclass
 class AgentFleet:
     """Children started by `spawn`; `stop()` (SIGTERM, then SIGKILL) in any case.
@@ -128,30 +140,23 @@ class AgentFleet:
 
     def kill(self, uav_id: int) -> None:
         """Abrupt process death (SIGKILL): no hold command, the autopilot's failsafe acts."""
-        p = self.procs[uav_id].proc
-        if p.returncode is None:
-            p.kill()
+        _signal(self.procs[uav_id].proc, signal.SIGKILL)
 
     def retire(self, uav_id: int) -> None:
         """Ask one agent to stop and leave its vehicle to the autopilot (SIGUSR1): its UAV is
         out of the mission after an autopilot fault, its companion computer is not dead."""
-        p = self.procs[uav_id].proc
-        if p.returncode is None:
-            with contextlib.suppress(ProcessLookupError):
-                p.send_signal(signal.SIGUSR1)
+        _signal(self.procs[uav_id].proc, signal.SIGUSR1)
 
     async def stop(self, grace_s: float = 5.0) -> None:
         live = [ap.proc for ap in self.procs.values() if ap.proc.returncode is None]
         for p in live:
-            with contextlib.suppress(ProcessLookupError):
-                p.send_signal(signal.SIGTERM)
+            _signal(p, signal.SIGTERM)
         for p in live:
             try:
                 async with asyncio.timeout(grace_s):
                     await p.wait()
             except TimeoutError:
-                with contextlib.suppress(ProcessLookupError):
-                    p.kill()
+                _signal(p, signal.SIGKILL)
                 await p.wait()
 
     async def __aenter__(self) -> AgentFleet:

@@ -370,6 +370,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                               swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
                               lockstep=opts.lockstep, straggler_s=opts.straggler_s)
         world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
+        world.on_behind = lambda msg: console.print(f"[yellow]world:[/] {msg}", highlight=False)
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()

@@ -106,7 +106,7 @@ def trajectory_figure(plt, run_dir: Path, metrics: list[dict]):  # noqa: ANN001,
         first, last = replay_users(mission, _run_seed(run_dir, mission), int(metrics[-1]["t"]))
         ax.scatter(first[:, 1], first[:, 0], s=3, color="0.75", label="users at t = 0")
         ax.scatter(last[:, 1], last[:, 0], s=3, color="0.35", label=f"users at t = {metrics[-1]['t']:g} s")
-        _draw_links(ax, metrics[-1], mission.radii.comm_m)
+        _draw_links(ax, metrics[-1], mission)
         ax.set(xlim=(0, mission.area.east_m), ylim=(0, mission.area.north_m))
     for k, uid in enumerate(ids):
         pts = [u["pos_ned"] for r in metrics for u in r["uavs"] if u["id"] == uid]
@@ -156,16 +156,30 @@ def replay_users(mission, seed: int, seconds: int):  # noqa: ANN001, ANN201 - Mi
     return first, users.xy[0].numpy()
 
 
-def _draw_links(ax, row: dict, comm_m: float) -> None:  # noqa: ANN001 - matplotlib Axes
-    """U2U links at the row's second: pairs of live UAVs within R_comm (the swarm graph)."""
+def _draw_links(ax, row: dict, mission) -> None:  # noqa: ANN001 - matplotlib Axes, Mission
+    """U2U links at the row's second, exactly as the world had them: `link_mask` (within
+    R_comm AND SINR >= Gamma, with the other live UAVs interfering) on the live UAVs' 3-D
+    positions. A pair heard both ways is an edge of the swarm graph (lambda_2); a pair heard
+    one way only is drawn dotted."""
+    import torch
+
+    from plmarl_sitl.model.graph import link_mask
+
     live = [u["pos_ned"] for u in row["uavs"] if u.get("alive", True)]
-    label = f"U2U link (<= R_comm = {comm_m:g} m) at t = {row['t']:g} s"
+    if len(live) < 2:
+        return
+    pos = torch.tensor(live, dtype=torch.float32)  # the world's dtype (`SitlWorld.positions`)
+    rx, _ = link_mask(pos, torch.ones(len(live), dtype=torch.bool), mission.channel, mission.radii.comm_m)
+    labels = {True: f"U2U link (R_comm and SINR) at t = {row['t']:g} s", False: f"one-way U2U link at t = {row['t']:g} s"}
     for a in range(len(live)):
         for b in range(a + 1, len(live)):
+            ab, ba = bool(rx[a, b]), bool(rx[b, a])
+            if not (ab or ba):
+                continue
             pa, pb = live[a], live[b]
-            if (pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 <= comm_m**2:
-                ax.plot([pa[1], pb[1]], [pa[0], pb[0]], ls="--", lw=0.8, color="tab:gray", label=label)
-                label = None
+            both = ab and ba
+            ax.plot([pa[1], pb[1]], [pa[0], pb[0]], ls="--" if both else ":", lw=0.8, color="tab:gray", label=labels[both])
+            labels[both] = None
 
 
 def print_summary(summary: dict, console, title: str) -> None:  # noqa: ANN001 - rich Console

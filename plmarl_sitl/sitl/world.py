@@ -82,6 +82,7 @@ from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.sitl.external import ExternalVehicles
 from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S, Barrier
 from plmarl_sitl.sitl.network.link_emulator import LinkEmulator
+from plmarl_sitl.sitl.pace import CATCHUP_TICKS, Pace
 from plmarl_sitl.sitl.vehicles import EmulatedVehicles, WorldVehicles
 from plmarl_sitl.twin.env import launch_positions
 
@@ -251,6 +252,8 @@ class SitlWorld:
         self._held_retained: dict[str, bytes] = {}  # retained messages held by it (topic -> newest)
         self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
+        self.pace = Pace(cfg.speedup)  # free-running: mission time lost to the bounded catch-up
+        self.on_behind: Callable[[str], None] | None = None  # free-running: the once-per-run "running behind"
 
     # ------------------------------------------------------------------ events
     def _outage_emulated(self, k: int) -> bool:
@@ -625,13 +628,16 @@ class SitlWorld:
 
     async def _clock(self) -> None:
         period = 1.0 / self.cfg.tick_hz
+        catchup = CATCHUP_TICKS * period
         last = time.perf_counter()
         next_tick = last + period
         while not self._stop.is_set():
             delay = next_tick - time.perf_counter()
             await asyncio.sleep(max(0.0, delay))
             now = time.perf_counter()
-            todo = min(now - last, 5 * period) * self.cfg.speedup  # bounded catch-up, as the runner
+            todo = min(now - last, catchup) * self.cfg.speedup  # bounded catch-up, as the runner
+            if now - last > catchup and self._t0_wall is not None and self.t0 is not None:
+                self._fell_behind(now - last - catchup, self.now - self.t0, now - self._t0_wall)
             last = now
             while todo > 1e-9 and not self._stop.is_set():
                 todo = self._advance(todo)
@@ -639,6 +645,15 @@ class SitlWorld:
                 self._deliver_due()
                 await asyncio.sleep(0)  # let datagrams and MQTT messages in between chunks
             next_tick = max(next_tick + period, now - period)
+
+    def _fell_behind(self, lost_wall_s: float, mission_s: float, mission_wall_s: float) -> None:
+        """The mission lost wall time to the bounded catch-up: say so once (`Pace`)."""
+        self.pace.lose(lost_wall_s)
+        msg = self.pace.notice(mission_s, mission_wall_s)
+        if msg is not None:
+            log.warning("%s", msg)
+            if self.on_behind is not None:
+                self.on_behind(msg)
 
     # ------------------------------------------------------------------ lockstep
     async def _lockstep_clock(self) -> None:

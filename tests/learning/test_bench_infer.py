@@ -3,18 +3,44 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 import pytest
 
 from plmarl_sitl.bench import infer
+from plmarl_sitl.errors import UserError
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_methods_are_names_or_label_dir_pairs() -> None:
-    got = infer.parse_methods("pl-marl, old=runs/x/pl-marl", Path("policies"))
-    assert got == {"pl-marl": ("pl-marl", Path("policies/pl-marl")), "old": ("old", Path("runs/x/pl-marl"))}
+def test_methods_are_names_or_label_dir_pairs(tmp_path: Path) -> None:
+    old = tmp_path / "runs" / "x" / "pl-marl"
+    old.mkdir(parents=True)
+    got = infer.parse_methods(f"pl-marl, old={old}", Path("policies"))
+    assert got == {"pl-marl": ("pl-marl", Path("policies/pl-marl")), "old": ("old", old)}
+    for bad in ("old=", "=runs/x"):
+        with pytest.raises(UserError, match="give LABEL=DIR"):
+            infer.parse_methods(bad, Path("policies"))
+
+
+def test_a_missing_label_dir_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    """LABEL=DIR with no such DIR is a user error, not untrained modules timed under LABEL; a
+    bare NAME without <--policies>/NAME/card.yaml still times untrained modules."""
+    import subprocess
+    import sys
+
+    missing = tmp_path / "no-such-run" / "pl-marl"
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--n", "4", "--calls", "5",
+                        "--methods", f"old={missing}"], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2
+    assert r.stderr.splitlines() == [f"plmarl bench: error: --methods old={missing}: no such directory {missing}"]
+    assert r.stdout == ""
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--n", "4", "--calls", "5", "--json",
+                        "--methods", "pl-marl", "--policies", str(tmp_path)], capture_output=True, text=True, timeout=120,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["weights"] == {"pl-marl": "untrained"}
 
 
 def test_team_plan_inputs_are_a_twin_instant() -> None:
@@ -30,6 +56,7 @@ def test_plan_rows_and_versions(tmp_path: Path, shipped: str) -> None:
     """A plan-taking file (untrained here) and a shipped one (any input version) run side by side."""
     if not (ROOT / shipped / "card.yaml").is_file():
         pytest.skip(f"{shipped} is not in this checkout")
+    (tmp_path / "none").mkdir()  # a directory without card.yaml
     args = argparse.Namespace(n=[4], methods=f"untrained={tmp_path / 'none'},shipped={ROOT / shipped}",
                               policies="policies", calls=12, seed=0)
     res = infer.run(args)

@@ -115,11 +115,44 @@ def test_trajectory_plot_shows_users_links_and_a_legend(tmp_path):
     fig = trajectory_figure(plt, tmp_path, _rows())
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     plt.close(fig)
-    assert labels == ["users at t = 0", "users at t = 59 s", "U2U link (<= R_comm = 350 m) at t = 59 s", "UAV 0", "UAV 1", "UAV 2",
+    assert labels == ["users at t = 0", "users at t = 59 s", "U2U link (R_comm and SINR) at t = 59 s", "UAV 0", "UAV 1", "UAV 2",
                       "UAV at the end"]
     fig = trajectory_figure(plt, tmp_path / "no-mission", _rows())  # an old run without mission.yaml: tracks only
     assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["UAV 0", "UAV 1", "UAV 2", "UAV at the end"]
     plt.close(fig)
+
+
+def test_trajectory_plot_draws_the_worlds_links_only(tmp_path):
+    """The plotted links are `link_mask`'s on the live UAVs' 3-D positions: UAV 2 sits 30 m
+    from UAV 0 and drowns UAV 1 (340 m away) at UAV 0's receiver, so 0 - 1 and 1 - 2 are heard
+    one way only; 3 - 4 are 300 m apart on the ground but 360 m in 3-D (> R_comm = 350 m);
+    dead UAV 5 neither links nor interferes. Pairs within R_comm on the ground alone would
+    have drawn 0 - 1, 1 - 2 and 3 - 4 as links."""
+    import shutil
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plmarl_sitl.sitl.report import trajectory_figure
+
+    shutil.copy(Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml", tmp_path / "mission.yaml")
+    pos = [[500.0, 500.0, -80.0], [500.0, 840.0, -80.0], [500.0, 530.0, -80.0], [900.0, 100.0, -80.0],
+           [900.0, 400.0, -280.0], [500.0, 700.0, -80.0]]
+    row = {"t": 7.0, "coverage": 0.5, "uavs": [{"id": i, "alive": i != 5, "pos_ned": p} for i, p in enumerate(pos)]}
+    fig = trajectory_figure(plt, tmp_path, [row])
+    ax = fig.axes[0]
+    at = {(p[1], p[0]): i for i, p in enumerate(pos)}  # (east, north) -> UAV
+    drawn = {}
+    for line in ax.get_lines():
+        if line.get_linestyle() in ("--", ":"):
+            ends = sorted(at[(e, n)] for e, n in zip(line.get_xdata(), line.get_ydata(), strict=True))
+            drawn[tuple(ends)] = line.get_linestyle()
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    plt.close(fig)
+    assert drawn == {(0, 2): "--", (0, 1): ":", (1, 2): ":"}
+    assert "U2U link (R_comm and SINR) at t = 7 s" in labels and "one-way U2U link at t = 7 s" in labels
 
 
 def test_report_replays_the_users_of_the_run():
