@@ -113,7 +113,10 @@ class SwarmMonitor:
             "lambda2": m["lambda2"],
             "messages": messages,
             "uavs": [
-                {"id": u["id"], "alive": u["alive"], "pos_ned": u["pos"], "vel_ned": u["vel"], "aoi_max": self.aoi_max(u["id"])}
+                # pos/vel are None while a vehicle reports none (an external autopilot that is not
+                # streaming its local position: sitl/external.py::uav_rows leaves them out)
+                {"id": u["id"], "alive": u["alive"], "pos_ned": u.get("pos"), "vel_ned": u.get("vel"),
+                 "aoi_max": self.aoi_max(u["id"])}
                 for u in m.get("uav", [])
             ],
         }

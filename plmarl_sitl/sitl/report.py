@@ -109,7 +109,7 @@ def trajectory_figure(plt, run_dir: Path, metrics: list[dict]):  # noqa: ANN001,
         _draw_links(ax, metrics[-1], mission)
         ax.set(xlim=(0, mission.area.east_m), ylim=(0, mission.area.north_m))
     for k, uid in enumerate(ids):
-        pts = [u["pos_ned"] for r in metrics for u in r["uavs"] if u["id"] == uid]
+        pts = [u["pos_ned"] for r in metrics for u in r["uavs"] if u["id"] == uid and u.get("pos_ned") is not None]
         if pts:
             label = f"UAV {uid}" if len(ids) <= 8 else ("UAVs (one colour each)" if k == 0 else None)
             line, = ax.plot([p[1] for p in pts], [p[0] for p in pts], lw=1, label=label)
@@ -165,7 +165,7 @@ def _draw_links(ax, row: dict, mission) -> None:  # noqa: ANN001 - matplotlib Ax
 
     from plmarl_sitl.model.graph import link_mask
 
-    live = [u["pos_ned"] for u in row["uavs"] if u.get("alive", True)]
+    live = [u["pos_ned"] for u in row["uavs"] if u.get("alive", True) and u.get("pos_ned") is not None]
     if len(live) < 2:
         return
     pos = torch.tensor(live, dtype=torch.float32)  # the world's dtype (`SitlWorld.positions`)

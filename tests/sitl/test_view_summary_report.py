@@ -218,3 +218,33 @@ def test_monitor_reads_batched_deliveries_and_counts_bad_payloads():
     assert mon.tx_total == 1 and mon.neighbours(1) == {}
     mon.on_bus(t.rx(1), state(0) + state(2)[:20])  # not whole messages: dropped whole
     assert mon.malformed == 1 and mon.neighbours(1) == {}
+
+
+def test_a_uav_without_a_reported_position_is_recorded_and_plotted_without_one(tmp_path):
+    """An external autopilot that is not streaming its local position has no pos/vel in the
+    world's row (sitl/external.py::uav_rows): the metrics row records None, the plot leaves
+    that second out of its track and the UAV out of the links, instead of failing the run."""
+    import shutil
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plmarl_sitl.sitl.monitor import SwarmMonitor
+    from plmarl_sitl.sitl.report import trajectory_figure
+
+    mon = SwarmMonitor("sitl", tup_s=15, drop_after_missed=2)
+    mon.on_metrics({"t": 3, "coverage": 0.2, "lambda2": 0.0, "uav": [
+        {"id": 0, "alive": True, "pos": [500.0, 500.0, -80.0], "vel": [0.0, 0.0, 0.0]},
+        {"id": 1, "alive": True, "mode": "GUIDED", "armed": True, "acc": None},  # no local position yet
+    ]})
+    row = mon.metrics_row()
+    assert row["uavs"][1]["pos_ned"] is None and row["uavs"][1]["vel_ned"] is None
+    shutil.copy(Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml", tmp_path / "mission.yaml")
+    later = json.loads(json.dumps(row)) | {"t": 4}
+    later["uavs"][1]["pos_ned"] = [500.0, 600.0, -80.0]
+    fig = trajectory_figure(plt, tmp_path, [row, later])
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    plt.close(fig)
+    assert "UAV 1" in labels and "U2U link (R_comm and SINR) at t = 4 s" in labels
