@@ -128,7 +128,7 @@ class Agent:
             decided = self.decision.catch_up(self.clock.mission_s())
         if self.session.flying:
             self.session.send_setpoint(m.time_boot_ms if self.gate is not None else 0)
-        self.stats.tick(t_in, c_in, decided, getattr(m, "rx_ns", None), in_mission=self.clock.t0 is not None and self.clock.mission_s() >= 0)
+        self.stats.tick(t_in, c_in, decided, getattr(m, "rx_ns", None), in_mission=self.clock.in_mission())
 
     def on_tick(self, boot_s: float) -> None:
         if self.gate is not None:
