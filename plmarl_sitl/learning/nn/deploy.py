@@ -17,14 +17,16 @@ they wrap:
   from one raw vector [ego, target, sense, f, demand descriptor, plan offset near the point];
 * the demand descriptor's bin (octant x range ring) is one affine map of [offset, offset^2]
   whose signs weigh into the bin number (no bucketize, no per-bit arithmetic);
+* squared distances where only comparisons need them, and the demand tokens' tanh as the
+  vectorised sigmoid (ATen's float tanh is scalar code);
 * one agent runs on `addmv` / `addmm` with pre-transposed constant weights: one op per
   layer, bias included;
 * the masked softmaxes compare against constant tensors (no scalar-to-tensor ops).
 
 The folded constants are built from the eager module (`fuse_tracker`, `fuse_policy`) or
-read back from an exported unfused file (`fused_from_files`). Outputs equal the reference
-module's: the tracker bit for bit, the policy to float rounding (distances come from
-`cdist`, sums in another order; tests/learning/test_deploy.py).
+read back from an exported unfused file (`fused_policy_from_file`). Outputs equal the
+reference module's: the tracker bit for bit, the policy to float rounding (sums in another
+order, tanh as a sigmoid; tests/learning/test_deploy.py).
 """
 
 from __future__ import annotations
@@ -169,8 +171,8 @@ def _bin_map(edges: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor, torc
 class FusedPolicy(nn.Module):
     """`DeployedPolicy` (input version 2, with the plan) with its linear maps folded; same API.
 
-    Fast path: one agent (ego (6,)) with M >= 1 neighbour slots, at least one in the mask,
-    a demand map of K >= 1 cells and a plan target. Other shapes and calls run `self.ref`.
+    Fast path: one agent (ego (6,)) with M >= 1 neighbour slots, a demand map of K >= 1
+    cells and a plan target. Other shapes and calls run `self.ref`.
     """
 
     def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor]) -> None:
