@@ -71,8 +71,8 @@ class PolicyFileError(UserError):
 
     def __init__(self, path: str, problem: str) -> None:
         self.path = path
-        self.problem = problem
-        super().__init__(f"{path}: {problem}")
+        self.problem = " ".join(problem.split())  # one line (a YAML parser's message spans several)
+        super().__init__(f"{path}: {self.problem}")
 
 
 def reported(exc: BaseException) -> BaseException:

@@ -190,3 +190,18 @@ def test_fuse_directory_rewrites_an_unfused_directory_in_place(tmp_path) -> None
     with torch.no_grad():
         assert float((lp.policy(*args) - ref(*args)).abs().max()) < 1e-4
     assert fuse_directory(tmp_path) == lp.card  # nothing left to fuse
+
+
+def test_fuse_command_bad_directory_is_one_line(tmp_path) -> None:  # noqa: ANN001
+    """`python -m plmarl_sitl.learning.nn.deploy` on a directory that is not a policy: one line, exit 2."""
+    import subprocess
+    import sys
+
+    (tmp_path / "card.yaml").write_text("method: [unclosed")
+    for arg in (str(tmp_path / "missing"), str(tmp_path)):
+        r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.deploy", arg], capture_output=True, text=True)
+        lines = [ln for ln in r.stderr.splitlines() if "Deprecat" not in ln and ln.strip()]
+        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("deploy: error: "), r.stderr
+        assert "Traceback" not in r.stderr
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.deploy"], capture_output=True, text=True)
+    assert r.returncode == 2 and "usage:" in r.stderr

@@ -341,11 +341,15 @@ def fuse_directory(directory: str | Path) -> dict:
     The card keeps every field; `export` records the re-export and the previous files'
     sha256. Returns the new card (unchanged if there is nothing to fuse).
     """
+    from plmarl_sitl.errors import PolicyFileError
     from plmarl_sitl.learning.nn.io import export_policy, load_policy
 
     d = Path(directory)
     lp = load_policy(d)
-    policy = fused_policy_from_file(lp.policy)
+    try:
+        policy = fused_policy_from_file(lp.policy)
+    except ValueError as exc:
+        raise PolicyFileError(str(d / "policy.pt"), f"cannot fuse: {exc}") from exc
     if policy is lp.policy:
         return lp.card  # already fused, or not a version-2 policy with the plan
     card = {k: v for k, v in lp.card.items() if k not in ("card_version", "io", "sha256")}
@@ -359,9 +363,27 @@ def fuse_directory(directory: str | Path) -> dict:
     return load_policy(d).card
 
 
+def main(argv: list[str]) -> int:
+    """`python -m plmarl_sitl.learning.nn.deploy DIR...`: fuse each policy directory in place.
+    A directory that is not a loadable policy is one line and exit 2 (`run_reporting`);
+    directories before it stay converted, it and those after are untouched."""
+    import sys
+
+    from plmarl_sitl.errors import run_reporting
+
+    if not argv:
+        print("usage: python -m plmarl_sitl.learning.nn.deploy POLICY_DIR [POLICY_DIR ...]", file=sys.stderr)
+        return 2
+
+    def body() -> None:
+        for arg in argv:
+            c = fuse_directory(arg)
+            print(arg, c.get("export", {}).get("fused"), c["sha256"])
+
+    return run_reporting("deploy", body)
+
+
 if __name__ == "__main__":
     import sys
 
-    for arg in sys.argv[1:]:
-        c = fuse_directory(arg)
-        print(arg, c.get("export", {}).get("fused"), c["sha256"])
+    raise SystemExit(main(sys.argv[1:]))
