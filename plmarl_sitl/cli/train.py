@@ -44,6 +44,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenarios", choices=("general", "mission"), default="general",
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
+    p.add_argument("--policy-inputs", choices=("plan", "plan+map"), default="plan",
+                   help="plan: the actor reads its own state, sensing, f, the neighbours' beliefs and the offset to its "
+                   "team-plan point; the demand map reaches it only through the plan (a map-blind policy, the light "
+                   "decision). plan+map: also the demand descriptor and an attention over the map's cells (the "
+                   "policies of session 7) (default: plan)")
     p.set_defaults(func=run)
 
 
@@ -80,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
             on_iter=on_iter,
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
-                            "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general"}
+                            "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",
+                            "reads_map": args.policy_inputs == "plan+map"}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

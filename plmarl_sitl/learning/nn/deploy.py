@@ -39,7 +39,14 @@ from torch import nn
 from torch.nn import functional as F
 
 from plmarl_sitl.learning.nn.belief import MAX_AOI, NEVER, BeliefTracker, backfill
-from plmarl_sitl.learning.nn.features import DEMAND_BINS, DEMAND_RING_EDGES_M, DEMAND_SECTORS, EGO_FEATURES, PLAN_NEAR_M
+from plmarl_sitl.learning.nn.features import (
+    DEMAND_BINS,
+    DEMAND_RING_EDGES_M,
+    DEMAND_SECTORS,
+    EGO_FEATURES,
+    PLAN_NEAR_M,
+    map_blind_columns,
+)
 from plmarl_sitl.learning.nn.policy import DeployedPolicy
 from plmarl_sitl.learning.nn.predictor import KinematicPredictor
 from plmarl_sitl.model.coverage import SENSING_FEATURES
@@ -127,26 +134,33 @@ _RAW_NEAR = _RAW_DESC + _HIST_COLS * DEMAND_BINS
 _RAW_FEATURES = _RAW_NEAR + 2
 
 
-def _ego_feature_map(alt_max: float, v_max: float, r_comm: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _ego_feature_map(alt_max: float, v_max: float, r_comm: float, reads_map: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
     """(S, o) with ego_x = S raw + o: `build_policy_input`'s ego features with a known plan.
 
     The raw descriptor is the fused histogram (bins, 3) flattened: [bin 0 all, bin 0 free,
-    bin 0 unused, bin 1 all, ...]; ego_x has all users' bins, then the free users' bins."""
-    s, o = torch.zeros(EGO_FEATURES, _RAW_FEATURES), torch.zeros(EGO_FEATURES)
+    bin 0 unused, bin 1 all, ...]; ego_x has all users' bins, then the free users' bins.
+    reads_map=False: the map-blind layout, raw [ego, target, sense, f, near] (no histogram)
+    and ego_x without the descriptor (`features.map_blind_columns`)."""
+    raw_near = _RAW_NEAR if reads_map else _RAW_DESC
+    s, o = torch.zeros(EGO_FEATURES, raw_near + 2), torch.zeros(EGO_FEATURES)
     s[0, 2], o[0] = -2.0 / alt_max, -1.0  # altitude 0..alt_max -> [-1, 1] (z is down)
     for i in range(3):
         s[1 + i, 3 + i] = 1.0 / v_max
     for i in range(SENSING_FEATURES + 1):  # sensing, f: as they are
         s[4 + i, _RAW_SENSE + i] = 1.0
     desc = 4 + SENSING_FEATURES + 1
-    for b in range(DEMAND_BINS):
-        for k in range(2):
-            s[desc + k * DEMAND_BINS + b, _RAW_DESC + _HIST_COLS * b + k] = 1.0
+    if reads_map:
+        for b in range(DEMAND_BINS):
+            for k in range(2):
+                s[desc + k * DEMAND_BINS + b, _RAW_DESC + _HIST_COLS * b + k] = 1.0
     plan = desc + 2 * DEMAND_BINS
     for i in range(2):
         s[plan + i, _RAW_TARGET + i], s[plan + i, i] = 1.0 / r_comm, -1.0 / r_comm  # (target - p) / R_comm
-        s[plan + 2 + i, _RAW_NEAR + i] = 1.0 / PLAN_NEAR_M  # clamp(target - p, +-PLAN_NEAR_M) / PLAN_NEAR_M
+        s[plan + 2 + i, raw_near + i] = 1.0 / PLAN_NEAR_M  # clamp(target - p, +-PLAN_NEAR_M) / PLAN_NEAR_M
     o[plan + 4] = 1.0  # the plan is known
+    if not reads_map:
+        keep = map_blind_columns()
+        s, o = s[keep], o[keep]
     return s, o
 
 
@@ -168,6 +182,25 @@ def _bin_map(edges: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor, torc
     return proj, bias, w
 
 
+def _fold_ego_attention_trunk(c: dict[str, torch.Tensor], ego_map: tuple[torch.Tensor, torch.Tensor], n_msg: int,
+                              r_comm: float, v_max: float) -> tuple[torch.Tensor, ...]:
+    """The folded ego embedding, neighbour attention and trunk shared by both fused policies.
+
+    h = tanh(E_ego ego_x + b) and the trunk's ego_x part both read the raw vector (ego_x = S
+    raw + o); the trunk's first n_msg inputs are [h, m(, md)]. W h_hat_j = Wc [rel_p / R_comm,
+    rel_v / V_max, rel_p / R_comm] + bc with rel = belief_j - ego, applied to belief_j - ego.
+    -> (w_h, b_h, w_rel_t, b_rel, a2, w_a1, w_t1, b_t1, w_t2, b_t2, w_mu, b_mu)."""
+    s, o = ego_map
+    t1, wc = c["t1_w"], c["whh_w"]
+    return (
+        (c["ego_w"] @ s).contiguous(), c["ego_b"] + c["ego_w"] @ o,
+        torch.cat([(wc[:, 0:3] + wc[:, 6:9]) / r_comm, wc[:, 3:6] / v_max], 1).t().contiguous(), c["whh_b"].clone(),
+        c["a2"].contiguous(), c["wa1"].contiguous(),
+        torch.cat([t1[:, :n_msg], t1[:, n_msg:] @ s], 1).contiguous(), c["t1_b"] + t1[:, n_msg:] @ o,
+        c["t2_w"].contiguous(), c["t2_b"].clone(), c["mu_w"].contiguous(), c["mu_b"].clone(),
+    )  # fmt: skip
+
+
 class FusedPolicy(nn.Module):
     """`DeployedPolicy` (input version 2, with the plan) with its linear maps folded; same API.
 
@@ -183,23 +216,13 @@ class FusedPolicy(nn.Module):
         self.r_comm, self.claim_m, self.demand_unit = float(ref.r_comm), float(ref.claim_m), float(ref.demand_unit)
         self.input_version = int(ref.input_version)
         self.takes_plan = True
+        self.reads_map = True
         c = {k: v.detach().float() for k, v in c.items()}
         d = c["ego_w"].shape[0]
         r = self.r_comm
-        s, o = _ego_feature_map(self.alt_max, self.v_max, r)
-        # h = tanh(E_ego ego_x + b); the trunk reads [h, m, md, ego_x]: both from the raw vector.
-        self.w_h = (c["ego_w"] @ s).contiguous()
-        self.b_h = c["ego_b"] + c["ego_w"] @ o
-        t1 = c["t1_w"]
-        self.w_t1 = torch.cat([t1[:, : 3 * d], t1[:, 3 * d :] @ s], 1).contiguous()
-        self.b_t1 = c["t1_b"] + t1[:, 3 * d :] @ o
-        self.w_t2, self.b_t2 = c["t2_w"].contiguous(), c["t2_b"].clone()
-        self.w_mu, self.b_mu = c["mu_w"].contiguous(), c["mu_b"].clone()
-        # W h_hat_j = Wc [rel_p / R_comm, rel_v / V_max, rel_p / R_comm] + bc, rel = belief_j - ego
-        wc = c["whh_w"]
-        self.w_rel_t = torch.cat([(wc[:, 0:3] + wc[:, 6:9]) / r, wc[:, 3:6] / self.v_max], 1).t().contiguous()
-        self.b_rel = c["whh_b"].clone()
-        self.a2, self.w_a1 = c["a2"].contiguous(), c["wa1"].contiguous()
+        # the trunk reads [h, m, md, ego_x]
+        (self.w_h, self.b_h, self.w_rel_t, self.b_rel, self.a2, self.w_a1, self.w_t1, self.b_t1, self.w_t2, self.b_t2,
+         self.w_mu, self.b_mu) = _fold_ego_attention_trunk(c, _ego_feature_map(self.alt_max, self.v_max, r), 3 * d, r, self.v_max)
         # demand tokens [dn, de, log1p(count / unit), clamp(nearest - own, +-2 R_comm), log1p(nearer)],
         # fed as [dn, de, log1p(count / unit), log1p(free, unused), log1p(nearer), clamp(nearest - own)]
         tw = c["tok_w"]
@@ -271,28 +294,85 @@ class FusedPolicy(nn.Module):
         return torch.addmv(self.b_mu, self.w_mu, zt).tanh_().mul_(self.a_max_t)
 
 
+class FusedPlanPolicy(nn.Module):
+    """A map-blind `DeployedPolicy` (`reads_map` False: no descriptor, no demand attention)
+    with its linear maps folded; same API (`demand` is accepted and not read).
+
+    Fast path: one agent (ego (6,)) with M >= 1 neighbour slots and a plan target, about 20
+    ops. Other shapes and calls run `self.ref`.
+    """
+
+    def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor]) -> None:
+        super().__init__()
+        self.ref = ref
+        self.deploy_form = DEPLOY_FORM
+        self.alt_max, self.v_max, self.a_max = float(ref.alt_max), float(ref.v_max), float(ref.a_max)
+        self.r_comm, self.claim_m, self.demand_unit = float(ref.r_comm), float(ref.claim_m), float(ref.demand_unit)
+        self.input_version = int(ref.input_version)
+        self.takes_plan = True
+        self.reads_map = False
+        c = {k: v.detach().float() for k, v in c.items()}
+        d, r = c["ego_w"].shape[0], self.r_comm
+        # the trunk reads [h, m, ego_x]
+        (self.w_h, self.b_h, self.w_rel_t, self.b_rel, self.a2, self.w_a1, self.w_t1, self.b_t1, self.w_t2, self.b_t2,
+         self.w_mu, self.b_mu) = _fold_ego_attention_trunk(
+            c, _ego_feature_map(self.alt_max, self.v_max, r, reads_map=False), 2 * d, r, self.v_max)
+        self.near_m = PLAN_NEAR_M
+        self.neg = torch.tensor(-1.0e9)
+        self.zero = torch.tensor(0.0)
+        self.a_max_t = torch.tensor(self.a_max)
+
+    def forward(
+        self,
+        ego: torch.Tensor,
+        beliefs: torch.Tensor,
+        mask: torch.Tensor,
+        sense: torch.Tensor,
+        fail_flag: torch.Tensor,
+        demand: Optional[torch.Tensor] = None,  # noqa: UP045 - TorchScript needs Optional
+        target: Optional[torch.Tensor] = None,  # noqa: UP045
+    ) -> torch.Tensor:
+        if target is None or ego.dim() != 1 or beliefs.size(0) == 0:
+            return self.ref(ego, beliefs, mask, sense, fail_flag, demand, target)
+        near = torch.sub(target, ego.narrow(0, 0, 2)).clamp_(-self.near_m, self.near_m)
+        raw = torch.cat([ego, target, sense, fail_flag.view(1), near])  # bool f: cat promotes
+        h = torch.addmv(self.b_h, self.w_h, raw).tanh_()
+        whh = torch.addmm(self.b_rel, beliefs - ego, self.w_rel_t)  # (M, d) = W h_hat_j
+        e = F.leaky_relu_(torch.addmv(torch.dot(h, self.w_a1), whh, self.a2), 0.2)
+        alpha = torch.where(mask, torch.softmax(torch.where(mask, e, self.neg), 0), self.zero)
+        m = F.elu_(torch.mv(whh.t(), alpha))
+        zt = torch.addmv(self.b_t1, self.w_t1, torch.cat([h, m, raw])).tanh_()
+        zt = torch.addmv(self.b_t2, self.w_t2, zt).tanh_()
+        return torch.addmv(self.b_mu, self.w_mu, zt).tanh_().mul_(self.a_max_t)
+
+
 def policy_constants(policy: DeployedPolicy) -> dict[str, torch.Tensor]:
-    """The (unfused) constants FusedPolicy needs, from the eager module."""
+    """The (unfused) constants the fused policies need, from the eager module (no tok_*, key,
+    query for a map-blind actor)."""
     a = policy.actor
     f, dm = a.fusion, a.demand
     w = f.W.weight
     with torch.no_grad():
-        return {
+        c = {
             "ego_w": f.ego_enc.weight, "ego_b": f.ego_enc.bias,
             "whh_w": w @ torch.cat([f.encoder.weight, f.pe.weight], 1), "whh_b": w @ (f.encoder.bias + f.pe.bias),
             "a2": f.a2, "wa1": w.t() @ f.a1,
-            "tok_w": dm.tok_enc.weight, "tok_b": dm.tok_enc.bias, "key_w": dm.key.weight, "query_w": dm.query.weight,
             "t1_w": a.trunk[0].weight, "t1_b": a.trunk[0].bias,
             "t2_w": a.trunk[2].weight, "t2_b": a.trunk[2].bias,
             "mu_w": a.mu.weight, "mu_b": a.mu.bias,
         }  # fmt: skip
+        if dm is not None:
+            c.update({"tok_w": dm.tok_enc.weight, "tok_b": dm.tok_enc.bias, "key_w": dm.key.weight,
+                      "query_w": dm.query.weight})
+        return c
 
 
 def fuse_policy(policy: nn.Module) -> nn.Module:
     """The fused form of a DeployedPolicy that takes the plan; any other module is returned as it is."""
     if is_fused(policy) or not isinstance(policy, DeployedPolicy) or not policy.takes_plan:
         return policy
-    return FusedPolicy(policy.eval(), policy_constants(policy))
+    fused = FusedPolicy if policy.reads_map else FusedPlanPolicy
+    return fused(policy.eval(), policy_constants(policy))
 
 
 def _const_inputs(graph: torch._C.Graph, kind: str) -> list[list[torch.Tensor]]:
@@ -316,21 +396,28 @@ def fused_policy_from_file(policy: torch.jit.ScriptModule) -> nn.Module:
 
     The frozen graph holds the trained weights as constants (with the products the reference
     module computes already folded); they are read back in the order `DeployedPolicy` uses
-    them: ego_enc, W [Encoder | PE], a2, W^T a1, tok_enc, key, query, trunk 1, 2, mu. The
+    them: ego_enc, W [Encoder | PE], a2, W^T a1, (tok_enc, key, query,) trunk 1, 2, mu. The
     loaded file stays inside as the reference for other shapes. Returns the file unchanged if
     it is already fused or does not take the plan; raises ValueError on another graph.
     """
     if is_fused(policy) or not bool(getattr(policy, "takes_plan", False)):
         return policy
+    from plmarl_sitl.learning.nn.io import reads_map
+
     lin = _const_inputs(policy.graph, "aten::linear")
     vec = [c[0] for c in _const_inputs(policy.graph, "aten::matmul") if len(c) == 1]
     shapes = [len(c) for c in lin]
-    if shapes != [2, 2, 2, 1, 1, 2, 2, 2] or len(vec) != 2:
+    with_map = reads_map(policy)
+    expected = [2, 2, 2, 1, 1, 2, 2, 2] if with_map else [2, 2, 2, 2, 2]
+    if shapes != expected or len(vec) != 2:
         raise ValueError(f"policy graph is not the expected DeployedPolicy (linear constants {shapes}, {len(vec)} vectors)")
-    (ego_w, ego_b), (whh_w, whh_b), (tok_w, tok_b), (key_w,), (query_w,), (t1_w, t1_b), (t2_w, t2_b), (mu_w, mu_b) = lin
+    (ego_w, ego_b), (whh_w, whh_b), *demand, (t1_w, t1_b), (t2_w, t2_b), (mu_w, mu_b) = lin
     consts = {"ego_w": ego_w, "ego_b": ego_b, "whh_w": whh_w, "whh_b": whh_b, "a2": vec[0], "wa1": vec[1],
-              "tok_w": tok_w, "tok_b": tok_b, "key_w": key_w, "query_w": query_w, "t1_w": t1_w, "t1_b": t1_b,
-              "t2_w": t2_w, "t2_b": t2_b, "mu_w": mu_w, "mu_b": mu_b}
+              "t1_w": t1_w, "t1_b": t1_b, "t2_w": t2_w, "t2_b": t2_b, "mu_w": mu_w, "mu_b": mu_b}
+    if not with_map:
+        return FusedPlanPolicy(policy, consts)
+    (tok_w, tok_b), (key_w,), (query_w,) = demand
+    consts.update({"tok_w": tok_w, "tok_b": tok_b, "key_w": key_w, "query_w": query_w})
     return FusedPolicy(policy, consts)
 
 

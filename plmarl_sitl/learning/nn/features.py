@@ -75,6 +75,13 @@ class FeatureScales(NamedTuple):
         )
 
 
+def map_blind_columns() -> torch.Tensor:
+    """The ego features a map-blind actor reads: all but the demand descriptor (altitude,
+    velocity, sensing, f, plan)."""
+    desc = 4 + SENSING_FEATURES + 1
+    return torch.cat([torch.arange(desc), torch.arange(desc + DEMAND_FEATURES, EGO_FEATURES)])
+
+
 def ring_edges_sq() -> torch.Tensor:
     return torch.tensor([r * r for r in DEMAND_RING_EDGES_M])
 

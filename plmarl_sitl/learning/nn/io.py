@@ -56,7 +56,7 @@ def script(module: nn.Module) -> torch.jit.ScriptModule:
 
 TRACKER_ATTRS = ["init_state", "buffer_len", "dt"]
 SCALES = ["alt_max", "v_max", "a_max", "r_comm", "claim_m", "demand_unit"]
-POLICY_ATTRS = SCALES + ["input_version", "takes_plan"]
+POLICY_ATTRS = SCALES + ["input_version", "takes_plan", "reads_map"]
 # Scales that describe the scenario, not the vehicle, radio or sensor: the policy keeps the
 # value it was trained with as its own unit (demand_unit: users per unit of the demand map's
 # counts), so a mission with other cluster sizes flies it instead of being refused.
@@ -94,6 +94,7 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
         "ego_features": EGO_FEATURES,
         "input_version": INPUT_VERSION,
         "takes_plan": takes_plan(policy),
+        "reads_map": reads_map(policy),
         "demand_cell_fields": DEMAND_CELL_FIELDS,
         "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
         "dt_s": float(tracker.dt),  # type: ignore[arg-type]
@@ -114,6 +115,12 @@ def takes_plan(policy: nn.Module | torch.jit.ScriptModule) -> bool:
     """True: the policy takes the team-plan target as a 7th input (model/service.py; input
     version 2 from issue 12's T_up-50 work). Version-2 files without the attribute take six."""
     return bool(getattr(policy, "takes_plan", False))
+
+
+def reads_map(policy: nn.Module | torch.jit.ScriptModule) -> bool:
+    """False: a map-blind policy (docs/POLICY_IO.md): called like any version-2 policy, but
+    it reads the demand map only through the plan target. Files without the attribute read it."""
+    return bool(getattr(policy, "reads_map", input_version(policy) >= 2))
 
 
 @dataclass(frozen=True)

@@ -22,12 +22,14 @@ from torch import nn
 from torch.nn import functional as F
 
 from plmarl_sitl.learning.nn.features import (
+    DEMAND_FEATURES,
     EGO_FEATURES,
     INPUT_VERSION,
     NBR_FEATURES,
     REL_FEATURES,
     TOKEN_FEATURES,
     build_policy_input,
+    map_blind_columns,
     ring_edges_sq,
 )
 
@@ -97,12 +99,22 @@ class DemandAttention(nn.Module):
 
 
 class Actor(nn.Module):
-    def __init__(self, d: int = 32, hidden: int = 64, log_std_init: float = -0.5) -> None:
+    """reads_map=True: the ego features with the demand descriptor, and the demand attention
+    over the map's cells. reads_map=False (a map-blind actor): the descriptor columns are
+    dropped and there is no demand attention; the map reaches the agent only through the team
+    plan's target (docs/POLICY_IO.md, "Map-blind policies"). The trained actors follow the
+    plan either way, and the map's part is most of a decision's cost."""
+
+    def __init__(self, d: int = 32, hidden: int = 64, log_std_init: float = -0.5, reads_map: bool = True) -> None:
         super().__init__()
-        self.fusion = AttentionFusion(EGO_FEATURES, d)
-        self.demand = DemandAttention(d)
+        ego_dim = EGO_FEATURES if reads_map else EGO_FEATURES - DEMAND_FEATURES
+        self.reads_map = reads_map
+        self.fusion = AttentionFusion(ego_dim, d)
+        self.demand = DemandAttention(d) if reads_map else None
+        self.register_buffer("ego_cols", map_blind_columns(), persistent=False)
         self.trunk = nn.Sequential(
-            _ortho(nn.Linear(3 * d + EGO_FEATURES, hidden)), nn.Tanh(), _ortho(nn.Linear(hidden, hidden)), nn.Tanh()
+            _ortho(nn.Linear((3 if reads_map else 2) * d + ego_dim, hidden)), nn.Tanh(),
+            _ortho(nn.Linear(hidden, hidden)), nn.Tanh(),
         )
         self.mu = _ortho(nn.Linear(hidden, 3), 0.01)
         self.log_std = nn.Parameter(torch.full((3,), log_std_init))
@@ -110,6 +122,10 @@ class Actor(nn.Module):
     def forward(self, ego_x: torch.Tensor, nbr_x: torch.Tensor, rel_x: torch.Tensor, mask: torch.Tensor,
                 tok_x: torch.Tensor, tok_mask: torch.Tensor) -> torch.Tensor:
         """Mean of the normalised action u (..., 3), in (-1, 1)."""
+        if self.demand is None:
+            ego_x = ego_x.index_select(-1, self.ego_cols)
+            h, m, _ = self.fusion(ego_x, nbr_x, rel_x, mask)
+            return torch.tanh(self.mu(self.trunk(torch.cat([h, m, ego_x], -1))))
         h, m, _ = self.fusion(ego_x, nbr_x, rel_x, mask)
         md = self.demand(h, tok_x, tok_mask)
         return torch.tanh(self.mu(self.trunk(torch.cat([h, m, md, ego_x], -1))))
@@ -154,6 +170,7 @@ class DeployedPolicy(nn.Module):
         self.claim_m, self.demand_unit = float(claim_m), float(demand_unit)
         self.input_version = INPUT_VERSION
         self.takes_plan = True  # called with the team-plan target (files without it: six inputs)
+        self.reads_map = bool(actor.reads_map)  # False: `demand` is accepted and not read
         self.register_buffer("edges_sq", ring_edges_sq())
 
     def forward(

@@ -91,6 +91,9 @@ class Args:
     imitation_tup_chunks: int = 5  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
+    # False: a map-blind actor (the plan target, own state, sensing, f, neighbours; no demand
+    # descriptor or demand attention), the light decision. True: the session-7 actor.
+    reads_map: bool = False
     log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start
     out: str = "runs/pl-marl"
     threads: int = 1
@@ -221,7 +224,7 @@ def train(args: Args, progress=None) -> dict:
     tracker = make_tracker(args.method, mission, args.predictor_state)
     beliefs = Beliefs(tracker)
     flags = FailureFlags(scales.r_comm)
-    actor = Actor(args.embed_dim, log_std_init=args.log_std_init)
+    actor = Actor(args.embed_dim, log_std_init=args.log_std_init, reads_map=args.reads_map)
     critic = Critic(G)
     vnorm = ValueNorm()
     warm: dict = {}
