@@ -88,7 +88,7 @@ def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
 
 
 def _modules(method: str, d: Path):
-    from plmarl_sitl.learning.nn.deploy import fuse_tracker
+    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 
@@ -101,8 +101,8 @@ def _modules(method: str, d: Path):
 
     torch.manual_seed(0)
     tracker = BeliefTracker(make_predictor(METHOD_PREDICTOR.get(method, "mlp")), 10, 1.0)
-    policy = DeployedPolicy(Actor(), 150.0, 20.0, 5.0, 350.0, 100.0, 60.0)
-    return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(policy, POLICY_ATTRS), "untrained"
+    policy = DeployedPolicy(Actor(reads_map=False), 150.0, 20.0, 5.0, 350.0, 100.0, 60.0)  # what `plmarl train` makes
+    return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(fuse_policy(policy), POLICY_ATTRS), "untrained"  # as exported
 
 
 def lattice_mission(n: int):  # noqa: ANN201 - Mission

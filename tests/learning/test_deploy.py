@@ -77,9 +77,9 @@ def test_fused_tracker_other_shapes_use_the_reference() -> None:
                 _, _, b2, s2 = o2
 
 
-def _policy(seed: int = 0) -> DeployedPolicy:
+def _policy(seed: int = 0, reads_map: bool = True) -> DeployedPolicy:
     torch.manual_seed(seed)
-    actor = Actor()
+    actor = Actor(reads_map=reads_map)
     for prm in actor.parameters():  # non-trivial weights (mu starts near zero)
         torch.nn.init.normal_(prm, std=0.3)
     return DeployedPolicy(actor, 150.0, 20.0, 5.0, 350.0, 100.0, 60.0).eval()
@@ -105,18 +105,19 @@ def _one_agent_inputs(gen: torch.Generator, m: int, k: int, case: int) -> tuple:
     return ego, beliefs, mask, sense, fail, demand, target
 
 
+@pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
 @pytest.mark.parametrize("source", ["eager", "file"])
-def test_fused_policy_equals_the_reference_on_one_agent(source: str, tmp_path) -> None:  # noqa: ANN001
+def test_fused_policy_equals_the_reference_on_one_agent(source: str, reads_map: bool, tmp_path) -> None:  # noqa: ANN001
     from plmarl_sitl.learning.nn.io import quiet_torchscript
 
-    ref = _policy()
+    ref = _policy(reads_map=reads_map)
     if source == "eager":
         fused = freeze(fuse_policy(ref), POLICY_ATTRS)
     else:  # an unfused frozen file, as exported before the fused form: weights read back from its graph
         with quiet_torchscript():
             torch.jit.save(freeze(ref, POLICY_ATTRS), str(tmp_path / "policy.pt"))
             fused = freeze(fused_policy_from_file(torch.jit.load(str(tmp_path / "policy.pt"))), POLICY_ATTRS)
-    assert is_fused(fused)
+    assert is_fused(fused) and fused.reads_map == reads_map
     gen = torch.Generator().manual_seed(7)
     worst = 0.0
     with torch.no_grad():
@@ -129,8 +130,9 @@ def test_fused_policy_equals_the_reference_on_one_agent(source: str, tmp_path) -
     assert worst < 1e-4, worst  # float32 rounding of sums in another order (accelerations up to 5 m/s^2)
 
 
-def test_fused_policy_other_calls_use_the_reference() -> None:
-    ref = _policy(1)
+@pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
+def test_fused_policy_other_calls_use_the_reference(reads_map: bool) -> None:
+    ref = _policy(1, reads_map)
     fused = freeze(fuse_policy(ref), POLICY_ATTRS)
     gen = torch.Generator().manual_seed(8)
     ego, beliefs, mask, sense, fail, demand, target = _one_agent_inputs(gen, 5, 12, 1)
@@ -138,12 +140,27 @@ def test_fused_policy_other_calls_use_the_reference() -> None:
         (ego, beliefs, mask, sense, fail, None, None),  # no map yet
         (ego, beliefs, mask, sense, fail, demand, None),  # a map, no plan yet
         (ego, beliefs[:0], mask[:0], sense, fail, demand, target),  # no neighbour slot
-        (ego, beliefs, mask, sense, fail, demand[:0], target),  # an empty map
         (ego[None], beliefs[None], mask[None], sense[None], fail[None], demand[None], target[None]),  # a batch
     ]
+    if reads_map:  # (a map-blind policy's fast path does not look at the map)
+        calls.append((ego, beliefs, mask, sense, fail, demand[:0], target))  # an empty map
     with torch.no_grad():
         for args in calls:
             assert torch.equal(ref(*args), fused(*args))
+
+
+def test_map_blind_policy_does_not_read_the_map() -> None:
+    """A map-blind file takes the map like any version-2 policy and its action does not depend on it."""
+    ref = _policy(3, reads_map=False)
+    fused = freeze(fuse_policy(ref), POLICY_ATTRS)
+    gen = torch.Generator().manual_seed(11)
+    ego, beliefs, mask, sense, fail, demand, target = _one_agent_inputs(gen, 6, 30, 1)
+    other = torch.cat([torch.rand(7, 2, generator=gen) * 1500, torch.full((7, 1), 60.0)], 1)
+    with torch.no_grad():
+        for policy in (ref, fused):
+            a = policy(ego, beliefs, mask, sense, fail, demand, target)
+            assert torch.equal(a, policy(ego, beliefs, mask, sense, fail, other, target))
+            assert torch.equal(a, policy(ego, beliefs, mask, sense, fail, None, target))
 
 
 def test_policy_without_the_plan_is_not_fused() -> None:
@@ -168,10 +185,11 @@ def test_shipped_policies_are_fused_and_agree_with_their_reference(method: str) 
             assert float((one - batch).abs().max()) < 1e-4
 
 
-def test_fuse_directory_rewrites_an_unfused_directory_in_place(tmp_path) -> None:  # noqa: ANN001
+@pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
+def test_fuse_directory_rewrites_an_unfused_directory_in_place(reads_map: bool, tmp_path) -> None:  # noqa: ANN001
     from plmarl_sitl.learning.nn.io import export_policy, quiet_torchscript
 
-    ref = _policy(2)
+    ref = _policy(2, reads_map)
     export_policy(tmp_path, _tracker(), ref, {"method": "pl-marl"})
     with quiet_torchscript():  # write the unfused form, as exports before the fused policy did
         torch.jit.save(freeze(ref, POLICY_ATTRS), str(tmp_path / "policy.pt"))
@@ -184,7 +202,7 @@ def test_fuse_directory_rewrites_an_unfused_directory_in_place(tmp_path) -> None
     new = fuse_directory(tmp_path)
     assert new["export"]["fused"]["policy.pt"] and "fused_from_sha256" in new["export"]
     lp = load_policy(tmp_path)
-    assert is_fused(lp.policy)
+    assert is_fused(lp.policy) and lp.card["io"]["reads_map"] == reads_map
     gen = torch.Generator().manual_seed(10)
     args = _one_agent_inputs(gen, 4, 9, 1)
     with torch.no_grad():

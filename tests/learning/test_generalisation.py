@@ -7,6 +7,7 @@ import math
 from typing import Optional
 
 import numpy as np
+import pytest
 import torch
 
 from plmarl_sitl.learning.eval.controllers import LearnedController
@@ -22,9 +23,9 @@ from plmarl_sitl.twin.env import CoverageEnv, launch_positions
 MISSION = load_mission("missions/paper_urban.yaml")
 
 
-def _policy(seed: int = 0) -> DeployedPolicy:
+def _policy(seed: int = 0, reads_map: bool = True) -> DeployedPolicy:
     torch.manual_seed(seed)
-    actor = Actor()
+    actor = Actor(reads_map=reads_map)
     for p in actor.parameters():  # non-trivial actions
         torch.nn.init.normal_(p, std=0.3)
     return DeployedPolicy(actor, *FeatureScales.from_mission(MISSION)).eval()
@@ -40,17 +41,24 @@ def _scenario(gen: torch.Generator, m: int, k: int) -> tuple[torch.Tensor, ...]:
     return ego, bel, mask, sense, demand
 
 
-def test_a_translated_scenario_gives_the_same_actions():
+@pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
+def test_a_translated_scenario_gives_the_same_actions(reads_map: bool):
+    """As exported (the fused file): without a plan (the reference path) and with one (the fast path)."""
+    from plmarl_sitl.learning.nn.deploy import fuse_policy
+    from plmarl_sitl.learning.nn.io import POLICY_ATTRS, freeze
+
     gen = torch.Generator().manual_seed(1)
-    pol = script(_policy())
+    pol = freeze(fuse_policy(_policy(reads_map=reads_map)), POLICY_ATTRS)
     for shift in ([300.0, -200.0], [-1234.5, 5000.0], [0.25, 0.5]):
         ego, bel, mask, sense, demand = _scenario(gen, 5, 30)
+        target = ego[:2] + torch.tensor([180.0, -60.0])
         d3 = torch.tensor(shift + [0.0])
         moved = (ego + torch.cat([d3, torch.zeros(3)]), bel + torch.cat([d3, torch.zeros(3)]), mask, sense,
                  demand + torch.tensor(shift + [0.0]))
-        want = pol(ego, bel, mask, sense, torch.tensor(True), demand)
-        got = pol(moved[0], moved[1], mask, sense, torch.tensor(True), moved[4])
-        assert torch.allclose(want, got, atol=1e-4), (shift, want, got)
+        for plan, moved_plan in ((None, None), (target, target + torch.tensor(shift))):
+            want = pol(ego, bel, mask, sense, torch.tensor(True), demand, plan)
+            got = pol(moved[0], moved[1], mask, sense, torch.tensor(True), moved[4], moved_plan)
+            assert torch.allclose(want, got, atol=1e-4), (shift, want, got)
 
 
 def test_input_size_does_not_depend_on_neighbours_clusters_or_cells():

@@ -89,6 +89,7 @@ def test_every_method_exports_a_policy_that_takes_the_team_plan(tmp_path: Path, 
                  args_overrides={"imitation_rounds": 0, "validate_every": 0, "critic_warmup_iters": 0})
     lp = load_policy(tmp_path / "out")
     assert lp.takes_plan and lp.card["io"]["takes_plan"] and lp.card["method"] == method
+    assert lp.card["io"]["reads_map"] is False and lp.card["config"]["reads_map"] is False  # the default: map-blind
     with torch.no_grad():
         belief, _, _, _ = lp.tracker(0.0, torch.zeros(2, 6), torch.zeros(2), *lp.tracker.init_state(torch.zeros(2, 6)))
         args = (torch.tensor([500.0, 500.0, -100.0, 0.0, 0.0, 0.0]), belief, torch.ones(2, dtype=torch.bool),
