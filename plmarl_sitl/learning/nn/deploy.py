@@ -182,33 +182,18 @@ def _bin_map(edges: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor, torc
     return proj, bias, w
 
 
-def _fold_ego_attention_trunk(c: dict[str, torch.Tensor], ego_map: tuple[torch.Tensor, torch.Tensor], n_msg: int,
-                              r_comm: float, v_max: float) -> tuple[torch.Tensor, ...]:
-    """The folded ego embedding, neighbour attention and trunk shared by both fused policies.
+class _FusedActor(nn.Module):
+    """What both fused policies share: the reference module, the file's attributes, and the
+    folded ego embedding, neighbour attention and trunk.
 
     h = tanh(E_ego ego_x + b) and the trunk's ego_x part both read the raw vector (ego_x = S
-    raw + o); the trunk's first n_msg inputs are [h, m(, md)]. W h_hat_j = Wc [rel_p / R_comm,
-    rel_v / V_max, rel_p / R_comm] + bc with rel = belief_j - ego, applied to belief_j - ego.
-    -> (w_h, b_h, w_rel_t, b_rel, a2, w_a1, w_t1, b_t1, w_t2, b_t2, w_mu, b_mu)."""
-    s, o = ego_map
-    t1, wc = c["t1_w"], c["whh_w"]
-    return (
-        (c["ego_w"] @ s).contiguous(), c["ego_b"] + c["ego_w"] @ o,
-        torch.cat([(wc[:, 0:3] + wc[:, 6:9]) / r_comm, wc[:, 3:6] / v_max], 1).t().contiguous(), c["whh_b"].clone(),
-        c["a2"].contiguous(), c["wa1"].contiguous(),
-        torch.cat([t1[:, :n_msg], t1[:, n_msg:] @ s], 1).contiguous(), c["t1_b"] + t1[:, n_msg:] @ o,
-        c["t2_w"].contiguous(), c["t2_b"].clone(), c["mu_w"].contiguous(), c["mu_b"].clone(),
-    )  # fmt: skip
-
-
-class FusedPolicy(nn.Module):
-    """`DeployedPolicy` (input version 2, with the plan) with its linear maps folded; same API.
-
-    Fast path: one agent (ego (6,)) with M >= 1 neighbour slots, a demand map of K >= 1
-    cells and a plan target. Other shapes and calls run `self.ref`.
+    raw + o, `_ego_feature_map`); the trunk's first inputs are [h, m] (and md when the map is
+    read). W h_hat_j = Wc [rel_p / R_comm, rel_v / V_max, rel_p / R_comm] + bc with rel =
+    belief_j - ego, so one matrix applies to belief_j - ego. The helper methods are inlined
+    by TorchScript: no call overhead at run time.
     """
 
-    def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor]) -> None:
+    def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor], reads_map: bool) -> None:
         super().__init__()
         self.ref = ref  # the reference DeployedPolicy (eager, or a loaded TorchScript file)
         self.deploy_form = DEPLOY_FORM
@@ -216,13 +201,46 @@ class FusedPolicy(nn.Module):
         self.r_comm, self.claim_m, self.demand_unit = float(ref.r_comm), float(ref.claim_m), float(ref.demand_unit)
         self.input_version = int(ref.input_version)
         self.takes_plan = True
-        self.reads_map = True
+        self.reads_map = reads_map
         c = {k: v.detach().float() for k, v in c.items()}
-        d = c["ego_w"].shape[0]
-        r = self.r_comm
-        # the trunk reads [h, m, md, ego_x]
-        (self.w_h, self.b_h, self.w_rel_t, self.b_rel, self.a2, self.w_a1, self.w_t1, self.b_t1, self.w_t2, self.b_t2,
-         self.w_mu, self.b_mu) = _fold_ego_attention_trunk(c, _ego_feature_map(self.alt_max, self.v_max, r), 3 * d, r, self.v_max)
+        r, n_msg = self.r_comm, (3 if reads_map else 2) * c["ego_w"].shape[0]
+        s, o = _ego_feature_map(self.alt_max, self.v_max, r, reads_map)
+        t1, wc = c["t1_w"], c["whh_w"]
+        self.w_h, self.b_h = (c["ego_w"] @ s).contiguous(), c["ego_b"] + c["ego_w"] @ o
+        self.w_rel_t = torch.cat([(wc[:, 0:3] + wc[:, 6:9]) / r, wc[:, 3:6] / self.v_max], 1).t().contiguous()
+        self.b_rel = c["whh_b"].clone()
+        self.a2, self.w_a1 = c["a2"].contiguous(), c["wa1"].contiguous()
+        self.w_t1, self.b_t1 = torch.cat([t1[:, :n_msg], t1[:, n_msg:] @ s], 1).contiguous(), c["t1_b"] + t1[:, n_msg:] @ o
+        self.w_t2, self.b_t2 = c["t2_w"].contiguous(), c["t2_b"].clone()
+        self.w_mu, self.b_mu = c["mu_w"].contiguous(), c["mu_b"].clone()
+        self.near_m = PLAN_NEAR_M
+        self.neg = torch.tensor(-1.0e9)
+        self.zero = torch.tensor(0.0)
+        self.a_max_t = torch.tensor(self.a_max)
+
+    def _neighbour_message(self, h: torch.Tensor, ego: torch.Tensor, beliefs: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        whh = torch.addmm(self.b_rel, beliefs - ego, self.w_rel_t)  # (M, d) = W h_hat_j
+        e = F.leaky_relu_(torch.addmv(torch.dot(h, self.w_a1), whh, self.a2), 0.2)
+        alpha = torch.where(mask, torch.softmax(torch.where(mask, e, self.neg), 0), self.zero)
+        return F.elu_(torch.mv(whh.t(), alpha))
+
+    def _act(self, trunk_in: torch.Tensor) -> torch.Tensor:
+        zt = torch.addmv(self.b_t1, self.w_t1, trunk_in).tanh_()
+        zt = torch.addmv(self.b_t2, self.w_t2, zt).tanh_()
+        return torch.addmv(self.b_mu, self.w_mu, zt).tanh_().mul_(self.a_max_t)
+
+
+class FusedPolicy(_FusedActor):
+    """`DeployedPolicy` (input version 2, with the plan) with its linear maps folded; same API.
+
+    Fast path: one agent (ego (6,)) with M >= 1 neighbour slots, a demand map of K >= 1
+    cells and a plan target. Other shapes and calls run `self.ref`.
+    """
+
+    def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor]) -> None:
+        super().__init__(ref, c, reads_map=True)
+        c = {k: v.detach().float() for k, v in c.items()}
+        d, r = c["ego_w"].shape[0], self.r_comm
         # demand tokens [dn, de, log1p(count / unit), clamp(nearest - own, +-2 R_comm), log1p(nearer)],
         # fed as [dn, de, log1p(count / unit), log1p(free, unused), log1p(nearer), clamp(nearest - own)]
         tw = c["tok_w"]
@@ -239,11 +257,7 @@ class FusedPolicy(nn.Module):
         self.far_sq = torch.tensor((4.0 * r) ** 2)  # demand_tokens: a masked neighbour is 4 R_comm away
         self.claim_sq = torch.tensor(self.claim_m**2)
         self.adv_max = 2.0 * r
-        self.near_m = PLAN_NEAR_M
         self.inv_unit = torch.tensor(1.0 / self.demand_unit)
-        self.neg = torch.tensor(-1.0e9)
-        self.zero = torch.tensor(0.0)
-        self.a_max_t = torch.tensor(self.a_max)
 
     def forward(
         self,
@@ -277,11 +291,7 @@ class FusedPolicy(nn.Module):
         near = torch.sub(target, ego2).clamp_(-self.near_m, self.near_m)
         raw = torch.cat([ego, target, sense, fail_flag.view(1), hist.view(-1).log1p_(), near])  # bool f: cat promotes
         h = torch.addmv(self.b_h, self.w_h, raw).tanh_()
-        # neighbour attention
-        whh = torch.addmm(self.b_rel, beliefs - ego, self.w_rel_t)  # (M, d) = W h_hat_j
-        e = F.leaky_relu_(torch.addmv(torch.dot(h, self.w_a1), whh, self.a2), 0.2)
-        alpha = torch.where(mask, torch.softmax(torch.where(mask, e, self.neg), 0), self.zero)
-        m = F.elu_(torch.mv(whh.t(), alpha))
+        m = self._neighbour_message(h, ego, beliefs, mask)
         # demand attention over the cells
         adv = torch.sub(nearest_sq.sqrt_(), own_sq.sqrt()).clamp_(-self.adv_max, self.adv_max)
         s = torch.addmm(self.b_tok, torch.cat([dpos, x.log1p(), adv], 1), self.w_tok_t).sigmoid_()  # v = 2 s - 1
@@ -289,12 +299,10 @@ class FusedPolicy(nn.Module):
         ed = torch.mv(s, torch.mv(self.w_q, h))
         beta = torch.where(live, torch.softmax(torch.where(live, ed, self.neg), 0), self.zero)
         md = F.elu_(torch.addmv(beta.sum().neg_(), s.t(), beta, alpha=2.0))
-        zt = torch.addmv(self.b_t1, self.w_t1, torch.cat([h, m, md, raw])).tanh_()
-        zt = torch.addmv(self.b_t2, self.w_t2, zt).tanh_()
-        return torch.addmv(self.b_mu, self.w_mu, zt).tanh_().mul_(self.a_max_t)
+        return self._act(torch.cat([h, m, md, raw]))
 
 
-class FusedPlanPolicy(nn.Module):
+class FusedPlanPolicy(_FusedActor):
     """A map-blind `DeployedPolicy` (`reads_map` False: no descriptor, no demand attention)
     with its linear maps folded; same API (`demand` is accepted and not read).
 
@@ -303,24 +311,7 @@ class FusedPlanPolicy(nn.Module):
     """
 
     def __init__(self, ref: nn.Module, c: dict[str, torch.Tensor]) -> None:
-        super().__init__()
-        self.ref = ref
-        self.deploy_form = DEPLOY_FORM
-        self.alt_max, self.v_max, self.a_max = float(ref.alt_max), float(ref.v_max), float(ref.a_max)
-        self.r_comm, self.claim_m, self.demand_unit = float(ref.r_comm), float(ref.claim_m), float(ref.demand_unit)
-        self.input_version = int(ref.input_version)
-        self.takes_plan = True
-        self.reads_map = False
-        c = {k: v.detach().float() for k, v in c.items()}
-        d, r = c["ego_w"].shape[0], self.r_comm
-        # the trunk reads [h, m, ego_x]
-        (self.w_h, self.b_h, self.w_rel_t, self.b_rel, self.a2, self.w_a1, self.w_t1, self.b_t1, self.w_t2, self.b_t2,
-         self.w_mu, self.b_mu) = _fold_ego_attention_trunk(
-            c, _ego_feature_map(self.alt_max, self.v_max, r, reads_map=False), 2 * d, r, self.v_max)
-        self.near_m = PLAN_NEAR_M
-        self.neg = torch.tensor(-1.0e9)
-        self.zero = torch.tensor(0.0)
-        self.a_max_t = torch.tensor(self.a_max)
+        super().__init__(ref, c, reads_map=False)
 
     def forward(
         self,
@@ -337,13 +328,7 @@ class FusedPlanPolicy(nn.Module):
         near = torch.sub(target, ego.narrow(0, 0, 2)).clamp_(-self.near_m, self.near_m)
         raw = torch.cat([ego, target, sense, fail_flag.view(1), near])  # bool f: cat promotes
         h = torch.addmv(self.b_h, self.w_h, raw).tanh_()
-        whh = torch.addmm(self.b_rel, beliefs - ego, self.w_rel_t)  # (M, d) = W h_hat_j
-        e = F.leaky_relu_(torch.addmv(torch.dot(h, self.w_a1), whh, self.a2), 0.2)
-        alpha = torch.where(mask, torch.softmax(torch.where(mask, e, self.neg), 0), self.zero)
-        m = F.elu_(torch.mv(whh.t(), alpha))
-        zt = torch.addmv(self.b_t1, self.w_t1, torch.cat([h, m, raw])).tanh_()
-        zt = torch.addmv(self.b_t2, self.w_t2, zt).tanh_()
-        return torch.addmv(self.b_mu, self.w_mu, zt).tanh_().mul_(self.a_max_t)
+        return self._act(torch.cat([h, self._neighbour_message(h, ego, beliefs, mask), raw]))
 
 
 def policy_constants(policy: DeployedPolicy) -> dict[str, torch.Tensor]:
