@@ -135,8 +135,16 @@ class ArduCopterProcess:
         return self.workdir / "arducopter.log"
 
     def tail(self) -> str:
+        """The log line that says why it stopped: its last PANIC (ArduPilot follows one with
+        dumpstack chatter), else its last line; at most 240 characters, from the start."""
         lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()] if self.log_path.exists() else []
-        return lines[-1][-160:] if lines else "(empty log)"
+        panics = [ln for ln in lines if ln.startswith("PANIC")]
+        line = (panics or lines or ["(empty log)"])[-1]
+        return line if len(line) <= 240 else line[:237] + "..."
+
+    def exit_reason(self) -> str:
+        """One line for a process that has exited: its code, why (`tail`) and where its log is."""
+        return f"arducopter {self.index} exited with code {self.proc.returncode}: {self.tail()} (log: {self.log_path})"
 
 
 class ArduCopterFleet:
@@ -159,7 +167,8 @@ class ArduCopterFleet:
         lat, lon, alt, heading = launch_homes(self.mission)[i]
         return [str(self.binary), "--model", "+", "--speedup", f"{self.speedup:g}", "-I", str(self.instance_base + i),
                 "--sysid", str(i + 1), "--home", f"{lat:.7f},{lon:.7f},{alt:.2f},{heading:g}",
-                "--defaults", f"{self.copter_parm},{workdir / 'plmarl.parm'}"]
+                # absolute: arducopter runs in `workdir`, and the run directory is often relative (runs/...)
+                "--defaults", f"{self.copter_parm.resolve()},{workdir.resolve() / 'plmarl.parm'}"]
 
     def start(self) -> None:
         """Start every process (from the event loop's thread: PR_SET_PDEATHSIG is tied to it)."""
@@ -191,8 +200,7 @@ class ArduCopterFleet:
         for p in self.procs:
             while _free(p.serial0, socket.SOCK_STREAM):  # bound by arducopter: listening (a probe would connect)
                 if p.proc.poll() is not None:
-                    raise RuntimeError(f"arducopter {p.index} exited with code {p.proc.returncode}: {p.tail()} "
-                                       f"(log: {p.log_path})")
+                    raise RuntimeError(p.exit_reason())
                 if loop.time() > t_end:
                     raise RuntimeError(f"arducopter {p.index} did not listen on tcp {p.serial0} within {timeout_s:g} s "
                                        f"(log: {p.log_path})")
@@ -200,8 +208,19 @@ class ArduCopterFleet:
 
     async def provision_signing(self, keys: list[bytes], timeout_s: float = 30.0) -> None:
         """Give vehicle i the MAVLink signing key `keys[i]` (RuntimeError naming one that did not take it)."""
-        await asyncio.gather(*(provision_signing(f"tcpout://127.0.0.1:{p.serial0}", key, timeout_s)
-                               for p, key in zip(self.procs, keys, strict=True)))
+        try:
+            await asyncio.gather(*(provision_signing(f"tcpout://127.0.0.1:{p.serial0}", key, timeout_s)
+                                   for p, key in zip(self.procs, keys, strict=True)))
+        except RuntimeError:
+            # An arducopter that dies on the first connection (e.g. a bad --defaults) says why;
+            # its socket closes a moment before its exit code is in.
+            loop = asyncio.get_running_loop()
+            t_end = loop.time() + 2.0
+            while (gone := self.exited()) is None and loop.time() < t_end:
+                await asyncio.sleep(0.05)
+            if gone is not None:
+                raise RuntimeError(gone.exit_reason()) from None
+            raise
 
     async def stop(self, grace_s: float = 5.0) -> None:
         """SIGTERM every process, SIGKILL whoever is left after `grace_s`."""

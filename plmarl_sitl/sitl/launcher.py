@@ -446,8 +446,7 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
         await asyncio.sleep(0.5)
         gone = copters.exited() if copters is not None else None
         if gone is not None:
-            raise ComponentFailed(f"arducopter {gone.index} exited with code {gone.proc.returncode}: {gone.tail()} "
-                                  f"(log: {gone.log_path})")
+            raise ComponentFailed(gone.exit_reason())
         for i, ap in fleet.procs.items():
             rc = ap.proc.returncode
             if rc is not None and i not in script.killed and world.barrier is not None:

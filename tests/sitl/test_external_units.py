@@ -26,7 +26,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.geodesy import geodetic_to_ned
-from plmarl_sitl.sitl.arducopter import ArduCopterFleet, find_copter_parm, launch_homes
+from plmarl_sitl.sitl.arducopter import ArduCopterFleet, find_copter_parm, free_instance_base, launch_homes
 from plmarl_sitl.sitl.external import ExternalVehicles
 from plmarl_sitl.sitl.network.broker import free_port
 from plmarl_sitl.twin.env import launch_positions
@@ -128,6 +128,17 @@ def test_arducopter_command_line_puts_each_vehicle_at_its_launch_slot(tmp_path: 
     assert len(launch_homes(m)) == 2
 
 
+def test_arducopter_defaults_are_absolute_paths_with_a_relative_run_directory(tmp_path: Path, monkeypatch) -> None:  # noqa: ANN001
+    """arducopter runs in its vehicle directory; `swarm up`'s run directory is relative
+    (runs/...). A relative --defaults made every ArduCopter PANIC on its first connection."""
+    monkeypatch.chdir(tmp_path)
+    fleet = ArduCopterFleet(Path("/opt/arducopter"), Path("ardupilot/copter.parm"), two_uavs(), 5.0, Path("runs/x"), instance_base=60)
+    workdir = Path("runs/x/arducopter/vehicle0")
+    parms = fleet.command(0, workdir)[-1].split(",")
+    assert parms == [str(tmp_path / "ardupilot" / "copter.parm"), str(tmp_path / workdir / "plmarl.parm")]
+    assert all(Path(x).is_absolute() for x in parms)
+
+
 def test_copter_parm_is_found_in_the_ardupilot_tree_or_named_in_one_line(tmp_path: Path) -> None:
     tree = tmp_path / "ardupilot"
     binary = tree / "build" / "sitl" / "bin" / "arducopter"
@@ -175,3 +186,39 @@ def test_an_unreachable_broker_is_a_warning_naming_it(caplog: pytest.LogCaptureF
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1, warnings  # once, not at every retry
     assert url in warnings[0] and "retrying" in warnings[0]
+
+
+# A stand-in for a real arducopter that fails the way one with a bad --defaults does: it
+# listens on SERIAL0, and on the first connection prints PANIC and exits (the real binary
+# is exercised in test_real_arducopter*.py, which need ARDUCOPTER).
+_PANICS_ON_CONNECT = """
+import socket, sys
+base = 5760 + 10 * int(sys.argv[sys.argv.index("-I") + 1])
+srv = socket.socket(); srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+srv.bind(("127.0.0.1", base)); srv.listen(1)
+print("Waiting for connection ....", flush=True)
+srv.accept()
+print("PANIC: Failed to load defaults from " + sys.argv[sys.argv.index("--defaults") + 1], flush=True)
+sys.exit(1)
+"""
+
+
+def test_an_arducopter_that_exits_while_its_key_is_provisioned_is_named_with_its_log(tmp_path: Path) -> None:
+    binary = tmp_path / "arducopter"
+    binary.write_text(f"#!{sys.executable}\n{_PANICS_ON_CONNECT}")
+    binary.chmod(0o755)
+    fleet = ArduCopterFleet(binary, tmp_path / "copter.parm", two_uavs(), 5.0, tmp_path / "run", free_instance_base(2, 70))
+
+    async def main() -> str:
+        fleet.start()
+        try:
+            await fleet.wait_listening(10.0)
+            with pytest.raises(RuntimeError) as err:
+                await fleet.provision_signing([bytes(32), bytes(32)], timeout_s=5.0)
+            return str(err.value)
+        finally:
+            await fleet.stop()
+
+    msg = asyncio.run(main())
+    assert msg.startswith("arducopter ") and "exited with code 1" in msg and "PANIC: Failed to load defaults" in msg, msg
+    assert "arducopter.log" in msg and "\n" not in msg
