@@ -58,9 +58,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
     p.add_argument("--methods", default=DEFAULT_METHODS,
                    help=f"methods to time side by side: NAME (<--policies>/NAME; without a card.yaml there, untrained modules "
-                        f"of that method) or LABEL=DIR (DIR must exist) (default: {DEFAULT_METHODS}: "
-                        "the shipped files and the wave-1 PL-MARL, the baseline the decision's cost is judged against)")
-    p.add_argument("--policies", default="policies", help="directory with <method>/predictor.pt, policy.pt")
+                        f"of that method) or LABEL=DIR (DIR must exist; a relative DIR is relative to the current "
+                        f"directory, except in the default) (default: {DEFAULT_METHODS}: the shipped files and the "
+                        "wave-1 PL-MARL, the baseline the decision's cost is judged against)")
+    p.add_argument("--policies", default=None,
+                   help="directory with <method>/predictor.pt, policy.pt (default: the project's policies/, from any directory)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default: 0)")
 
@@ -240,7 +242,13 @@ def run(args: argparse.Namespace) -> dict:
 
     torch.set_num_threads(1)
     load_start = [float(x) for x in os.getloadavg()]
-    methods = parse_methods(args.methods, Path(args.policies))
+    from plmarl_sitl.config import REPO_ROOT
+
+    policies = Path(args.policies) if args.policies else REPO_ROOT / "policies"
+    text = args.methods
+    if text == DEFAULT_METHODS:  # the shipped files, wherever the command is run from
+        text = f"pl-marl,gru,{WAVE1}={REPO_ROOT / 'policies' / 'wave1' / 'pl-marl'}"
+    methods = parse_methods(text, policies)
     mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)
     rows = []

@@ -66,3 +66,15 @@ def test_plan_rows_and_versions(tmp_path: Path, shipped: str) -> None:
     assert rows[infer.PLAN_DECISION]["calls"] == 12 and rows[infer.PLAN_MAP]["calls"] == 2  # every 10th decision
     want = rows[infer.PLAN_DECISION]["median_us"] + rows[infer.PLAN_MAP]["median_us"] / 10
     assert rows[infer.PLAN_AMORTISED]["median_us"] == pytest.approx(want)
+
+
+def test_the_defaults_time_the_shipped_files_from_any_directory(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--n", "4", "--calls", "5", "--json"],
+                       capture_output=True, text=True, timeout=180, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["weights"] == {"pl-marl": "trained", "gru": "trained", "pl-marl-wave1": "trained"}
+    assert out["dirs"]["pl-marl-wave1"] == str(ROOT / "policies" / "wave1" / "pl-marl")
