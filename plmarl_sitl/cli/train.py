@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="plan: the actor reads its own state, sensing, f, the neighbours' beliefs and the offset to its "
                    "team-plan point; the demand map reaches it only through the plan (a map-blind policy, the light "
                    "decision). plan+map: also the demand descriptor and an attention over the map's cells (the "
-                   "policies of session 7) (default: plan)")
+                   "generalising policies shipped before the map-blind ones; docs/POLICY_IO.md) (default: plan)")
     p.set_defaults(func=run)
 
 
