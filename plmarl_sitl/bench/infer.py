@@ -46,7 +46,14 @@ from plmarl_sitl.machine import machine_info
 
 DEFAULT_N = "4,8,12,16,20"
 WAVE1 = "pl-marl-wave1"  # the map-memorising PL-MARL shipped before issue 12 (version-1 inputs)
-DEFAULT_METHODS = f"pl-marl,gru,{WAVE1}=policies/wave1/pl-marl"
+DEFAULT_METHODS = f"pl-marl,gru,{WAVE1}=<project>/policies/wave1/pl-marl"  # as --help shows it (default_methods)
+
+
+def default_methods() -> str:
+    """The shipped files and the wave-1 PL-MARL, wherever the command is run from."""
+    from plmarl_sitl.config import REPO_ROOT
+
+    return f"pl-marl,gru,{WAVE1}={REPO_ROOT / 'policies' / 'wave1' / 'pl-marl'}"
 PLAN_DECISION = "team plan / decision"
 PLAN_MAP = "team plan / new map"
 PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
@@ -56,11 +63,10 @@ PAPER = Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", default=DEFAULT_N, type=comma_list(int, "swarm size", positive=True),
                    help=f"swarm sizes N (M = N - 1 neighbours) (default: {DEFAULT_N})")
-    p.add_argument("--methods", default=DEFAULT_METHODS,
+    p.add_argument("--methods", default=None,
                    help=f"methods to time side by side: NAME (<--policies>/NAME; without a card.yaml there, untrained modules "
-                        f"of that method) or LABEL=DIR (DIR must exist; a relative DIR is relative to the current "
-                        f"directory, except in the default) (default: {DEFAULT_METHODS}: the shipped files and the "
-                        "wave-1 PL-MARL, the baseline the decision's cost is judged against)")
+                        f"of that method) or LABEL=DIR (DIR must exist) (default: {DEFAULT_METHODS}: the shipped files "
+                        "and the wave-1 PL-MARL, the baseline the decision's cost is judged against)")
     p.add_argument("--policies", default=None,
                    help="directory with <method>/predictor.pt, policy.pt (default: the project's policies/, from any directory)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
@@ -245,10 +251,7 @@ def run(args: argparse.Namespace) -> dict:
     from plmarl_sitl.config import REPO_ROOT
 
     policies = Path(args.policies) if args.policies else REPO_ROOT / "policies"
-    text = args.methods
-    if text == DEFAULT_METHODS:  # the shipped files, wherever the command is run from
-        text = f"pl-marl,gru,{WAVE1}={REPO_ROOT / 'policies' / 'wave1' / 'pl-marl'}"
-    methods = parse_methods(text, policies)
+    methods = parse_methods(args.methods or default_methods(), policies)
     mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)
     rows = []

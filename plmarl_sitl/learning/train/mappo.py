@@ -92,7 +92,7 @@ class Args:
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     # False: a map-blind actor (the plan target, own state, sensing, f, neighbours; no demand
-    # descriptor or demand attention), the light decision. True: the session-7 actor.
+    # descriptor or demand attention), the light decision. True: the map-reading actor.
     reads_map: bool = False
     log_std_init: float = -1.0  # std 0.37 of the normalised action after the warm start
     out: str = "runs/pl-marl"
