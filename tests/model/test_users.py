@@ -5,6 +5,7 @@ import dataclasses
 import pytest
 import torch
 
+from plmarl_sitl.config import ConfigError
 from plmarl_sitl.mission import Area, Users, load_mission
 from plmarl_sitl.model.users import MOBILITY_KINDS, cluster_centres, init_users, step_users
 
@@ -44,16 +45,38 @@ def test_fixed_layout_uses_the_mission_centres():
     assert torch.allclose(c[0], torch.tensor(MISSION.users.cluster_centers, dtype=c.dtype))
 
 
-def test_random_layout_is_connected_and_spread():
-    users = Users(layout="random")  # defaults: 240 users in 4 clusters
+@pytest.mark.parametrize("clusters", [4, 12, 20])
+def test_random_layout_is_connected_and_spread(clusters):
+    # 20 clusters in 1 km^2 jam the sequential draw; they are grown on a lattice instead.
+    users = Users(count=60 * clusters, layout="random")
     m = dataclasses.replace(MISSION, users=users)
     c = cluster_centres(m, 20, torch.Generator().manual_seed(0))
+    assert c.shape == (20, clusters, 2)
     d = torch.cdist(c, c)
-    eye = torch.eye(4, dtype=torch.bool)
+    eye = torch.eye(clusters, dtype=torch.bool)
     assert float(d[:, ~eye].min()) >= 2 * m.radii.sensing_m - 1e-6
+    assert float(c.min()) >= m.users.cluster_std_m - 1e-6
+    assert float(c.max()) <= m.area.north_m - m.users.cluster_std_m + 1e-6
     # Connected under 0.8 R_comm: every centre has a chain to the others.
     adj = (d <= 0.8 * m.radii.comm_m + 1e-6) & ~eye
     reach = adj.clone() | eye
-    for _ in range(4):
+    for _ in range(clusters):
         reach = reach | (reach.double() @ reach.double() > 0)
     assert bool(reach.all())
+    # Each layout of the batch is its own.
+    assert float((c[0] - c[1]).abs().max()) > 1.0
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"users": Users(count=60 * 40, layout="random")}, "40 clusters 2 R_s apart do not fit"),
+        ({"radii": dataclasses.replace(MISSION.radii, sensing_m=150.0)}, "radii.sensing_m 150 is too large"),
+    ],
+)
+def test_random_layout_that_cannot_exist_is_a_config_error(change, says):
+    users = change.get("users", Users(layout="random"))
+    m = dataclasses.replace(MISSION, **{**change, "users": users})
+    with pytest.raises(ConfigError, match=says) as err:
+        cluster_centres(m, 2, torch.Generator().manual_seed(0))
+    assert err.value.path == "users.layout"
