@@ -10,8 +10,9 @@ computed from those alone is the same in every agent, without any further messag
 1. `ServiceGrid.place`: N service points greedily on the demand map (each on the candidate
    point of a 25 m grid that serves the most still-unserved users, within `link_frac` R_comm
    of a point already placed so the plan is connected, and 2 d_safe apart from them). The
-   map's users are spread over `SUB` x `SUB` sub-points per cell; the gains are integer
-   sums, so every agent gets the same points whatever its batch shape.
+   map's users are spread evenly over sub-points GRID_M apart (4 x 4 per 100 m cell, 2 x 2
+   per 50 m cell); the gains are integer sums, so every agent gets the same points whatever
+   its batch shape.
 2. `launch_line`: the team's launch positions, by identity, fitted as a line through the
    ones the agent heard at t = 0 (a launch is a line of equally spaced UAVs; a large swarm's
    line is longer than R_comm, so not everyone hears everyone).
@@ -33,8 +34,7 @@ from scipy.sparse import csr_matrix
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 
-SUB = 4  # sub-points per cell side: a cell's users are spread evenly over SUB x SUB points
-GRID_M = 25.0  # candidate service points: the Oracle's grid
+GRID_M = 25.0  # candidate service points: the Oracle's grid; also the spacing of a cell's sub-points
 LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
 LAUNCH_ROUND_M = 0.01  # the fitted launch line, rounded: the same in every agent's copy (launch_line)
 REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more
@@ -45,14 +45,15 @@ class ServiceGrid:
 
     def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> None:
         self.cell_m = cell_m
+        self.sub = max(1, round(cell_m / GRID_M))  # sub-points per cell side
         self.rows, self.cols = grid_shape(area_n, area_e, cell_m)
         n_axis = np.arange(0.0, area_n + 1e-9, GRID_M)
         e_axis = np.arange(0.0, area_e + 1e-9, GRID_M)
         self.cands = np.stack(np.meshgrid(n_axis, e_axis, indexing="ij"), -1).reshape(-1, 2)  # (C, 2)
         centres = cell_centres(area_n, area_e, cell_m, torch.float64).numpy()  # (K, 2)
-        offs = (np.arange(SUB) + 0.5) / SUB * cell_m - 0.5 * cell_m
-        sub = np.stack(np.meshgrid(offs, offs, indexing="ij"), -1).reshape(-1, 2)  # (SUB^2, 2)
-        self.subpts = (centres[:, None, :] + sub[None]).reshape(-1, 2)  # (K * SUB^2, 2), cell-major
+        offs = (np.arange(self.sub) + 0.5) / self.sub * cell_m - 0.5 * cell_m
+        sub = np.stack(np.meshgrid(offs, offs, indexing="ij"), -1).reshape(-1, 2)  # (sub^2, 2)
+        self.subpts = (centres[:, None, :] + sub[None]).reshape(-1, 2)  # (K * sub^2, 2), cell-major
         d2 = ((self.cands[:, None, :] - self.subpts[None]) ** 2).sum(-1)
         self.r2 = cover_r * cover_r
         self.cover = (d2 <= self.r2).astype(np.float64)  # (C, S)
@@ -64,8 +65,8 @@ class ServiceGrid:
         self.apart_ok = cd >= 2.0 * safe_m
 
     def _weights(self, counts: np.ndarray) -> np.ndarray:
-        """(B, K) user counts -> (B, S) users per sub-point, in units of 1 / SUB^2 user (integers)."""
-        return np.repeat(np.asarray(counts, dtype=np.float64), SUB * SUB, axis=-1)
+        """(B, K) user counts -> (B, S) users per sub-point, in units of 1 / sub^2 user (integers)."""
+        return np.repeat(np.asarray(counts, dtype=np.float64), self.sub * self.sub, axis=-1)
 
     def place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Greedy service points for maps counts (B, K): -> (points (B, n, 2), served (B,) users)."""
@@ -86,14 +87,14 @@ class ServiceGrid:
             apart = apart & self.apart_ok[best]
             allowed = near & apart
         idx = np.stack(chosen, -1)
-        return self.cands[idx], (w * (1.0 - unserved)).sum(-1) / (SUB * SUB)
+        return self.cands[idx], (w * (1.0 - unserved)).sum(-1) / (self.sub * self.sub)
 
     def served(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(B,) users the points (B, n, 2) serve on maps counts (B, K)."""
         w = self._weights(counts)
         d2 = ((points[:, :, None, :] - self.subpts[None, None]) ** 2).sum(-1)  # (B, n, S)
         hit = (d2 <= self.r2).any(1)
-        return (w * hit).sum(-1) / (SUB * SUB)
+        return (w * hit).sum(-1) / (self.sub * self.sub)
 
 
 def grid_counts(cells: np.ndarray, grid: ServiceGrid) -> np.ndarray:
@@ -162,4 +163,4 @@ class TeamPlans:
         return np.take_along_axis(self.points, own[..., None].repeat(2, -1), 1)
 
 
-__all__ = ["GRID_M", "LINK_FRAC", "REPLAN_MARGIN", "SUB", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line"]
+__all__ = ["GRID_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line"]

@@ -139,7 +139,7 @@ def test_training_scenarios_vary_n_and_clusters_and_launch_lines():
         seen.add((m.n_uavs, m.users.n_clusters))
         env = CoverageEnv(m, 3, i, random_launch=True)
         obs = env.reset()
-        assert obs.ego.shape == (3, m.n_uavs, 6) and obs.demand.shape == (3, 100, 3)
+        assert obs.ego.shape == (3, m.n_uavs, 6) and obs.demand.shape == (3, 400, 3)  # 50 m cells on 1 km^2
         assert float(obs.demand[..., 2].sum()) == 3 * m.users.count
         p = obs.ego[..., :2]
         assert (p >= 0).all() and (p[..., 0] <= 1000).all() and (p[..., 1] <= 1000).all()
