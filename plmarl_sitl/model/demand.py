@@ -3,12 +3,12 @@
 A real deployment has it: the ground network (cell towers, the operator's user-location
 service) counts users per coarse cell and publishes the map at mission start and then
 rarely (`mission.demand.refresh_s`, 30 s). It is a grid of square cells of
-`mission.demand.cell_m` (100 m) over the mission area, row-major from the south-west
+`mission.demand.cell_m` (50 m) over the mission area, row-major from the south-west
 corner (row = north index, column = east index); a user outside the area counts in the
 nearest border cell.
 
-The twin calls `demand_map` on its user positions; the SITL world will call the same
-function and publish the result (nonzero cells only) over MQTT. Agents turn the cells
+The twin calls `demand_map` on its user positions; the SITL world calls the same
+function and publishes the result (nonzero cells only) over MQTT. Agents turn the cells
 into `demand_cells` (centre north, centre east, count) for the policy, which reduces
 them to a fixed-size egocentric descriptor (plmarl_sitl/learning/nn/features.py).
 Pure and batched; binning is a floor and a scatter (no transcendental function).
