@@ -131,9 +131,12 @@ def test_personalities_and_commanded_velocity(tmp_path: Path, policy_dir: Path, 
     assert run.fleet.procs[1].proc.returncode == 0
     assert f"{personality} personality" in run.log(0)
     _check_sawtooth(run, 0, 1, stop_at - 1)
+    # Pooled over both agents: how many decisions are informative (a command of >= 1 m/s^2,
+    # below the speed limit 3 s later) depends on where the plan sends each UAV; UAV 1 stops
+    # at 18 s and may cruise at V_max until then.
+    good = total = 0
     for i in range(2):
         rows = {r["t"]: r for r in run.trace(i)}
-        good = total = 0
         for k, r in rows.items():
             if not r["decided"] or k + 3 not in rows:
                 continue
@@ -144,7 +147,7 @@ def test_personalities_and_commanded_velocity(tmp_path: Path, policy_dir: Path, 
             total += 1
             cos = (a[0] * dv[0] + a[1] * dv[1]) / (math.hypot(*a) * max(math.hypot(*dv), 1e-9))
             good += cos > 0.9 and 0.5 < math.hypot(*dv) / (3 * math.hypot(*a)) < 1.5
-        assert total >= 2 and good >= 0.75 * total, (good, total)
+    assert total >= 3 and good >= 0.75 * total, (good, total)
 
 
 def test_broker_loss_and_no_sensing(tmp_path: Path, policy_dir: Path) -> None:
