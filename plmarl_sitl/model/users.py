@@ -67,7 +67,7 @@ def _random_connected_centres(mission: Mission, batch: int, gen: torch.Generator
     in a small area (20 in 1 km^2) jam this sequential draw; those layouts are grown on a
     randomly turned and shifted triangular lattice instead (`_lattice_grown_centres`)."""
     u, r = mission.users, mission.radii
-    if 2 * r.sensing_m > 0.8 * r.comm_m:
+    if u.n_clusters > 1 and 2 * r.sensing_m > 0.8 * r.comm_m:
         raise ConfigError(
             "users.layout",
             f"'random' places clusters 2 R_s apart within 0.8 R_comm of another; "
