@@ -7,6 +7,7 @@ corner of the area with x north and y east (NED, altitude positive up where it s
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -14,6 +15,8 @@ from typing import Literal
 import yaml
 
 from plmarl_sitl.config import ConfigError, VehicleModel, _require, from_dict, load_vehicle
+
+MAX_DEMAND_CELLS = 65535  # the demand message's cell index is a u16 (docs/SIGNALLING.md)
 
 Mobility = Literal["gauss_markov", "random_waypoint", "rpgm", "mixed"]
 Layout = Literal["fixed", "lattice", "random"]
@@ -238,6 +241,9 @@ class Mission:
                 f"failures[{i}].at_s",
                 f"must be <= timing.episode_s ({self.timing.episode_s})",
             )
+        cells = math.ceil(self.area.north_m / self.demand.cell_m - 1e-9) * math.ceil(self.area.east_m / self.demand.cell_m - 1e-9)
+        _require(cells <= MAX_DEMAND_CELLS, "demand.cell_m",
+                 f"too small for the area: {cells} cells, the demand message indexes at most {MAX_DEMAND_CELLS}")
         centres = self.users.cluster_centers if self.users.layout == "fixed" else ()
         for i, (n, e) in enumerate(centres):
             ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m

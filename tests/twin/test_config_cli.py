@@ -41,6 +41,7 @@ def _with(path_keys, value):
         ((["users", "mobility"], "teleport"), "users.mobility: expected one of"),
         ((["users", "cluster_centers"], [[1, 2]]), "users.cluster_centers: layout 'fixed' needs 4 centres"),
         ((["radii"], "big"), "radii: expected a mapping"),
+        ((["demand"], {"cell_m": 2}), "demand.cell_m: too small for the area: 250000 cells"),
     ],
 )
 def test_errors_name_the_path(tmp_path, edit, message):
