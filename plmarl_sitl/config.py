@@ -23,6 +23,10 @@ from plmarl_sitl.errors import UserError
 T = TypeVar("T")
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+# The project's own files, defaults that must work from any directory (a user running
+# `plmarl suite` or `plmarl eval` outside the checkout means these, not ./policies).
+PROJECT_POLICIES = REPO_ROOT / "policies"
+PROJECT_SUITE = REPO_ROOT / "missions" / "suite" / "suite.yaml"
 
 
 class ConfigError(UserError, ValueError):

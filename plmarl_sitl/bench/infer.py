@@ -51,9 +51,9 @@ DEFAULT_METHODS = f"pl-marl,gru,{WAVE1}=<project>/policies/wave1/pl-marl"  # as 
 
 def default_methods() -> str:
     """The shipped files and the wave-1 PL-MARL, wherever the command is run from."""
-    from plmarl_sitl.config import REPO_ROOT
+    from plmarl_sitl.config import PROJECT_POLICIES
 
-    return f"pl-marl,gru,{WAVE1}={REPO_ROOT / 'policies' / 'wave1' / 'pl-marl'}"
+    return f"pl-marl,gru,{WAVE1}={PROJECT_POLICIES / 'wave1' / 'pl-marl'}"
 PLAN_DECISION = "team plan / decision"
 PLAN_MAP = "team plan / new map"
 PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
@@ -248,9 +248,9 @@ def run(args: argparse.Namespace) -> dict:
 
     torch.set_num_threads(1)
     load_start = [float(x) for x in os.getloadavg()]
-    from plmarl_sitl.config import REPO_ROOT
+    from plmarl_sitl.config import PROJECT_POLICIES
 
-    policies = Path(args.policies) if args.policies else REPO_ROOT / "policies"
+    policies = Path(args.policies) if args.policies else PROJECT_POLICIES
     methods = parse_methods(args.methods or default_methods(), policies)
     mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)

@@ -8,6 +8,7 @@ import math
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed, progress, tup_arg
+from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.errors import UserError
 
 DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,oracle"
@@ -56,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tup", type=_tups, default=[5, 10, 15, 20, 25, 30, 35, 40, 45, 50], help="T_up values, e.g. 5,10,...,50 (default)")
     p.add_argument("--episodes", type=int, default=100, help="episodes per method and T_up (default: 100)")
     add_seed(p)
-    p.add_argument("--policies", default="policies", help="directory holding <method>/{predictor.pt,policy.pt,card.yaml}")
+    p.add_argument("--policies", default=str(PROJECT_POLICIES),
+                   help="directory holding <method>/{predictor.pt,policy.pt,card.yaml} (default: the project's policies/)")
     p.add_argument("--from-s", type=int, default=50, help="steady-state window starts after this many seconds (default: 50)")
     p.add_argument("--failure-prob", type=float, default=0.0, help="probability of one random node failing at t = 100 s")
     p.add_argument("--out", default=None, help="write results.json, results.md and PNG plots here")
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out or args.results_md:
         write_outputs(res, mission, loaded, Path(args.out or "runs/eval"), args.results_md, args)
     if args.json:
-        print(json.dumps({"results": res["results"], "p_values": res["p_values"]}))
+        print(json.dumps({"results": res["results"], "p_values": res["p_values"], "policies": args.policies}))
     else:
         from plmarl_sitl.learning.eval.report import print_tables
 

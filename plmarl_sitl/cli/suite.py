@@ -7,9 +7,9 @@ import json
 from pathlib import Path
 
 from plmarl_sitl.cmdline import comma_list, progress
+from plmarl_sitl.config import PROJECT_POLICIES, PROJECT_SUITE
 
 DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,oracle"
-DEFAULT_SUITE = "missions/suite/suite.yaml"
 
 
 def _methods(text: str) -> list[str]:
@@ -22,8 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "suite",
         help="run the held-out evaluation suite (scenario families the policies never saw)",
-        description="Run deterministic policies and baselines on named scenario families (defined in "
-        f"{DEFAULT_SUITE}: each a list of mission YAMLs): random connected layouts, moved clusters, launch "
+        description="Run deterministic policies and baselines on named scenario families (defined in the project's "
+        "missions/suite/suite.yaml: each a list of mission YAMLs): random connected layouts, moved clusters, launch "
         "elsewhere, RPGM mobility, zero-shot N = 8/12/20, node failure at t = 100 s, and the paper map as a "
         "reference. Each family's episodes are spread over its missions; every method sees the same episodes.\n\n"
         "Seeds: every twin here is seeded from the evaluation range (>= 1_000_000_000: batch k of mission v of "
@@ -39,14 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("families", nargs="?", default=None, help="'all' or a comma list of family names (see --list)")
     p.add_argument("--list", action="store_true", help="list the suite's families and exit")
-    p.add_argument("--suite-file", default=DEFAULT_SUITE, help=f"suite YAML (default: {DEFAULT_SUITE})")
+    p.add_argument("--suite-file", default=str(PROJECT_SUITE), help="suite YAML (default: the project's missions/suite/suite.yaml)")
     p.add_argument("--methods", type=_methods, default=DEFAULT_METHODS.split(","),
                    help=f"comma list (default: {DEFAULT_METHODS})")
     p.add_argument("--tup", type=comma_list(int, "T_up", positive=True), default=[5, 15, 50],
                    help="T_up values for families that do not pin their own (default: 5,15,50)")
     p.add_argument("--episodes", type=int, default=30, help="episodes per family and T_up (default: 30)")
     p.add_argument("--seed", type=int, default=0, help="suite run seed 0..99999, picks the evaluation seeds (default: 0)")
-    p.add_argument("--policies", default="policies", help="directory holding <method>/{predictor.pt,policy.pt,card.yaml}")
+    p.add_argument("--policies", default=str(PROJECT_POLICIES),
+                   help="directory holding <method>/{predictor.pt,policy.pt,card.yaml} (default: the project's policies/)")
     p.add_argument("--from-s", type=int, default=50, help="steady-state window starts after this many seconds (default: 50)")
     p.add_argument("--out", default=None, help="write results.json, results.md and PNG plots here")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout (no traces)")

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import yaml
 
-from plmarl_sitl.config import REPO_ROOT, to_dict
+from plmarl_sitl.config import PROJECT_POLICIES, to_dict
 from plmarl_sitl.deploy.mavlink.keys import create_key_files, key_file, load_key_files
 from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
 from plmarl_sitl.deploy.mqtt.credentials import load_credentials
@@ -65,7 +65,7 @@ from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
 log = logging.getLogger("plmarl.swarm")
 
-DEFAULT_POLICY = REPO_ROOT / "policies" / "pl-marl"
+DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
 
 
 class ComponentFailed(PlmarlError):

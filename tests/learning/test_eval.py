@@ -54,7 +54,7 @@ def test_eval_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     ])
     assert rc == 0
     doc = json.loads(capsys.readouterr().out)
-    assert set(doc) == {"results", "p_values"}
+    assert set(doc) == {"results", "p_values", "policies"}
     assert len(doc["results"]) == 6 and len(doc["p_values"]) == 4
     for r in doc["results"]:
         assert set(r) == {"method", "tup", "coverage_mean", "coverage_ci95", "lambda2_mean"}

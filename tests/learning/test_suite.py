@@ -170,3 +170,23 @@ def test_suite_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str
     md = (out / "results.md").read_text()
     assert "## Summary" in md and "## Failure transient" in md
     assert set(json.loads((out / "results.json").read_text())["traces"]) == {"two", "six", "fail"}
+
+
+def test_the_defaults_are_the_projects_files_from_any_directory(tmp_path: Path) -> None:
+    # Run outside the checkout, `plmarl suite` and `plmarl eval` used to look for ./missions/suite
+    # and ./policies and stopped with "cannot read file"; their defaults are the project's own.
+    import subprocess
+    import sys
+
+    def plmarl(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", *args], capture_output=True, text=True,
+                              timeout=300, cwd=tmp_path)
+
+    r = plmarl("suite", "--list")
+    assert r.returncode == 0, r.stderr
+    assert {"random", "n20", "failure"} <= {line.split()[0] for line in r.stdout.splitlines() if line.strip()}
+    _short_mission(tmp_path, 20)
+    r = plmarl("eval", str(tmp_path / "short.yaml"), "--methods", "pl-marl", "--tup", "50", "--episodes", "2",
+               "--from-s", "5", "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["policies"] == str(ROOT / "policies")
