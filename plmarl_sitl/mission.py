@@ -191,11 +191,20 @@ class Event:
 
 @dataclass(frozen=True)
 class Launch:
-    """Where the swarm starts: a line of UAVs at takeoff altitude around this point."""
+    """Where the swarm starts: a line of UAVs at takeoff altitude around this point, UAV 0
+    first, running along the compass bearing `bearing_deg` (90: west to east)."""
 
     north_m: float = 500.0
     east_m: float = 500.0
     spacing_m: float = field(default=40.0, metadata={"min": 0.0})
+    bearing_deg: float = field(default=90.0, metadata={"min": 0.0, "max": 360.0})
+
+    def direction(self) -> tuple[float, float]:
+        """Unit (north, east) step from one UAV of the line to the next. Rounded so that the
+        compass points are exact: bearing 90 gives (0, 1), the line every mission had before
+        the bearing was a field, to the last bit."""
+        b = math.radians(self.bearing_deg)
+        return round(math.cos(b), 15) + 0.0, round(math.sin(b), 15) + 0.0
 
 
 @dataclass(frozen=True)

@@ -74,8 +74,9 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(1)
     spec, families = load_suite(args.suite_file)
     if args.list:
+        width = max(len(f.name) for f in spec.families)
         for f in spec.families:
-            print(f"{f.name:10s} {f.about}")
+            print(f"{f.name:{width}s} {f.about}")
         return 0
     if args.families is None:
         raise UserError("name the families to run ('all' or a comma list; see plmarl suite --list)")

@@ -55,12 +55,13 @@ class StepInfo:
 
 
 def launch_positions(mission: Mission, alt_m: float) -> torch.Tensor:
-    """(N, 3) NED start positions: a line across the launch point at `alt_m`."""
+    """(N, 3) NED start positions: a line through the launch point along its bearing, at `alt_m`."""
     n = mission.n_uavs
     la = mission.launch
     offs = (torch.arange(n, dtype=torch.float64) - (n - 1) / 2) * la.spacing_m
-    north = torch.full((n,), la.north_m, dtype=torch.float64)
-    return torch.stack([north, la.east_m + offs, torch.full((n,), -alt_m, dtype=torch.float64)], -1)
+    d_north, d_east = la.direction()
+    return torch.stack([la.north_m + offs * d_north, la.east_m + offs * d_east,
+                        torch.full((n,), -alt_m, dtype=torch.float64)], -1)
 
 
 def random_launch_positions(mission: Mission, batch: int, alt_m: float, gen: torch.Generator) -> torch.Tensor:

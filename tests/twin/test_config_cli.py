@@ -42,6 +42,7 @@ def _with(path_keys, value):
         ((["users", "cluster_centers"], [[1, 2]]), "users.cluster_centers: layout 'fixed' needs 4 centres"),
         ((["radii"], "big"), "radii: expected a mapping"),
         ((["demand"], {"cell_m": 2}), "demand.cell_m: too small for the area: 250000 cells"),
+        ((["launch", "bearing_deg"], 400), "launch.bearing_deg: must be <= 360"),
     ],
 )
 def test_errors_name_the_path(tmp_path, edit, message):

@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import numpy as np
 import torch
 
 from plmarl_sitl.mission import Failure, Launch, load_mission
@@ -62,6 +63,29 @@ def test_neighbour_beyond_comm_range_receives_nothing():
     assert not obs.nbr_mask.any()
     near = dataclasses.replace(far, launch=Launch(north_m=500, east_m=500, spacing_m=300.0))
     assert CoverageEnv(near, 1, seed=0).reset().nbr_mask[0, 0, 1]
+
+
+def test_launch_line_runs_along_its_bearing():
+    from plmarl_sitl.twin.env import launch_positions
+
+    n = 5
+    offs = (torch.arange(n, dtype=torch.float64) - 2) * 30.0
+    east_west = launch_positions(dataclasses.replace(MISSION, n_uavs=n, launch=Launch(400, 450, 30.0)), 20.0)
+    # the default bearing (90) is the west-east line of every mission before the field, to the bit
+    assert torch.equal(east_west[:, 0], torch.full((n,), 400.0, dtype=torch.float64))
+    assert torch.equal(east_west[:, 1], 450.0 + offs) and torch.equal(east_west[:, 2], torch.full((n,), -20.0, dtype=torch.float64))
+    north = launch_positions(dataclasses.replace(MISSION, n_uavs=n, launch=Launch(400, 450, 30.0, bearing_deg=0.0)), 20.0)
+    assert torch.equal(north[:, 0], 400.0 + offs) and torch.equal(north[:, 1], torch.full((n,), 450.0, dtype=torch.float64))
+    ne = launch_positions(dataclasses.replace(MISSION, n_uavs=n, launch=Launch(400, 450, 30.0, bearing_deg=45.0)), 20.0)
+    step = ne[1:, :2] - ne[:-1, :2]
+    assert torch.allclose(step, torch.tensor([30.0, 30.0], dtype=torch.float64) / 2**0.5)
+    assert torch.allclose(ne[:, :2].mean(0), torch.tensor([400.0, 450.0], dtype=torch.float64))
+    # the team plan's launch fit (what each agent computes from the states it heard) recovers a turned line
+    from plmarl_sitl.model.service import launch_line
+
+    heard = np.array([0, 2, 4])
+    fit = launch_line(heard, ne[heard, :2].numpy(), n)
+    assert np.abs(fit - ne[:, :2].numpy()).max() <= 0.005
 
 
 def test_node_failure_removes_the_uav_and_switches_the_reward():
