@@ -15,6 +15,7 @@ import time
 import torch
 
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.config import PROJECT_POLICIES, REPO_ROOT
 from plmarl_sitl.deploy.agent.clock import MissionClock
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
@@ -32,12 +33,12 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
-    mission = dataclasses.replace(load_mission("missions/paper_urban.yaml"), n_uavs=20)
+    mission = dataclasses.replace(load_mission(REPO_ROOT / "missions" / "paper_urban.yaml"), n_uavs=20)
     # Agent 0's decision with what it reads: the mission clock (the agent's default waits),
     # started at boot time 0, and the neighbour table; no trace; the users are given below.
     clock = MissionClock(mission.signalling.tup_s, int(mission.timing.decision_every_s), 0.1, INSTANT_WAIT_WALL_S)
     table = NeighbourTable(20, 0, mission.signalling.drop_after_missed)
-    decision = Decision(mission, 0, load_policy("policies/pl-marl", mission), clock, table, LoopStats(), Trace(None), Topics())
+    decision = Decision(mission, 0, load_policy(PROJECT_POLICIES / "pl-marl", mission), clock, table, LoopStats(), Trace(None), Topics())
     decision.warm_up()
     decision.sense_history.append((0.0, torch.rand(40, 2) * 100 + 450))
     decision.ego = torch.tensor([500.0, 500.0, -80.0, 1.0, 0.0, 0.0])

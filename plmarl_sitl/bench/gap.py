@@ -7,7 +7,7 @@ report the mean of C(t) over mission seconds 1..episode_s. With --lockstep the S
 runs in lockstep (`plmarl swarm up --lockstep`: vehicle time waits for every agent, so the
 result does not depend on the machine's load; the speedup paces only the start-up).
 
-    python -m plmarl_sitl.bench.gap missions/paper_urban.yaml --policy policies/pl-marl --seeds 0 1 2
+    python -m plmarl_sitl.bench.gap missions/paper_urban.yaml --seeds 0 1 2 --lockstep
 """
 
 from __future__ import annotations
@@ -22,12 +22,15 @@ from pathlib import Path
 
 import torch
 
+from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
+from plmarl_sitl.errors import run_reporting
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
+PROG = "python -m plmarl_sitl.bench.gap"
 START_WALL_S = 120.0
 
 
@@ -81,14 +84,18 @@ async def sitl_coverage(
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("mission")
-    p.add_argument("--policy", default="policies/pl-marl")
+    p.add_argument("--policy", default=str(PROJECT_POLICIES / "pl-marl"), help="policy directory (default: the project's policies/pl-marl)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--speedup", type=float, default=10.0)
     p.add_argument("--lockstep", action="store_true", help="fly the SITL side in lockstep (deterministic, load-independent)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
+    return run_reporting(PROG, lambda: measure(args))
+
+
+def measure(args: argparse.Namespace) -> int:
     mission = load_mission(args.mission)
     rows = []
     for seed in args.seeds:
@@ -98,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
             sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
                                                      lockstep=args.lockstep))
         except RuntimeError as exc:
-            print(f"gap: error: {exc}", file=sys.stderr)
+            print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 1
         tw, st = sum(twin) / len(twin), (sum(sitl) / len(sitl) if sitl else float("nan"))
         rows.append({"seed": seed, "twin": tw, "sitl": st, "gap": st - tw, "sitl_seconds": len(sitl), "wall_s": time.perf_counter() - t})

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.machine import machine_info
 
 MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
@@ -53,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="largest acceptable 95th-percentile decision delay, vehicle s (default 1.5: half a decision period)")
     p.add_argument("--seeds", default="0,1,2", type=comma_list(int, "seed"),
                    help="mission seeds; the gap compares mean coverage over them, as one run's is noisy (default 0,1,2)")
-    p.add_argument("--policy", default="policies/pl-marl", help="policy directory (default policies/pl-marl)")
+    p.add_argument("--policy", default=str(PROJECT_POLICIES / "pl-marl"), help="policy directory (default: the project's policies/pl-marl)")
     p.add_argument("--broker", default="embedded", metavar="embedded|mosquitto",
                    help="the broker every run starts (default embedded amqtt)")
     p.add_argument("--lockstep", action="store_true",

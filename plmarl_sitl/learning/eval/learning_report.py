@@ -16,6 +16,7 @@ from pathlib import Path
 
 import yaml
 
+from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.learning.eval.report import (
     coverage_table_md,
     full_table_md,
@@ -148,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--results", default="docs/RESULTS.md")
     ap.add_argument("--dir", default="docs/results/learning")
-    ap.add_argument("--policies", default="policies")
+    ap.add_argument("--policies", default=str(PROJECT_POLICIES))
     ap.add_argument("--narrative", default="docs/results/learning/narrative.md")
     a = ap.parse_args(argv)
     narrative = Path(a.narrative).read_text() if Path(a.narrative).is_file() else ""

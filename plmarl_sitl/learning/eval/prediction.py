@@ -16,6 +16,7 @@ import json
 
 import torch
 
+from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker, pair_rows, position_errors
@@ -28,7 +29,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("mission")
     ap.add_argument("--episodes", type=int, default=64)
     ap.add_argument("--seed", type=int, default=5)
-    ap.add_argument("--policies", default="policies")
+    ap.add_argument("--policies", default=str(PROJECT_POLICIES))
     ap.add_argument("--ages", default="10,25,50")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
