@@ -91,6 +91,9 @@ def run(args: argparse.Namespace) -> int:
             for meth in sorted(needed_policies(args.methods)):
                 loaded.setdefault(meth, load_policy(Path(args.policies) / meth, m))
     total = sum(decisions(f, args.episodes, args.tup, args.methods) for f in chosen)
+    # The commit and date of the code that runs: read at the start, since a long suite can
+    # outlast a commit made beside it.
+    commit, started = git_commit(), datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     t0 = time.time()
     with progress(disable=args.json) as bar:
         task = bar.add_task("suite", total=total)
@@ -101,8 +104,8 @@ def run(args: argparse.Namespace) -> int:
         )
     res.update({
         "command": "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-        "suite_file": args.suite_file, "policies": args.policies, "commit": git_commit(), "machine": machine_info(),
-        "date": datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC"), "wall_s": round(time.time() - t0, 1),
+        "suite_file": args.suite_file, "policies": args.policies, "commit": commit, "machine": machine_info(),
+        "date": started, "wall_s": round(time.time() - t0, 1),
         "torch_threads": 1,
     })
     if args.out:
