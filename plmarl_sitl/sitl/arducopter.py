@@ -15,8 +15,10 @@ all free for every vehicle, unless given.
 
 The generated plmarl.parm adds to ArduPilot's copter.parm only what the run needs
 (`RUN_PARAMS`); everything else keeps ArduPilot's defaults, so the vehicles fly as a
-stock ArduCopter does (e.g. WPNAV_SPEED 10 m/s and WPNAV_ACCEL 2.5 m/s^2 also bound the
-guided acceleration control the agent uses, below the twin's quadrotor limits).
+stock ArduCopter does. Measured (docs/RESULTS.md, session 11): under the agent's guided
+acceleration setpoints the stock SITL quad cruises at 11 m/s, below the twin's 20 m/s; the
+bound is its lean angle against its drag (ANGLE_MAX 30 deg; 45 deg gives 16 m/s), not
+WPNAV_SPEED or WPNAV_ACCEL (raised to 20 m/s and 5 m/s^2 they changed nothing).
 
 A process waits for a client on SERIAL0 before its clock starts; SERIAL1 opens only then.
 Every process is in a session of its own (Ctrl-C in a terminal reaches the launcher, which
