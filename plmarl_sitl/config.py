@@ -26,7 +26,9 @@ REPO_ROOT = Path(__file__).resolve().parent.parent
 # The project's own files, defaults that must work from any directory (a user running
 # `plmarl suite` or `plmarl eval` outside the checkout means these, not ./policies).
 PROJECT_POLICIES = REPO_ROOT / "policies"
-PROJECT_SUITE = REPO_ROOT / "missions" / "suite" / "suite.yaml"
+PROJECT_MISSIONS = REPO_ROOT / "missions"
+PAPER_MISSION = PROJECT_MISSIONS / "paper_urban.yaml"
+PROJECT_SUITE = PROJECT_MISSIONS / "suite" / "suite.yaml"
 
 
 class ConfigError(UserError, ValueError):

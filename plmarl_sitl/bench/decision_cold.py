@@ -15,7 +15,7 @@ import time
 import torch
 
 from plmarl_sitl.cmdline import comma_list
-from plmarl_sitl.config import PROJECT_POLICIES, REPO_ROOT
+from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES
 from plmarl_sitl.deploy.agent.clock import MissionClock
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
@@ -33,7 +33,7 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
-    mission = dataclasses.replace(load_mission(REPO_ROOT / "missions" / "paper_urban.yaml"), n_uavs=20)
+    mission = dataclasses.replace(load_mission(PAPER_MISSION), n_uavs=20)
     # Agent 0's decision with what it reads: the mission clock (the agent's default waits),
     # started at boot time 0, and the neighbour table; no trace; the users are given below.
     clock = MissionClock(mission.signalling.tup_s, int(mission.timing.decision_every_s), 0.1, INSTANT_WAIT_WALL_S)

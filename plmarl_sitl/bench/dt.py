@@ -22,14 +22,14 @@ import os
 import time
 
 from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.config import PAPER_MISSION
 from plmarl_sitl.machine import machine_info
 
-DEFAULT_MISSION = "missions/paper_urban.yaml"
 MEASURE_S = 3.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mission", default=DEFAULT_MISSION, help=f"mission YAML (default: {DEFAULT_MISSION})")
+    p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
     p.add_argument("--envs", default="1,64,1024", type=comma_list(int, "batch size", positive=True),
                    help="comma-separated batch sizes (default: 1,64,1024)")
     p.add_argument("--seed", type=int, default=0, help="seed (default: 0)")

@@ -37,10 +37,10 @@ from pathlib import Path
 import numpy as np
 
 from plmarl_sitl.cmdline import comma_list
-from plmarl_sitl.config import PROJECT_POLICIES
+from plmarl_sitl.config import PAPER_MISSION, PROJECT_MISSIONS, PROJECT_POLICIES
 from plmarl_sitl.machine import machine_info
 
-MISSIONS = {4: "missions/paper_urban.yaml", 20: "missions/scale_20.yaml"}
+MISSIONS = {4: str(PAPER_MISSION), 20: str(PROJECT_MISSIONS / "scale_20.yaml")}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed, progress
+from plmarl_sitl.config import PAPER_MISSION
 from plmarl_sitl.errors import UserError
 
 METHODS = ("pl-marl", "gru", "tag-mappo")
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--method", choices=METHODS, default="pl-marl")
-    p.add_argument("--mission", default="missions/paper_urban.yaml", help="mission YAML (default: missions/paper_urban.yaml)")
+    p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
     p.add_argument("--episodes", type=int, default=1000, help="training episodes (default: 1000, Table I)")
     add_seed(p, default=1)
     p.add_argument("--out", default=None, help="output directory (default: policies/<method>)")

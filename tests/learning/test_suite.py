@@ -190,3 +190,6 @@ def test_the_defaults_are_the_projects_files_from_any_directory(tmp_path: Path) 
                "--from-s", "5", "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["policies"] == str(ROOT / "policies")
+    r = plmarl("bench", "dt", "--envs", "1", "--json")  # the benches' default mission too
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["n_uavs"] == 4

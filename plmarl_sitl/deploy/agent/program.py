@@ -27,7 +27,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from plmarl_sitl.cmdline import rt_priority_arg, tup_arg  # noqa: E402
-from plmarl_sitl.config import PROJECT_POLICIES, REPO_ROOT  # noqa: E402
+from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES  # noqa: E402
 from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
 from plmarl_sitl.errors import UserError, run_reporting  # noqa: E402
@@ -37,7 +37,7 @@ HELP = "run the PL-MARL agent for one UAV (MAVLink + MQTT + TorchScript policy)"
 DESCRIPTION = __doc__.split("\n\n")[1].replace("\n", " ")
 # The shipped mission and policy, found from the installed project (not the current
 # directory): an agent started from anywhere flies them.
-DEFAULT_MISSION = REPO_ROOT / "missions" / "paper_urban.yaml"
+DEFAULT_MISSION = PAPER_MISSION
 DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
 BOUNDS = StartupBounds()
 

@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from plmarl_sitl.config import PAPER_MISSION
 from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
 from plmarl_sitl.learning.nn.features import (
     DEMAND_BINS,
@@ -57,7 +58,7 @@ METHOD_PREDICTOR = {"pl-marl": "mlp", "gru": "gru", "tag-mappo": "hold", "dead-r
 @dataclass
 class Args:
     method: str = "pl-marl"
-    mission: str = "missions/paper_urban.yaml"
+    mission: str = str(PAPER_MISSION)
     predictor_state: str | None = None  # state dict of the trained predictor (pl-marl, gru)
     seed: int = 1
     episodes: int = 1000
