@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import argparse
+import math
+import re
 import sys
 from collections.abc import Callable, Collection
 from typing import TypeVar
@@ -11,12 +13,56 @@ from typing import TypeVar
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from plmarl_sitl.config import MAX_SEED
+
 T = TypeVar("T")
+
+
+def seed_arg(text: str) -> int:
+    """An argparse `type` for a seed: a whole number in 0..MAX_SEED (every generator takes it)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a seed (a whole number)") from None
+    if not 0 <= v <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"seed {v} is outside 0..{MAX_SEED}")
+    return v
 
 
 def add_seed(p: argparse.ArgumentParser, default: int | None = 0) -> None:
     said = "the mission's seed" if default is None else default
-    p.add_argument("--seed", type=int, default=default, help=f"random seed; same seed, same numbers (default: {said})")
+    p.add_argument("--seed", type=seed_arg, default=default,
+                   help=f"random seed 0..{MAX_SEED}; same seed, same numbers (default: {said})")
+
+
+# Sim seconds per wall second. Beyond ~1000x a free-running world's 50 Hz ticks are 20 s
+# of physics each and the agents' wall-clock timeouts mean nothing; lockstep runs as fast
+# as it computes whatever is given.
+MAX_SPEEDUP = 1000.0
+
+
+def speedup_arg(text: str) -> float:
+    """An argparse `type` for --speedup: a finite number in (0, MAX_SPEEDUP]."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and 0 < v <= MAX_SPEEDUP):
+        raise argparse.ArgumentTypeError(f"speedup must be a finite number in (0, {MAX_SPEEDUP:g}], got {text!r}")
+    return v
+
+
+# A swarm name is one MQTT topic level (plmarl/<swarm>/...): no wildcard (+ #), no level
+# separator, nothing a broker or a log line would mangle.
+SWARM_NAME = re.compile(r"[A-Za-z0-9_.-]{1,64}")
+
+
+def swarm_name_arg(text: str) -> str:
+    """An argparse `type` for a swarm name: 1-64 of A-Z a-z 0-9 _ . - (one MQTT topic level)."""
+    if not SWARM_NAME.fullmatch(text):
+        raise argparse.ArgumentTypeError(
+            f"swarm name {text!r}: use 1-64 letters, digits, '_', '.' or '-' (it is one MQTT topic level; + # / are not allowed)")
+    return text
 
 
 def tup_arg(text: str) -> int:

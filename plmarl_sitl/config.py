@@ -31,6 +31,11 @@ PAPER_MISSION = PROJECT_MISSIONS / "paper_urban.yaml"
 PROJECT_SUITE = PROJECT_MISSIONS / "suite" / "suite.yaml"
 
 
+# Seeds are unsigned 32-bit: every generator the toolkit seeds (torch, numpy, the link
+# emulator's) takes them, and so do the offsets training and the suite add (learning/train/seeds.py).
+MAX_SEED = 2**32 - 1
+
+
 class ConfigError(UserError, ValueError):
     """A configuration value is wrong. `path` is the dotted path to it, `reason` says why.
     A user error: the file the user gave needs fixing."""
@@ -159,17 +164,101 @@ def to_dict(obj: Any) -> Any:
     return obj
 
 
+# What a configuration file may be. Missions, vehicle models, cards and suite files are a few
+# KB; anything far larger, deeper or more aliased is a mistake or an attack, and would cost
+# minutes or a RecursionError before a schema error could name it.
+MAX_CONFIG_BYTES = 1 << 20
+MAX_CONFIG_DEPTH = 32
+MAX_CONFIG_NODES = 100_000  # values after expanding aliases (a "billion laughs" file has 10^9)
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """yaml's safe loader that refuses a mapping with a key given twice (PyYAML keeps the
+    last one silently: `seed: 1` then `seed: 2` would fly seed 2 without a word)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                dup = key in seen
+            except TypeError:  # an unhashable key: the base class says so in its own words
+                break
+            if dup:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r}", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
+def _check_shape(root: yaml.Node | None) -> None:
+    """Refuse a document nested deeper than MAX_CONFIG_DEPTH or larger than MAX_CONFIG_NODES
+    values once aliases are expanded; iterative, so a pathological file cannot overflow the stack."""
+    if root is None:
+        return
+    size: dict[int, int] = {}  # node id -> expanded size (aliases share nodes: memoised)
+    stack: list[tuple[yaml.Node, int, bool]] = [(root, 1, False)]
+    while stack:
+        node, depth, done = stack.pop()
+        if depth > MAX_CONFIG_DEPTH:
+            raise ValueError(f"nested more than {MAX_CONFIG_DEPTH} levels deep (line {node.start_mark.line + 1})")
+        if id(node) in size:
+            continue
+        children = ([v for kv in node.value for v in kv] if isinstance(node, yaml.MappingNode)
+                    else list(node.value) if isinstance(node, yaml.SequenceNode) else [])
+        if done or not children:
+            size[id(node)] = 1 + sum(size[id(c)] for c in children)
+            if size[id(node)] > MAX_CONFIG_NODES:
+                raise ValueError(f"more than {MAX_CONFIG_NODES} values once its aliases are expanded")
+            continue
+        stack.append((node, depth, True))
+        stack.extend((c, depth + 1, False) for c in children if id(c) not in size)
+
+
+def _yaml_reason(exc: yaml.YAMLError) -> str:
+    """A YAML error on one line: what is wrong and where (PyYAML's own text spans several)."""
+    mark = getattr(exc, "problem_mark", None)
+    problem = getattr(exc, "problem", None) or getattr(exc, "reason", None) or " ".join(str(exc).split())
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else problem
+
+
+def read_yaml(path: str | Path) -> Any:
+    """The plain data of a configuration file, read strictly: at most MAX_CONFIG_BYTES of
+    UTF-8, no key twice in a mapping, no pathological nesting or alias expansion. Every
+    refusal is one ConfigError naming the file."""
+    path = Path(path)
+    src = str(path)
+    try:
+        with path.open("rb") as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError("", f"cannot read file: {exc.strerror}", src) from exc
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError("", f"larger than {MAX_CONFIG_BYTES >> 10} KiB: not a configuration file", src)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError("", f"not UTF-8 text (byte 0x{raw[exc.start]:02x} at offset {exc.start})", src) from None
+    loader = None
+    try:
+        loader = _StrictLoader(text)  # the reader refuses non-printable characters here
+        node = loader.get_single_node()
+        _check_shape(node)
+        return None if node is None else loader.construct_document(node)
+    except yaml.YAMLError as exc:
+        raise ConfigError("", f"not valid YAML: {_yaml_reason(exc)}", src) from None
+    except (ValueError, RecursionError) as exc:
+        reason = str(exc) if isinstance(exc, ValueError) else f"nested more than {MAX_CONFIG_DEPTH} levels deep"
+        raise ConfigError("", f"not a configuration file: {reason}", src) from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
 def load_yaml(cls: type[T], path: str | Path) -> T:
     """Load and validate a YAML file into `cls`; every error names the file and the key path."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError("", f"cannot read file: {exc.strerror}", str(path)) from exc
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError("", f"not valid YAML: {exc}", str(path)) from exc
+    data = read_yaml(path)
     try:
         return from_dict(cls, data)
     except ConfigError as exc:

@@ -12,11 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-import yaml
-
-from plmarl_sitl.config import ConfigError, VehicleModel, _require, from_dict, load_vehicle
+from plmarl_sitl.config import MAX_SEED, ConfigError, VehicleModel, _require, from_dict, load_vehicle, read_yaml
 
 MAX_DEMAND_CELLS = 65535  # the demand message's cell index is a u16 (docs/SIGNALLING.md)
+# A swarm is at most 250 UAVs: MAVLink's 8-bit system ids (1..250 for vehicles; PX4's
+# MAV_SYS_ID range, 255 is a ground station) name one vehicle each, and the gossiped failed
+# set is a bitmask over them. Checked at load, before a key or a login file is written.
+MAX_UAVS = 250
+MAX_EPISODE_S = 86_400  # one day of mission time: far beyond any battery, and a bound on every per-second table
 
 Mobility = Literal["gauss_markov", "random_waypoint", "rpgm", "mixed"]
 Layout = Literal["fixed", "lattice", "random"]
@@ -116,7 +119,7 @@ class Demand:
 class Timing:
     dt_s: float = field(default=1.0, metadata={"min": 0.001})
     decision_every_s: int = field(default=3, metadata={"min": 1})
-    episode_s: int = field(default=200, metadata={"min": 1})
+    episode_s: int = field(default=200, metadata={"min": 1, "max": MAX_EPISODE_S})
 
 
 @dataclass(frozen=True)
@@ -219,8 +222,8 @@ class Origin:
 @dataclass(frozen=True)
 class Mission:
     name: str
-    seed: int = 0
-    n_uavs: int = field(default=4, metadata={"min": 1})
+    seed: int = field(default=0, metadata={"min": 0, "max": MAX_SEED})
+    n_uavs: int = field(default=4, metadata={"min": 1, "max": MAX_UAVS})
     vehicle: str = "quadrotor"
     area: Area = Area()
     users: Users = Users(layout="lattice")
@@ -277,12 +280,7 @@ def _read_mission_data(path: Path, seen: tuple[Path, ...] = ()) -> dict:
     resolved: this file's keys override the other's, mappings merged key by key."""
     if path.resolve() in seen:
         raise ConfigError("extends", "missions extend each other in a cycle", str(path))
-    try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError("", f"cannot read file: {exc.strerror}", str(path)) from exc
-    except yaml.YAMLError as exc:
-        raise ConfigError("", f"not valid YAML: {exc}", str(path)) from exc
+    data = read_yaml(path)
     if data is None:
         data = {}
     if not isinstance(data, dict):

@@ -33,14 +33,14 @@ import tempfile
 import time
 from pathlib import Path
 
-from plmarl_sitl.cmdline import rt_priority_arg
+from plmarl_sitl.cmdline import rt_priority_arg, speedup_arg
 from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES
 from plmarl_sitl.machine import machine_info
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--n", type=int, default=20, help="vehicles and agents (default 20)")
-    p.add_argument("--speedup", type=float, default=10.0, help="sim seconds per wall second (default 10)")
+    p.add_argument("--speedup", type=speedup_arg, default=10.0, help="sim seconds per wall second (default 10)")
     p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
     p.add_argument("--policy", default=str(PROJECT_POLICIES / "pl-marl"), help="policy directory (default: the project's policies/pl-marl)")
     p.add_argument("--mission-s", type=int, default=120, help="mission seconds flown together (default 120)")

@@ -21,7 +21,7 @@ import multiprocessing as mp
 import os
 import time
 
-from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.cmdline import comma_list, seed_arg
 from plmarl_sitl.config import PAPER_MISSION
 from plmarl_sitl.machine import machine_info
 
@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
     p.add_argument("--envs", default="1,64,1024", type=comma_list(int, "batch size", positive=True),
                    help="comma-separated batch sizes (default: 1,64,1024)")
-    p.add_argument("--seed", type=int, default=0, help="seed (default: 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed (default: 0)")
 
 
 def _steps_for(mission_path: str, envs: int, seed: int, threads: int, start_at: float, seconds: float) -> tuple[int, float]:

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import torch
 
+from plmarl_sitl.cmdline import speedup_arg
 from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.errors import run_reporting
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("mission")
     p.add_argument("--policy", default=str(PROJECT_POLICIES / "pl-marl"), help="policy directory (default: the project's policies/pl-marl)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    p.add_argument("--speedup", type=float, default=10.0)
+    p.add_argument("--speedup", type=speedup_arg, default=10.0)
     p.add_argument("--lockstep", action="store_true", help="fly the SITL side in lockstep (deterministic, load-independent)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)

@@ -41,7 +41,7 @@ import os
 import time
 from pathlib import Path
 
-from plmarl_sitl.cmdline import comma_list
+from plmarl_sitl.cmdline import comma_list, seed_arg
 from plmarl_sitl.machine import machine_info
 
 DEFAULT_N = "4,8,12,16,20"
@@ -70,7 +70,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policies", default=None,
                    help="directory with <method>/predictor.pt, policy.pt (default: the project's policies/, from any directory)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default: 0)")
+    p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random inputs (default: 0)")
 
 
 def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:

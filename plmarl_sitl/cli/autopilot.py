@@ -13,6 +13,7 @@ import logging
 import signal
 import sys
 
+from plmarl_sitl.cmdline import speedup_arg
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Origin
@@ -43,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT", help="geodetic origin of the mission frame")
     p.add_argument("--spacing", type=float, default=5.0, metavar="M",
                    help="vehicle i's home is i*M metres east of the origin (default 5)")
-    p.add_argument("--speedup", type=float, default=1.0, help="sim seconds per wall second (default 1)")
+    p.add_argument("--speedup", type=speedup_arg, default=1.0, help="sim seconds per wall second (default 1)")
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time); "

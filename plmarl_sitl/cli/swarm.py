@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from plmarl_sitl.cmdline import add_seed
+from plmarl_sitl.cmdline import add_seed, speedup_arg, swarm_name_arg
 from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER_S, speedup_or_default
 
 UP_EPILOG = """\
@@ -40,7 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     up.add_argument("mission", type=Path, help="mission YAML, e.g. missions/paper_urban.yaml")
-    up.add_argument("--speedup", type=float, default=None, help="sim seconds per wall second (default 1, real time; "
+    up.add_argument("--speedup", type=speedup_arg, default=None, help="sim seconds per wall second (default 1, real time; "
                     f"with --lockstep: the pace of the start-up only, default {DEFAULT_STARTUP_SPEEDUP:g})")
     up.add_argument("--lockstep", action="store_true",
                     help="lockstep SITL: vehicle time waits for every agent's answer to each telemetry sample, so the run "
@@ -72,7 +72,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--boot", choices=["instant", "real"], default="instant",
                     help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    up.add_argument("--swarm-name", default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
+    up.add_argument("--swarm-name", type=swarm_name_arg, default="sitl", help="MQTT topic namespace plmarl/<name>/... (default sitl)")
     up.add_argument("--broker-credentials", type=Path, default=None, metavar="DIR",
                     help="with an external broker: the logins it knows this swarm by, DIR/world.cred, DIR/monitor.cred "
                     "and DIR/agentI.cred (one line USERNAME:PASSWORD each, mode 0600)")
@@ -101,7 +101,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     st.add_argument("--broker", required=True, metavar="mqtt://HOST:PORT", help="the swarm's broker")
-    st.add_argument("--swarm", default="sitl", help="swarm name (default sitl)")
+    st.add_argument("--swarm", type=swarm_name_arg, default="sitl", help="swarm name (default sitl)")
     st.add_argument("--swarm-key", default=None, metavar="FILE",
                     help="the swarm's key file: without it the view shows metrics but no signed signalling")
     st.add_argument("--broker-credentials", default=None, metavar="FILE",

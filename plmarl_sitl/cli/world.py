@@ -17,7 +17,7 @@ import signal
 import sys
 from pathlib import Path
 
-from plmarl_sitl.cmdline import add_seed
+from plmarl_sitl.cmdline import add_seed, speedup_arg, swarm_name_arg
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER_S, speedup_or_default
 
@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "closed, sensing and demand (docs/SECURITY.md). Required unless --no-auth")
     a.add_argument("--no-auth", action="store_true", help="unsigned version-1 messages (anyone on the broker can steer)")
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
-    p.add_argument("--swarm", default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
+    p.add_argument("--swarm", type=swarm_name_arg, default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
     p.add_argument("--external", default=None, metavar="URL[,URL...]",
                    help="vehicles that run elsewhere, one MAVLink URL per UAV in order (tcpout://HOST:PORT, "
                    "udpin://BIND:PORT, udpout://HOST:PORT): no emulated autopilots; positions, modes and clocks "
@@ -61,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--boot", choices=["instant", "real"], default="instant",
                    help="autopilot start-up: instant (home and position at once, default) or real "
                    "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    p.add_argument("--speedup", type=float, default=None, help="sim seconds per wall second (default 1; with --lockstep: "
+    p.add_argument("--speedup", type=speedup_arg, default=None, help="sim seconds per wall second (default 1; with --lockstep: "
                    f"the pace of the start-up only, default {DEFAULT_STARTUP_SPEEDUP:g})")
     p.add_argument("--lockstep", action="store_true",
                    help="lockstep: vehicle time waits for every agent's answer to each telemetry sample (agents run with "
@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="stop after S mission seconds and print the mean coverage (default: run until Ctrl-C)")
     p.add_argument("--summary-json", default=None, metavar="PATH", help="write the run summary (coverage trace) here")
     p.add_argument("-v", "--verbose", action="store_true")
-    add_seed(p, default=-1)
+    add_seed(p, default=None)
     p.set_defaults(func=run)
 
 
@@ -145,7 +145,7 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
         boot=args.boot,
         speedup=args.speedup,
         base_port=args.base_port,
-        seed=None if args.seed < 0 else args.seed,
+        seed=args.seed,
         loss=args.loss,
         latency_s=args.latency,
         episode_s=args.episode,

@@ -87,7 +87,7 @@ def test_corrupt_files_are_named(tmp_path: Path, mission) -> None:
     with pytest.raises(PolicyFileError, match=r"predictor\.pt: corrupt: not a loadable TorchScript"):
         load_policy(tmp_path)
     (tmp_path / "card.yaml").write_text("method: [unclosed")
-    with pytest.raises(PolicyFileError, match=r"card\.yaml: corrupt YAML"):
+    with pytest.raises(PolicyFileError, match=r"card\.yaml: corrupt: not valid YAML"):
         load_policy(tmp_path)
 
 

@@ -26,7 +26,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from plmarl_sitl.cmdline import rt_priority_arg, tup_arg  # noqa: E402
+from plmarl_sitl.cmdline import rt_priority_arg, swarm_name_arg, tup_arg  # noqa: E402
 from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES  # noqa: E402
 from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
@@ -65,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--autopilot", choices=["auto", *PERSONALITIES], default="auto",
                    help="expected autopilot (default auto: from the heartbeat)")
     p.add_argument("--tup", type=tup_arg, default=None, help="signalling interval T_up, s (default: the mission's)")
-    p.add_argument("--swarm", default="sitl", help="swarm name: topics plmarl/<swarm>/... (default sitl)")
+    p.add_argument("--swarm", type=swarm_name_arg, default="sitl", help="swarm name: topics plmarl/<swarm>/... (default sitl)")
     p.add_argument("--bus", choices=["sitl", "direct"], default="sitl",
                    help="sitl: the world's link emulator delivers rx/<id>; direct: subscribe tx/+ (radios bridged to a broker)")
     a = p.add_mutually_exclusive_group()

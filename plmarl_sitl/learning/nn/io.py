@@ -28,7 +28,9 @@ import torch
 import yaml
 from torch import nn
 
+from plmarl_sitl.config import ConfigError, read_yaml
 from plmarl_sitl.errors import PolicyFileError
+from plmarl_sitl.learning.nn.card import check_card
 from plmarl_sitl.learning.nn.features import EGO_FEATURES, INPUT_VERSION, STATE_DIM
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
@@ -143,14 +145,10 @@ def _load_card(path: Path) -> dict:
     if not path.is_file():
         raise PolicyFileError(str(path), "missing (every policy directory needs card.yaml)")
     try:
-        card = yaml.safe_load(path.read_text())
-    except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise PolicyFileError(str(path), f"corrupt YAML: {exc}") from exc
-    if not isinstance(card, dict):
-        raise PolicyFileError(str(path), "corrupt: expected a mapping")
-    for key in ("method", "card_version", "io", "sha256"):
-        if key not in card:
-            raise PolicyFileError(str(path), f"corrupt: missing key {key!r}")
+        card = read_yaml(path)
+        check_card(card)
+    except ConfigError as exc:
+        raise PolicyFileError(str(path), f"corrupt: {exc.path + ': ' if exc.path else ''}{exc.reason}") from None
     if card["card_version"] not in LOADABLE_CARD_VERSIONS:
         raise PolicyFileError(str(path), f"card_version {card['card_version']} is not supported (expected one of {LOADABLE_CARD_VERSIONS})")
     return card
