@@ -7,6 +7,7 @@ corner of the area with x north and y east (NED, altitude positive up where it s
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -194,8 +195,8 @@ class Event:
 
 @dataclass(frozen=True)
 class Launch:
-    """Where the swarm starts: a line of UAVs at takeoff altitude around this point, UAV 0
-    first, running along the compass bearing `bearing_deg` (90: west to east)."""
+    """Where the swarm starts: a line of UAVs at takeoff altitude centred on this point, UAV 0
+    at one end, running along the compass bearing `bearing_deg` (90: west to east)."""
 
     north_m: float = 500.0
     east_m: float = 500.0
@@ -261,6 +262,31 @@ class Mission:
             ok = 0 <= n <= self.area.north_m and 0 <= e <= self.area.east_m
             _require(ok, f"users.cluster_centers[{i}]", "must lie inside the area")
 
+    def reach_warnings(self) -> list[str]:
+        """What the schema accepts but a user should hear: fixed clusters that fall apart into
+        groups more than R_comm from each other (one UAV per cluster cannot stay connected)."""
+        centres = self.users.cluster_centers if self.users.layout == "fixed" else ()
+        group = list(range(len(centres)))  # union-find over "within R_comm"
+
+        def root(i: int) -> int:
+            while group[i] != i:
+                group[i] = group[group[i]]
+                i = group[i]
+            return i
+
+        for i, a in enumerate(centres):
+            for j in range(i):
+                if math.dist(a, centres[j]) <= self.radii.comm_m:
+                    group[root(i)] = root(j)
+        parts: dict[int, list[int]] = {}
+        for i in range(len(centres)):
+            parts.setdefault(root(i), []).append(i)
+        if len(parts) < 2:
+            return []
+        listed = "; ".join(", ".join(map(str, p)) for p in parts.values())
+        return [f"users.cluster_centers: the clusters fall into {len(parts)} groups more than R_comm "
+                f"({self.radii.comm_m:g} m) apart ({listed}): a swarm with one UAV per cluster cannot stay connected"]
+
     def vehicle_model(self) -> VehicleModel:
         return load_vehicle(self.vehicle)
 
@@ -304,6 +330,8 @@ def load_mission(path: str | Path) -> Mission:
     """Load a mission YAML; errors are ConfigError naming the file and the key path."""
     path = Path(path)
     mission = mission_from_dict(_read_mission_data(path), str(path))
+    for warning in mission.reach_warnings():
+        logging.getLogger("plmarl.mission").warning("%s: warning: %s", path, warning)
     try:
         mission.vehicle_model()
     except ConfigError as exc:
