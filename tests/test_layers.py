@@ -8,7 +8,7 @@ import ast
 from pathlib import Path
 
 PKG = Path(__file__).resolve().parents[1] / "plmarl_sitl"
-CORE = {"config", "mission", "errors", "proc", "machine", "cmdline"}
+CORE = {"config", "mission", "mission_reference", "errors", "proc", "machine", "cmdline"}
 
 # What each layer may import (besides itself). The deployable side loads the exported
 # policy (learning.nn) but nothing of training; the SITL rig stands on the deployable side.
