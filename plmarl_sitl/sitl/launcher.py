@@ -60,6 +60,7 @@ from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
+from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
@@ -181,11 +182,11 @@ BROKER_GUARANTEES = {
 }
 
 
-async def _start_broker(spec: str, access: BrokerAccess | None) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
+async def _start_broker(spec: str, access: BrokerAccess | None, out: Path) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
     if spec in ("embedded", "mosquitto"):
         broker = AmqttProcess(access=access) if spec == "embedded" else MosquittoBroker(access=access)
         try:
-            await asyncio.to_thread(broker.start, 20.0)  # amqtt imports and hashes passwords first
+            await asyncio.to_thread(broker.start, 20.0, out)  # amqtt imports and hashes passwords first
         except (RuntimeError, TimeoutError, OSError, subprocess.CalledProcessError) as exc:
             raise ComponentFailed(f"the {broker.what} broker did not start: {exc}") from exc
         return broker, broker.host, broker.port
@@ -272,7 +273,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
     out = opts.out or default_out_dir()
-    out.mkdir(parents=True, exist_ok=True)
+    run_lock = claim_run_dir(out)  # noqa: F841 - held by this frame until the run ends (sitl/rundir.py)
     handler = _setup_logging(out)
     mission_file = out / "mission.yaml"
     mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
@@ -311,7 +312,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
     world_login = load_credentials(creds["world"]) if creds else None
     monitor_login = load_credentials(creds["monitor"]) if creds else None
-    broker, up_host, up_port = await _start_broker(opts.broker, access)
+    broker, up_host, up_port = await _start_broker(opts.broker, access, out)
     guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
                                        "(docs/SECURITY.md has the ACL to give it)")
     console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)

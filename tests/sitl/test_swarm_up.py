@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -172,6 +173,9 @@ def test_agents_die_with_a_killed_launcher(tmp_path):
         proc.wait(timeout=10)
         gone, alive = psutil.wait_procs(children, timeout=15)  # the agents and the forkserver they came from
         assert not alive, [c.cmdline() for c in alive]
+        # Nothing in /tmp: the broker's logins and ACL were in the run folder (issue 27).
+        assert not list(Path(tempfile.gettempdir()).glob(f"plmarl-*{proc.pid}*"))
+        assert list(out.glob("plmarl-broker-amqtt-*"))
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -15,6 +15,7 @@ import contextlib
 import getpass
 import json
 import logging
+import os
 import shutil
 import socket
 import subprocess
@@ -100,6 +101,27 @@ class EmbeddedBroker:
         await self.stop()
 
 
+WORKDIR_PREFIX = "plmarl-broker-"
+
+
+def remove_stale_workdirs(tmp: str | None = None) -> list[Path]:
+    """Delete broker scratch folders (password hashes, ACLs) whose owning process is gone:
+    `WORKDIR_PREFIX<kind>-<pid>-*` in the temp directory. Returns what it removed."""
+    removed = []
+    for d in Path(tmp or tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*-*-*"):
+        try:
+            pid = int(d.name[len(WORKDIR_PREFIX):].split("-")[1])
+            os.kill(pid, 0)
+            continue  # the owner lives (or is another user's: PermissionError below)
+        except ProcessLookupError:
+            pass
+        except (ValueError, IndexError, PermissionError):
+            continue
+        shutil.rmtree(d, ignore_errors=True)
+        removed.append(d)
+    return removed
+
+
 class _BrokerChild:
     """A broker in a child process on a free loopback port; subclasses say which command."""
 
@@ -120,8 +142,14 @@ class _BrokerChild:
         """The child's command line; `workdir` is a scratch directory for config files."""
         raise NotImplementedError
 
-    def start(self, timeout_s: float = 5.0) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix=f"plmarl-{self.what}-")  # 0700: the password files stay ours
+    def start(self, timeout_s: float = 5.0, scratch_in: Path | None = None) -> None:
+        """Start the child and wait until it listens. Its config files go to a 0700 folder
+        inside `scratch_in` (a launcher's run folder: nothing is left in /tmp even if the
+        launcher is SIGKILLed), or to the temp directory."""
+        remove_stale_workdirs()
+        # 0700: the password files stay ours. The prefix names this process: a SIGKILLed
+        # owner cannot clean up, and the next broker started on the machine does it for it.
+        self._dir = tempfile.TemporaryDirectory(prefix=f"{WORKDIR_PREFIX}{self.what}-{os.getpid()}-", dir=scratch_in)
         workdir = Path(self._dir.name)
         # stderr to a file, not a pipe: nobody reads a pipe once the broker runs, and a
         # chatty broker (amqtt logs every dropped client) would block on a full one.
