@@ -212,3 +212,24 @@ def test_fuzz_cli_refuses_bad_missions_in_one_line(tmp_path_factory, data, junk)
         assert sorted(os.listdir(work)) == ["m.yaml"]  # no run folder, key or login file
     finally:
         os.chdir(cwd)
+
+
+def test_a_broken_policy_fails_the_preflight(tmp_path, monkeypatch):
+    """Checked against the mission before a broker, key or run folder exists (it used to be an
+    agent's exit 1 after start-up)."""
+    d = tmp_path / "policy"
+    shutil.copytree(ROOT / "policies/pl-marl", d)
+    (d / "policy.pt").write_bytes(b"junk")
+    monkeypatch.chdir(tmp_path)
+    code, err = _run(["swarm", "up", str(ROOT / "missions/paper_urban.yaml"), "--policy", str(d), "--headless", "--out", "run"])
+    assert code == 2 and _last_line_only_error(err) and "policy.pt: does not match card.yaml" in err, err
+    assert not (tmp_path / "run").exists()
+
+
+def test_swarm_size_outside_training_is_named():
+    from plmarl_sitl.learning.nn.card import swarm_size_warning
+
+    card = yaml.safe_load((ROOT / "policies/pl-marl/card.yaml").read_text())
+    assert swarm_size_warning(card, 4) is None  # trained on N = 3..8
+    assert "trained at N = 3..8; this mission flies N = 20 (zero-shot" in swarm_size_warning(card, 20)
+    assert "trained at N = 5; this mission flies N = 4" in swarm_size_warning({"method": "x", "n_uavs": 5}, 4)

@@ -50,6 +50,8 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError, UserError
+from plmarl_sitl.learning.nn.card import swarm_size_warning
+from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
@@ -272,6 +274,11 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
+    # Pre-flight: a corrupt or mismatched policy is one line here, not an agent's exit after start-up.
+    card = load_policy(opts.policy, mission).card
+    size_warning = swarm_size_warning(card, mission.n_uavs)
+    if size_warning is not None:
+        console.print(f"[yellow]warning:[/] {size_warning}", highlight=False)
     out = opts.out or default_out_dir()
     run_lock = claim_run_dir(out)  # noqa: F841 - held by this frame until the run ends (sitl/rundir.py)
     handler = _setup_logging(out)

@@ -72,6 +72,28 @@ class PolicyCard:
                 raise ConfigError(f"sha256.{k}", "expected 64 lowercase hex digits")
 
 
+def trained_n_range(card: dict) -> tuple[int, int] | None:
+    """The swarm sizes the policy was trained on, [lo, hi], if its card records them (the
+    training distribution's `n_uavs`, or the mission's N for a single-mission policy)."""
+    dist = (card.get("training") or {}).get("distribution") if isinstance(card.get("training"), dict) else None
+    n = dist.get("n_uavs") if isinstance(dist, dict) else card.get("n_uavs")
+    if isinstance(n, int) and not isinstance(n, bool):
+        return n, n
+    if isinstance(n, list) and len(n) == 2 and all(isinstance(x, int) for x in n):
+        return int(n[0]), int(n[1])
+    return None
+
+
+def swarm_size_warning(card: dict, n_uavs: int) -> str | None:
+    """A line for a user flying the policy at a swarm size it never saw in training, or None."""
+    trained = trained_n_range(card)
+    if trained is None or trained[0] <= n_uavs <= trained[1]:
+        return None
+    seen = f"N = {trained[0]}" if trained[0] == trained[1] else f"N = {trained[0]}..{trained[1]}"
+    return (f"policy {card.get('method', '?')} was trained at {seen}; this mission flies N = {n_uavs} "
+            "(zero-shot: see docs/RESULTS.md for how it generalises)")
+
+
 def check_card(data: Any) -> PolicyCard:
     """The typed card of a card.yaml's plain data; ConfigError naming the key path."""
     return from_dict(PolicyCard, data)
