@@ -387,8 +387,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             # The world hands the monitor each state as it relays it and each delivery as it
             # sends it, in its own order: overheard on the broker they would race the metrics.
             world.on_signal = monitor.on_bus
-            world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
-        else:
+        # An agent that dies is a node failure to record, in both paces, not a lost run.
+        world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
+        if not opts.lockstep:
             observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                                monitor.on_bus, name="launcher-bus", credentials=monitor_login)
         for i in range(n):
@@ -455,13 +456,15 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
         gone = copters.exited() if copters is not None else None
         if gone is not None:
             raise ComponentFailed(gone.exit_reason())
-        for i, ap in fleet.procs.items():
+        for i, ap in list(fleet.procs.items()):
             rc = ap.proc.returncode
-            if rc is not None and i not in script.killed and world.barrier is not None:
-                world.agent_failed(i, f"exited with code {rc}")  # lockstep: the mission goes on without it
-            elif rc is not None and i not in script.killed:
-                tail = [ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"]
-                raise ComponentFailed(f"agent {i} exited with code {rc}: {tail[0][-160:]} (log: {ap.log_path})")
+            if rc is None or i in script.killed:
+                continue
+            tail = ([ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"])[0][-160:]
+            if world.barrier is None and world.t0 is None:  # free-running, before the mission: a start-up failure
+                raise ComponentFailed(f"agent {i} exited with code {rc} before the mission started: {tail} (log: {ap.log_path})")
+            # In flight (or in lockstep): the mission goes on without it, its vehicle to its failsafe.
+            world.agent_failed(i, f"exited with code {rc}" + (f" ({tail})" if rc not in (-9, 137) else " (killed)"))
         if world.t0 is None and loop.time() - t_start > start_timeout_s:
             waiting = "; ".join(world.not_ready()) or "?"
             raise ComponentFailed(f"vehicles not airborne after {start_timeout_s:.0f} s: {waiting}")

@@ -252,6 +252,7 @@ class SitlWorld:
         self._held_retained: dict[str, bytes] = {}  # retained messages held by it (topic -> newest)
         self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
+        self.failed_agents: set[int] = set()  # agents declared failed (agent_failed), in either pace
         self.pace = Pace(cfg.speedup)  # free-running: mission time lost to the bounded catch-up
         self.on_behind: Callable[[str], None] | None = None  # free-running: the once-per-run "running behind"
 
@@ -758,14 +759,18 @@ class SitlWorld:
         self._close_instant(k)
 
     def agent_failed(self, i: int, why: str) -> None:
-        """Lockstep: stop waiting for agent i (its vehicle is left to its setpoint-loss failsafe)."""
-        if self.barrier is None or i in self.barrier.failed:
+        """Agent i is gone (its process died, or in lockstep it stopped answering): recorded
+        once; lockstep stops waiting for it. Its vehicle is left to its setpoint-loss failsafe."""
+        if i in self.failed_agents:
             return
-        self.barrier.fail(i, why)
-        log.warning("lockstep: agent %d declared failed (%s) at boot %.2f s; its vehicle is left to its failsafe", i, why, self.now)
+        self.failed_agents.add(i)
+        if self.barrier is not None:
+            self.barrier.fail(i, why)
+        log.warning("agent %d declared failed (%s) at boot %.2f s; its vehicle is left to its failsafe", i, why, self.now)
         if self.on_agent_failed is not None:
             self.on_agent_failed(i, self.mission_t, why)
-        self.host.fleet.answers.set()  # type: ignore[union-attr]
+        if self.barrier is not None:
+            self.host.fleet.answers.set()  # type: ignore[union-attr]
 
     # ------------------------------------------------------------------ lifecycle
     async def _flush(self, timeout_s: float) -> None:
