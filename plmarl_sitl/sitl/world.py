@@ -252,6 +252,7 @@ class SitlWorld:
         self._held_retained: dict[str, bytes] = {}  # retained messages held by it (topic -> newest)
         self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
+        self.bus.on_connection = self._on_bus_connection
         self.failed_agents: set[int] = set()  # agents declared failed (agent_failed), in either pace
         self.pace = Pace(cfg.speedup)  # free-running: mission time lost to the bounded catch-up
         self.on_behind: Callable[[str], None] | None = None  # free-running: the once-per-run "running behind"
@@ -334,6 +335,16 @@ class SitlWorld:
             log.info("autopilot fault report: %s", entry)
             if self.on_event is not None:
                 self.on_event(entry)
+
+    def _on_bus_connection(self, up: bool) -> None:
+        """The world's broker connection broke or came back (a stalled or stopped broker, a
+        scripted outage): recorded as `broker_lost` / `broker_back` at the mission second.
+        The physics and telemetry do not wait for it; the agents fly on their predictions."""
+        if self.mission_t is None or self.on_event is None:
+            return  # before the mission: the start-up waits for the bus anyway
+        entry = {"t": float(self.mission_t), "type": "broker_back" if up else "broker_lost"}
+        log.warning("world: %s at t = %d s", "broker connection back" if up else "lost the broker connection", self.mission_t)
+        self.on_event(entry)
 
     def kill(self, i: int) -> None:
         """Node failure: vehicle i goes silent and falls; it stops covering and relaying."""

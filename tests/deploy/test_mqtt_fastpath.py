@@ -138,3 +138,73 @@ def test_an_unverified_aiomqtt_falls_back_to_its_own_reader(
     off = [r for r in caplog.records if "fast path off" in r.getMessage()]
     assert len(off) == 1 and off[0].levelno == logging.INFO  # two clients, two sessions each at least: logged once
     assert "0.0-unverified" in off[0].getMessage()
+
+
+async def _writer_left_on_a_reused_descriptor(broker: MosquittoBroker, guarded: bool) -> bool:
+    """paho asks (from another thread, as from aiomqtt's connect executor) to register its
+    socket for writing; before the loop runs that, paho closes the socket and a new socket
+    takes its descriptor number. True if a writer is then registered on that descriptor."""
+    import threading
+
+    async with aiomqtt.Client(broker.host, broker.port) as client:
+        if guarded:
+            assert aiomqtt_fastpath.guard_socket_writes(client)
+        paho = client._client
+        sock = paho.socket()
+        fd = sock.fileno()
+        asking = threading.Thread(target=lambda: paho.on_socket_register_write(paho, None, sock))
+        asking.start()
+        asking.join()  # the registration now waits in the loop's queue
+        paho.disconnect()
+        paho.loop_write()  # paho writes DISCONNECT and closes the socket, in this (the loop's) thread
+        assert paho.socket() is None
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as reused:
+            if reused.fileno() != fd:
+                pytest.skip("the kernel did not reuse the descriptor number")
+            for _ in range(3):
+                await asyncio.sleep(0)
+            return asyncio.get_running_loop().remove_writer(fd)
+
+
+def test_a_registration_racing_a_close_leaves_no_writer(broker: MosquittoBroker) -> None:
+    """Issue 27: a stalled broker stopped the SITL world (EBADF from add_writer; a writer on a
+    reused descriptor spins the loop). aiomqtt's own registration reproduces it; the guard not."""
+    assert asyncio.run(_writer_left_on_a_reused_descriptor(broker, guarded=False)) is True
+    assert asyncio.run(_writer_left_on_a_reused_descriptor(broker, guarded=True)) is False
+
+
+def test_a_stopped_broker_never_stalls_the_loop(broker: MosquittoBroker) -> None:
+    """SIGSTOP the broker while publishing: the bus notices, the event loop keeps its pace
+    (no callback spins), and after SIGCONT the bus connects again and delivers."""
+    import signal
+
+    async def main() -> tuple[float, int]:
+        got: list[bytes] = []
+        bus = MqttBus(broker.url, "pub", ["s/#"], lambda t, p: got.append(p), name="pub", keepalive_s=1,
+                      backoff_max_s=0.5)
+        task = asyncio.create_task(bus.run())
+        await asyncio.wait_for(bus.connected.wait(), 5)
+        worst, t_prev = 0.0, time.monotonic()
+        pid = broker.proc.pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            t_end = time.monotonic() + 4.0
+            while time.monotonic() < t_end:
+                bus.publish("s/x", b"y" * 64)
+                await asyncio.sleep(0.005)
+                now = time.monotonic()
+                worst, t_prev = max(worst, now - t_prev), now
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        before = len(got)
+        deadline = time.monotonic() + 10
+        while len(got) <= before and time.monotonic() < deadline:
+            bus.publish("s/x", b"z")
+            await asyncio.sleep(0.05)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        return worst, len(got) - before
+
+    worst, delivered = asyncio.run(main())
+    assert worst < 0.5, f"the event loop stalled {worst:.2f} s"
+    assert delivered > 0

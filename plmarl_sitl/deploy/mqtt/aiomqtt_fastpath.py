@@ -4,7 +4,8 @@ aiomqtt has no public hook for its socket reader, and its reader has paho read o
 packet per event-loop turn. In a loop that is busy between yields (the SITL world steps
 20 vehicles per chunk) the 20 updates of a signalling instant then took 20 turns, 10-15 ms
 each at 15x: the last arrived 3 s of vehicle time late (docs/RESULTS.md, commit 499f10d).
-`read_all_per_wakeup` replaces that reader with one that reads every packet waiting.
+`read_all_per_wakeup` replaces that reader with one that reads every packet waiting, and
+`guard_socket_writes` makes its socket-writer registration safe against a closed socket.
 
 What this relies on, read in aiomqtt 2.5.1's client.py (`Client.__init__`,
 `_on_socket_open`, `_on_socket_close`, `__aexit__`, `MessagesIterator.__anext__`):
@@ -27,6 +28,7 @@ import asyncio
 import logging
 import select
 import socket
+import threading
 
 import aiomqtt
 import paho.mqtt.client as mqtt
@@ -91,6 +93,52 @@ def read_all_per_wakeup(client: aiomqtt.Client) -> bool:
                 gone.set_exception(exc)
 
     asyncio.get_running_loop().add_reader(fd, read_all)  # replaces aiomqtt's reader for fd
+    return True
+
+
+def guard_socket_writes(client: aiomqtt.Client) -> bool:
+    """Call once connected: paho's "register the socket for writing" is applied at once in
+    the event loop's thread, and only to the socket paho still holds.
+
+    Why (issue 27, a stalled broker stopped the SITL world): aiomqtt 2.5.1 registers the
+    writer with `loop.call_soon_threadsafe(loop.add_writer, sock.fileno(), ...)`, the
+    descriptor number read when paho asks. When paho closes that socket before the loop
+    runs the call (a keepalive timeout while the broker is stopped; a busy loop makes the
+    window wide), the writer is added to a closed descriptor (`OSError: [Errno 9] Bad file
+    descriptor` from `add_writer`, logged by asyncio), or to a new socket that reused its
+    number: paho's `loop_write` on its closed connection then returns at once without
+    unregistering, a writable socket wakes the selector on every turn, and the loop spins
+    in that callback while physics and telemetry wait. False when the client is not one
+    this module knows (aiomqtt's own callbacks stay)."""
+    sock = raw_socket(client)
+    if sock is None:
+        return False
+    paho, gone = client._client, client._disconnected
+    loop = asyncio.get_running_loop()
+    loop_thread = threading.get_ident()
+
+    def write() -> None:
+        try:
+            paho.loop_write()
+        except Exception as exc:  # noqa: BLE001 - as aiomqtt: a broken connection
+            if not gone.done():
+                gone.set_exception(exc)
+
+    def register(_client: mqtt.Client, _userdata: object, s: socket.socket) -> None:
+        def add() -> None:
+            if paho.socket() is s and s.fileno() >= 0:  # still paho's open connection
+                loop.add_writer(s.fileno(), write)
+        if threading.get_ident() == loop_thread:
+            add()
+        else:  # paho connecting in aiomqtt's executor thread
+            loop.call_soon_threadsafe(add)
+
+    def unregister(_client: mqtt.Client, _userdata: object, s: socket.socket) -> None:
+        if s.fileno() >= 0:
+            loop.remove_writer(s.fileno())
+
+    paho.on_socket_register_write = register
+    paho.on_socket_unregister_write = unregister
     return True
 
 

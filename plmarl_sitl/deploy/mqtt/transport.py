@@ -129,7 +129,7 @@ class MqttBus:
         while True:
             try:
                 await self._session()
-            except aiomqtt.MqttError as exc:
+            except (aiomqtt.MqttError, OSError) as exc:  # OSError: a socket call on a connection that broke
                 if self._was_connected:
                     log.warning("%s: lost broker %s (%s); reconnecting", self.name, self.url, exc)
                     delay = self.backoff_min_s
@@ -185,6 +185,7 @@ class MqttBus:
                     raise asyncio.CancelledError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
+                aiomqtt_fastpath.guard_socket_writes(client)
                 try:
                     await self._serve(client)
                 finally:
