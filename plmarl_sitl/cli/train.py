@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
 from plmarl_sitl.cmdline import add_seed, progress
-from plmarl_sitl.config import PAPER_MISSION
+from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES
 from plmarl_sitl.errors import UserError
 
 METHODS = ("pl-marl", "gru", "tag-mappo")
@@ -20,24 +21,32 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Train a method in the digital twin (MAPPO, CTDE, Table I hyperparameters) "
         "and export TorchScript files with a card to --out. pl-marl and gru first fit their "
         "inference engine (phi / GRU) on twin trajectories under the mixed-mobility curriculum, "
-        "unless --predictor gives a trained state dict. The training curve goes to "
-        "<out>/curve.jsonl (charts/... and losses/... scalars).",
-        epilog="examples:\n  plmarl train --method pl-marl --seed 1 --out policies/pl-marl\n"
-        "  plmarl train --method tag-mappo --episodes 50 --out runs/smoke",
+        "unless --predictor gives one: a policy's predictor.pt (e.g. policies/pl-marl/predictor.pt) "
+        "or an engine state dict an earlier run wrote (runs/work/<out>-seed<S>/predictor_mlp_state.pt). "
+        "The training curve goes to <out>/curve.jsonl (charts/... and losses/... scalars); "
+        "engine state and MAPPO checkpoints to runs/work/.",
+        epilog="examples:\n  plmarl train --method pl-marl --seed 1                  # -> runs/train/pl-marl-seed1\n"
+        "  plmarl train --method pl-marl --predictor policies/pl-marl/predictor.pt --episodes 200\n"
+        "  plmarl train --method tag-mappo --episodes 50 --out runs/smoke\n"
+        "  plmarl train --method pl-marl --out policies/pl-marl --force   # replace the shipped policy",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--method", choices=METHODS, default="pl-marl")
     p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
     p.add_argument("--episodes", type=int, default=1000, help="training episodes (default: 1000, Table I)")
     add_seed(p, default=1)
-    p.add_argument("--out", default=None, help="output directory (default: policies/<method>)")
+    p.add_argument("--out", default=None, help="output directory (default: runs/train/<method>-seed<S>)")
+    p.add_argument("--force", action="store_true",
+                   help="write over a trained policy in --out (a card.yaml there, or anything under the project's policies/)")
     p.add_argument("--num-envs", type=int, default=16, help="parallel episodes per rollout (default: 16)")
-    p.add_argument("--predictor", default=None, help="trained predictor state dict to reuse (skips the engine fit)")
+    p.add_argument("--predictor", default=None,
+                   help="a trained engine to reuse, skipping the fit: a policy's predictor.pt or an engine state dict")
     p.add_argument("--predictor-iters", type=int, default=None, help="engine fit iterations (default: 800 mlp / 300 gru)")
     p.add_argument("--eval-episodes", type=int, default=100, help="deterministic evaluation episodes for the card (0: skip)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1; measured fastest here)")
     p.add_argument("--imitation-rounds", type=int, default=6,
-                   help="Oracle-imitation (DAgger) warm-start rounds before MAPPO; 0 = MAPPO from scratch (default: 6)")
+                   help="warm-start rounds imitating the team-plan follower (`service`; DAgger-style: the student "
+                   "flies, the plan follower labels its states) before MAPPO; 0 = MAPPO from scratch (default: 6)")
     p.add_argument("--imitation-episodes", type=int, default=40, help="imitation episodes per round (default: 40)")
     p.add_argument("--imitation-tup-chunks", type=int, default=5,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
@@ -53,17 +62,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _check_out(out: Path, force: bool) -> None:
+    """Never write over a trained policy (a card.yaml in --out, or the project's shipped
+    policies) without --force; an --out that is a file is a mistake."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    if force:
+        return
+    shipped = out.resolve().is_relative_to(PROJECT_POLICIES.resolve())
+    if (out / "card.yaml").exists() or shipped:
+        what = "the project's shipped policies" if shipped else "a trained policy"
+        raise UserError(f"--out {out}: would write over {what}; give another --out, or --force to replace it")
+
+
 def run(args: argparse.Namespace) -> int:
-    from plmarl_sitl.learning.pipeline import run_training  # heavy imports only when used
+    from plmarl_sitl.learning.pipeline import engine_iters, run_training  # heavy imports only when used
 
     if args.episodes < 1:
         raise UserError("--episodes must be >= 1")
     if args.predictor is not None and not Path(args.predictor).is_file():
         raise UserError(f"--predictor {args.predictor}: no such file")
-    out = Path(args.out or f"policies/{args.method}")
+    if args.num_envs < 1:
+        raise UserError("--num-envs must be >= 1")
+    out = Path(args.out or f"runs/train/{args.method}-seed{args.seed}")
+    _check_out(out, args.force)
     t0 = time.time()
+    # MAPPO runs whole rollouts of --num-envs episodes: the bar's total is what it will run.
+    total = math.ceil(args.episodes / args.num_envs) * args.num_envs
     with progress() as bar:
-        task = bar.add_task(f"{args.method} (seed {args.seed})", total=args.episodes)
+        fits_engine = args.method in ("pl-marl", "gru") and args.predictor is None
+        engine = (bar.add_task("inference engine fit", total=engine_iters("mlp" if args.method == "pl-marl" else "gru",
+                                                                          args.predictor_iters)) if fits_engine else None)
+        task = bar.add_task(f"{args.method} (seed {args.seed})", total=total)
 
         def on_iter(episodes: int, row: dict) -> None:
             bar.update(
@@ -84,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
             eval_episodes=args.eval_episodes,
             threads=args.threads,
             on_iter=on_iter,
+            on_engine_iter=None if engine is None else lambda done: bar.update(engine, completed=done),
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",

@@ -1,7 +1,8 @@
 """End to end for one method: engine fit -> MAPPO -> TorchScript export -> card.
 
 Used by `plmarl train`. The predictor for pl-marl / gru is fitted first (unless a state
-dict is given), frozen, and shipped inside predictor.pt together with the tracker.
+dict or a policy's predictor.pt is given), frozen, and shipped inside predictor.pt together
+with the tracker.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import torch
 
+from plmarl_sitl.config import to_dict
 from plmarl_sitl.learning.nn.belief import BeliefTracker
 from plmarl_sitl.learning.nn.features import FeatureScales
 from plmarl_sitl.learning.nn.io import export_policy
@@ -29,7 +31,7 @@ from plmarl_sitl.learning.train.predictor import (
     position_errors,
     train_predictor,
 )
-from plmarl_sitl.learning.train.scenarios import describe_distribution
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, describe_distribution
 from plmarl_sitl.machine import machine_info
 from plmarl_sitl.mission import load_mission
 
@@ -43,7 +45,13 @@ def git_commit() -> str:
         return "unknown"
 
 
-def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, log: Callable[[str], None]) -> tuple[str, dict]:  # noqa: ANN001
+def engine_iters(kind: str, iters: int | None) -> int:
+    """Iterations of the engine fit: `iters`, or the default of the predictor kind."""
+    return iters or (1500 if kind == "mlp" else 300)
+
+
+def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, log: Callable[[str], None],  # noqa: ANN001
+                  on_iter: Callable[[int], None] | None = None) -> tuple[str, dict]:
     from plmarl_sitl.learning.train.run_predictors import build_dataset
 
     vm = mission.vehicle_model()
@@ -53,8 +61,8 @@ def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, l
     gen = torch.Generator().manual_seed(seed)
     xs, os_ = zip(*(pair_rows(v, gen) for v in train_set.values()), strict=True)
     tracker = BeliefTracker(make_predictor(kind, mission.signalling.buffer_len, mission.timing.dt_s, vm.max_speed_mps, vm.max_accel_mps2))
-    pargs = PredictorArgs(iters=iters or (1500 if kind == "mlp" else 300), rows=512 if kind == "mlp" else 256, seed=seed)
-    curve = train_predictor(tracker, torch.cat(xs), torch.cat(os_), pargs, log=log)
+    pargs = PredictorArgs(iters=engine_iters(kind, iters), rows=512 if kind == "mlp" else 256, seed=seed)
+    curve = train_predictor(tracker, torch.cat(xs), torch.cat(os_), pargs, log=log, on_iter=on_iter)
     path = out / f"predictor_{kind}_state.pt"
     torch.save(tracker.predictor.state_dict(), path)
     (out / "predictor_curve.json").write_text(json.dumps(curve))
@@ -81,6 +89,7 @@ def run_training(
     on_iter: Callable[[int, dict], None] | None = None,
     log: Callable[[str], None] = print,
     args_overrides: dict | None = None,
+    on_engine_iter: Callable[[int], None] | None = None,
 ) -> dict:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -92,7 +101,7 @@ def run_training(
     kind = METHOD_PREDICTOR[method]
     if kind in ("mlp", "gru") and predictor_state is None:
         log(f"fitting the {kind} inference engine ...")
-        predictor_state, info = fit_predictor(kind, mission, seed, predictor_iters, work, log)
+        predictor_state, info = fit_predictor(kind, mission, seed, predictor_iters, work, log, on_engine_iter)
         card["training"]["predictor_wall_s"] = info["wall_s"]
         card["predictor"] = info
     args = Args(method=method, mission=mission_path, predictor_state=predictor_state, seed=seed, episodes=episodes,
@@ -101,6 +110,10 @@ def run_training(
     if res.get("imitation"):
         card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
         card["imitation"] = res["imitation"]
+    # What a user must not fly it beyond without a word (the launcher and agent warn on another N).
+    dist_n = dataclasses.asdict(ScenarioArgs()).get("n_uavs") if args.general else None
+    card["trained_on"] = {"n_uavs": list(dist_n) if dist_n else [mission.n_uavs, mission.n_uavs],
+                          "vehicle": to_dict(mission.vehicle_model())}
     card["training"]["distribution"] = describe_distribution(
         args.general, args.tup_choices,
         {"from_episode": args.failure_start_episode, "probability": args.failure_prob, "at_s": args.failure_at_s})

@@ -95,3 +95,37 @@ def test_every_method_exports_a_policy_that_takes_the_team_plan(tmp_path: Path, 
         args = (torch.tensor([500.0, 500.0, -100.0, 0.0, 0.0, 0.0]), belief, torch.ones(2, dtype=torch.bool),
                 torch.zeros(4), torch.tensor(False), torch.tensor([[450.0, 450.0, 60.0]]))
         assert not torch.equal(lp.policy(*args, torch.tensor([900.0, 500.0])), lp.policy(*args, torch.tensor([100.0, 500.0])))
+
+
+def test_a_shipped_predictor_is_reused_as_it_is(tmp_path: Path, monkeypatch) -> None:
+    """Issue 26: `--predictor policies/pl-marl/predictor.pt` trains (it was a raw traceback);
+    the exported tracker answers exactly as the shipped one, and the card records the swarm
+    sizes and vehicle it was trained on."""
+    from plmarl_sitl.learning.nn.io import load_policy
+    from plmarl_sitl.learning.pipeline import run_training
+
+    monkeypatch.chdir(tmp_path)
+    shipped = ROOT / "policies" / "pl-marl"
+    run_training("pl-marl", str(ROOT / "missions" / "paper_urban.yaml"), episodes=2, seed=3, out=tmp_path / "out",
+                 num_envs=2, predictor_state=str(shipped / "predictor.pt"), eval_episodes=0, log=lambda _: None,
+                 args_overrides={"imitation_rounds": 0, "validate_every": 0, "critic_warmup_iters": 0, "general": False})
+    new, old = load_policy(tmp_path / "out"), load_policy(shipped)
+    held = torch.tensor([[0.0, 0.0, -60.0, 3.0, 1.0, 0.0], [50.0, 10.0, -60.0, -2.0, 0.0, 0.0]])
+    with torch.no_grad():
+        a = new.tracker(7.0, held, torch.tensor([0.0, 5.0]), *new.tracker.init_state(held))[0]
+        b = old.tracker(7.0, held, torch.tensor([0.0, 5.0]), *old.tracker.init_state(held))[0]
+    assert torch.equal(a, b)
+    assert new.card["trained_on"]["n_uavs"] == [4, 4] and new.card["trained_on"]["vehicle"]["max_speed_mps"] == 20.0
+
+
+def test_train_never_writes_over_a_policy_without_force(tmp_path: Path, monkeypatch, capsys) -> None:
+    from plmarl_sitl.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "card.yaml").write_text("method: x\n")
+    assert main(["train", "--out", "mine", "--episodes", "1"]) == 2
+    assert "would write over a trained policy" in capsys.readouterr().err
+    assert main(["train", "--out", str(ROOT / "policies" / "pl-marl"), "--episodes", "1"]) == 2
+    assert "would write over the project's shipped policies" in capsys.readouterr().err
+    assert (tmp_path / "mine" / "card.yaml").read_text() == "method: x\n"

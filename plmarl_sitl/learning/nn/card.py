@@ -53,6 +53,8 @@ class PolicyCard:
     seed: int = field(default=0, metadata={"min": 0, "max": MAX_SEED})
     git_commit: str = ""
     note: str = ""
+    # The swarm sizes [lo, hi] and the vehicle model it was trained with (cards from issue 26 on).
+    trained_on: Any = None
     # Free-form records of how the policy was made.
     config: Any = None
     training: Any = None
@@ -75,8 +77,12 @@ class PolicyCard:
 def trained_n_range(card: dict) -> tuple[int, int] | None:
     """The swarm sizes the policy was trained on, [lo, hi], if its card records them (the
     training distribution's `n_uavs`, or the mission's N for a single-mission policy)."""
+    trained_on = card.get("trained_on")
     dist = (card.get("training") or {}).get("distribution") if isinstance(card.get("training"), dict) else None
-    n = dist.get("n_uavs") if isinstance(dist, dict) else card.get("n_uavs")
+    if isinstance(trained_on, dict):
+        n = trained_on.get("n_uavs")
+    else:
+        n = dist.get("n_uavs") if isinstance(dist, dict) else card.get("n_uavs")
     if isinstance(n, int) and not isinstance(n, bool):
         return n, n
     if isinstance(n, list) and len(n) == 2 and all(isinstance(x, int) for x in n):

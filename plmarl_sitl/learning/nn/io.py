@@ -86,7 +86,9 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
     policy = fuse_policy(policy)  # unchanged if not fusable (no plan input, scripted)
     with quiet_torchscript():
-        torch.jit.save(freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
+        # A tracker loaded from a policy's predictor.pt (`plmarl train --predictor`) is frozen already: saved as it is.
+        frozen = isinstance(tracker, torch.jit.ScriptModule) and not list(tracker.parameters())
+        torch.jit.save(tracker if frozen else freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
         torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
     card = dict(card)
     card["card_version"] = CARD_VERSION

@@ -23,8 +23,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import pickle
 import random
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -33,6 +35,7 @@ import torch
 from torch import nn
 
 from plmarl_sitl.config import PAPER_MISSION
+from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
 from plmarl_sitl.learning.nn.features import (
     DEMAND_BINS,
@@ -139,18 +142,37 @@ class ValueNorm(nn.Module):
         return x * std + mean
 
 
-def make_tracker(method: str, mission: Mission, predictor_state: str | None) -> BeliefTracker:
+def make_tracker(method: str, mission: Mission, predictor_state: str | None) -> BeliefTracker | torch.jit.ScriptModule:
+    """The frozen belief tracker MAPPO trains against: a fresh engine loaded from a state dict
+    (what `fit_predictor` writes), or a shipped policy's own predictor.pt (a frozen TorchScript
+    tracker, used as it is: the same module the agent will run)."""
     vm = mission.vehicle_model()
     sig = mission.signalling
+    if predictor_state is not None and zipfile.is_zipfile(predictor_state) and _is_torchscript(predictor_state):
+        tracker = torch.jit.load(predictor_state, map_location="cpu")
+        if int(tracker.buffer_len) != sig.buffer_len or abs(float(tracker.dt) - mission.timing.dt_s) > 1e-9:
+            raise UserError(f"--predictor {predictor_state}: made for buffer length {int(tracker.buffer_len)} and dt "
+                            f"{float(tracker.dt):g} s; the mission has {sig.buffer_len} and {mission.timing.dt_s:g} s")
+        return tracker
     pred = make_predictor(METHOD_PREDICTOR[method], sig.buffer_len, mission.timing.dt_s, vm.max_speed_mps, vm.max_accel_mps2)
     if predictor_state is not None:
-        pred.load_state_dict(torch.load(predictor_state, weights_only=True))
+        try:
+            pred.load_state_dict(torch.load(predictor_state, weights_only=True))
+        except (RuntimeError, pickle.UnpicklingError, KeyError) as exc:
+            raise UserError(f"--predictor {predictor_state}: not a {METHOD_PREDICTOR[method]} engine's state dict nor a "
+                            f"policy's predictor.pt ({str(exc).splitlines()[0][:120]})") from None
     elif method in ("pl-marl", "gru"):
         raise ValueError(f"method {method} needs a trained predictor (predictor_state)")
     pred.eval()
     for p in pred.parameters():
         p.requires_grad_(False)
     return BeliefTracker(pred, sig.buffer_len, mission.timing.dt_s)
+
+
+def _is_torchscript(path: str) -> bool:
+    """A TorchScript archive holds its code beside the weights (a state dict does not)."""
+    with zipfile.ZipFile(path) as z:
+        return any(n.split("/", 1)[-1].startswith("code/") for n in z.namelist())
 
 
 CRITIC_EXTRA = DEMAND_BINS + 3  # uncovered-user descriptor, C(t), t / T, global f

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -96,9 +97,11 @@ class PredictorArgs:
 
 
 def train_predictor(
-    tracker: BeliefTracker, traj: torch.Tensor, observers: torch.Tensor, args: PredictorArgs, log=print
+    tracker: BeliefTracker, traj: torch.Tensor, observers: torch.Tensor, args: PredictorArgs, log=print,
+    on_iter: Callable[[int], None] | None = None,
 ) -> list[dict]:
-    """traj, observers: (R, T, 6). Trains tracker.predictor in place; returns the loss curve."""
+    """traj, observers: (R, T, 6). Trains tracker.predictor in place; returns the loss curve.
+    `on_iter(done)` after each iteration (a progress bar)."""
     gen = torch.Generator().manual_seed(args.seed)
     opt = torch.optim.Adam(tracker.predictor.parameters(), lr=args.lr)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, args.iters, eta_min=args.lr * 0.05)
@@ -124,6 +127,8 @@ def train_predictor(
         curve.append({"iter": it, "loss": float(loss.detach()), "wall_s": time.time() - t0})
         if it % 50 == 0 or it == args.iters - 1:
             log(f"predictor iter {it:4d} loss {float(loss.detach()):.5f} ({time.time() - t0:.0f} s)")
+        if on_iter is not None:
+            on_iter(it + 1)
     return curve
 
 
