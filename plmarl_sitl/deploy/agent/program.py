@@ -137,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.deploy.mqtt.credentials import load_credentials
     from plmarl_sitl.deploy.mqtt.schema import Topics
     from plmarl_sitl.deploy.mqtt.transport import MqttBus
+    from plmarl_sitl.learning.nn.card import swarm_size_warning
     from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.mission import load_mission
 
@@ -164,6 +165,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
     t_imports = time.time() - process_start_time()
     lp = load_policy(args.policy, mission)
+    size_warning = swarm_size_warning(lp.card, mission.n_uavs)
+    if size_warning is not None:
+        logging.getLogger("plmarl.agent").warning("%s", size_warning)
     logging.getLogger("plmarl.agent").info(
         "start-up: interpreter + imports %.2f s, policy loaded at %.2f s", t_imports, time.time() - process_start_time()
     )
