@@ -233,3 +233,27 @@ def test_swarm_size_outside_training_is_named():
     assert swarm_size_warning(card, 4) is None  # trained on N = 3..8
     assert "trained at N = 3..8; this mission flies N = 20 (zero-shot" in swarm_size_warning(card, 20)
     assert "trained at N = 5; this mission flies N = 4" in swarm_size_warning({"method": "x", "n_uavs": 5}, 4)
+
+
+@pytest.mark.parametrize(("flags", "message"), [
+    (["--id", "9", "--n-uavs", "4"], "--id 9: the mission has 4 UAVs (ids 0..3"),
+    (["--id", "-1"], "argument --id: -1 is outside 0..249"),
+    (["--id", "0", "--n-uavs", "0"], "argument --n-uavs: 0 is outside 1..250"),
+])
+def test_agent_names_a_wrong_id_before_loading_anything_heavy(flags, message):
+    """Issue 26: `--id` / `--n-uavs` mistakes are one line before torch is imported (they came
+    after seconds of imports and the policy load)."""
+    import subprocess
+    import sys
+
+    code = ("import contextlib, io, sys; from plmarl_sitl.cli import main\n"
+            "err = io.StringIO()\n"
+            "with contextlib.redirect_stderr(err):\n"
+            "    try: rc = main(sys.argv[1:])\n"
+            "    except SystemExit as e: rc = e.code\n"
+            "print(rc, 'torch' in sys.modules); print(err.getvalue().strip().splitlines()[-1])")
+    r = subprocess.run([sys.executable, "-c", code, "agent", *flags, "--connect", "udpout://127.0.0.1:9",
+                        "--broker", "mqtt://127.0.0.1:1", "--no-auth"], capture_output=True, text=True, cwd=ROOT, timeout=120)
+    status, line = r.stdout.strip().splitlines()
+    assert status == "2 False", r.stdout + r.stderr
+    assert message in line

@@ -31,6 +31,7 @@ from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES  # noqa: E402
 from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
 from plmarl_sitl.errors import UserError, run_reporting  # noqa: E402
+from plmarl_sitl.mission import MAX_UAVS  # noqa: E402
 
 PROG = "plmarl agent"
 HELP = "run the PL-MARL agent for one UAV (MAVLink + MQTT + TorchScript policy)"
@@ -53,14 +54,14 @@ examples:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--id", type=int, required=True, help="this UAV's index in the mission (0..N-1)")
+    p.add_argument("--id", type=_count_arg("--id", 0, MAX_UAVS - 1), required=True, help="this UAV's index in the mission (0..N-1)")
     p.add_argument("--connect", required=True, metavar="URL",
                    help="autopilot: udpout://HOST:PORT, udpin://BIND:PORT, tcpout://HOST:PORT, serial:///dev/X:BAUD")
     p.add_argument("--broker", required=True, metavar="URL", help="MQTT broker, mqtt://HOST:PORT")
     p.add_argument("--broker-credentials", default=None, metavar="FILE",
                    help="this agent's broker login: a file with one line USERNAME:PASSWORD, mode 0600 (default: anonymous)")
     p.add_argument("--mission", default=str(DEFAULT_MISSION), help=f"mission YAML (default: the project's {DEFAULT_MISSION})")
-    p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs (must match the world)")
+    p.add_argument("--n-uavs", type=_count_arg("--n-uavs", 1, MAX_UAVS), default=None, help="override the mission's number of UAVs (must match the world)")
     p.add_argument("--policy", default=str(DEFAULT_POLICY), help=f"policy directory (default: the project's {DEFAULT_POLICY})")
     p.add_argument("--autopilot", choices=["auto", *PERSONALITIES], default="auto",
                    help="expected autopilot (default auto: from the heartbeat)")
@@ -103,6 +104,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only (no start-up progress)")
 
 
+def _count_arg(flag: str, lo: int, hi: int):  # noqa: ANN202 - an argparse type
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{value} is outside {lo}..{hi}")
+        return value
+
+    return parse
+
+
 def _seconds(text: str) -> float:
     try:
         value = float(text)
@@ -125,6 +139,20 @@ def _output_path(flag: str, path: str | None) -> Path | None:
 
 def run(args: argparse.Namespace) -> int:
     """The parsed program: load, build the agent with its bus and link, fly; the exit code."""
+    import dataclasses
+
+    from plmarl_sitl.mission import load_mission
+
+    # The user's mistakes first, in one line, before seconds of torch imports and policy loading.
+    mission = load_mission(args.mission)
+    if args.n_uavs is not None:
+        mission = dataclasses.replace(mission, n_uavs=args.n_uavs)
+    if not args.id < mission.n_uavs:
+        raise UserError(f"--id {args.id}: the mission has {mission.n_uavs} UAVs (ids 0..{mission.n_uavs - 1}; "
+                        "--n-uavs N to fly another swarm size)")
+    if not Path(args.policy).is_dir():
+        raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
+
     import torch
 
     from plmarl_sitl.deploy.agent.config import AgentConfig
@@ -139,7 +167,6 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.deploy.mqtt.transport import MqttBus
     from plmarl_sitl.learning.nn.card import swarm_size_warning
     from plmarl_sitl.learning.nn.io import load_policy
-    from plmarl_sitl.mission import load_mission
 
     torch.set_num_threads(1)
     # INFO by default: start-up says what it waits for (a real autopilot takes tens of seconds).
@@ -154,15 +181,6 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger("plmarl.agent").warning("--no-auth: messages are unsigned; anyone who can publish on the "
                                                   "broker can steer this agent")
     credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
-    mission = load_mission(args.mission)
-    if args.n_uavs is not None:
-        import dataclasses
-
-        if args.n_uavs < 1:
-            raise UserError("--n-uavs must be >= 1")
-        mission = dataclasses.replace(mission, n_uavs=args.n_uavs)
-    if not Path(args.policy).is_dir():
-        raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
     t_imports = time.time() - process_start_time()
     lp = load_policy(args.policy, mission)
     size_warning = swarm_size_warning(lp.card, mission.n_uavs)
