@@ -31,7 +31,7 @@ ALLOWED["cli"] = set(ALLOWED) - {"cli"}
 PUBLIC_UNDERSCORE = {"_asdict", "_replace", "_fields", "_make"}
 LIBRARY_TYPES = {
     "_SubParsersAction",  # argparse: the type of add_subparsers()
-    "_C",  # torch._C.Graph: the frozen TorchScript graph nn/deploy.py inspects
+    "_C",  # torch._C.Graph: the frozen TorchScript graph nn/fused.py inspects
 }
 # aiomqtt's internals are read in exactly one module, which checks its version first.
 LIBRARY_FAST_PATH = "plmarl_sitl.deploy.mqtt.aiomqtt_fastpath"

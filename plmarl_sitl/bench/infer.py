@@ -3,7 +3,7 @@
 One decision of one deployed agent with M = N - 1 neighbours: one belief-tracker step
 (predictor.pt over the M neighbours, Algorithm 1) followed by one policy.pt call
 (policy input, attention fusion, actor), both TorchScript (the fused deployment form of
-plmarl_sitl/learning/nn/deploy.py, as exported), torch on ONE thread, no
+plmarl_sitl/learning/nn/fused.py, as exported), torch on ONE thread, no
 autograd (inference_mode). Each policy file is called with the inputs of its version
 (docs/POLICY_IO.md): version 1 without the demand map, version 2 with it, and a policy that
 takes the team plan with its plan point too. Methods are timed interleaved, call by call,
@@ -96,7 +96,7 @@ def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
 
 
 def _modules(method: str, d: Path):
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 

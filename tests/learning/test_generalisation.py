@@ -44,7 +44,7 @@ def _scenario(gen: torch.Generator, m: int, k: int) -> tuple[torch.Tensor, ...]:
 @pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
 def test_a_translated_scenario_gives_the_same_actions(reads_map: bool):
     """As exported (the fused file): without a plan (the reference path) and with one (the fast path)."""
-    from plmarl_sitl.learning.nn.deploy import fuse_policy
+    from plmarl_sitl.learning.nn.fused import fuse_policy
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, freeze
 
     gen = torch.Generator().manual_seed(1)

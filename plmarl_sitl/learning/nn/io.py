@@ -79,7 +79,7 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
 
     tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
     policy = fuse_policy(policy)  # unchanged if not fusable (no plan input, scripted)

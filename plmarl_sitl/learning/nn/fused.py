@@ -26,7 +26,7 @@ they wrap:
 The folded constants are built from the eager module (`fuse_tracker`, `fuse_policy`) or
 read back from an exported unfused file (`fused_policy_from_file`). Outputs equal the
 reference module's: the tracker bit for bit, the policy to float rounding (sums in another
-order, tanh as a sigmoid; tests/learning/test_deploy.py).
+order, tanh as a sigmoid; tests/learning/test_fused.py).
 """
 
 from __future__ import annotations
@@ -428,7 +428,7 @@ def fuse_directory(directory: str | Path) -> dict:
     card["export"] = {
         "fused": {"predictor.pt": is_fused(lp.tracker), "policy.pt": True},
         "fused_from_sha256": dict(lp.card["sha256"]),
-        "how": "python -m plmarl_sitl.learning.nn.deploy DIR (weights read back from the frozen file; "
+        "how": "python -m plmarl_sitl.learning.nn.fused DIR (weights read back from the frozen file; "
                "outputs equal to float32 rounding)",
     }
     export_policy(d, lp.tracker, policy, card)
@@ -436,7 +436,7 @@ def fuse_directory(directory: str | Path) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    """`python -m plmarl_sitl.learning.nn.deploy DIR...`: fuse each policy directory in place.
+    """`python -m plmarl_sitl.learning.nn.fused DIR...`: fuse each policy directory in place.
     A directory that is not a loadable policy is one line and exit 2 (`run_reporting`);
     directories before it stay converted, it and those after are untouched."""
     import sys
@@ -444,7 +444,7 @@ def main(argv: list[str]) -> int:
     from plmarl_sitl.errors import run_reporting
 
     if not argv:
-        print("usage: python -m plmarl_sitl.learning.nn.deploy POLICY_DIR [POLICY_DIR ...]", file=sys.stderr)
+        print("usage: python -m plmarl_sitl.learning.nn.fused POLICY_DIR [POLICY_DIR ...]", file=sys.stderr)
         return 2
 
     def body() -> None:
@@ -452,7 +452,7 @@ def main(argv: list[str]) -> int:
             c = fuse_directory(arg)
             print(arg, c.get("export", {}).get("fused"), c["sha256"])
 
-    return run_reporting("deploy", body)
+    return run_reporting("fused", body)
 
 
 if __name__ == "__main__":
