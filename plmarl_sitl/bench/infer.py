@@ -156,11 +156,12 @@ def plan_inputs(n: int, seed: int) -> PlanInputs:
 
 def _extra_inputs(policy, demand, target) -> tuple:  # noqa: ANN001
     """The inputs after (ego, beliefs, mask, sense, fail) that this policy file takes (docs/POLICY_IO.md)."""
-    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+    from plmarl_sitl.learning.nn.contract import PolicyForm
 
-    if input_version(policy) < 2:
+    form = PolicyForm.of(policy)
+    if form.input_version < 2:
         return ()
-    return (demand, target) if takes_plan(policy) else (demand,)
+    return (demand, target) if form.takes_plan else (demand,)
 
 
 def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
@@ -168,7 +169,7 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     import torch
 
     from plmarl_sitl.deploy.agent.plan import AgentPlan
-    from plmarl_sitl.learning.nn.io import takes_plan
+    from plmarl_sitl.learning.nn.contract import PolicyForm
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
@@ -179,7 +180,7 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
-    with_plan = any(takes_plan(p) for _, p, _ in mods.values())
+    with_plan = any(PolicyForm.of(p).takes_plan for _, p, _ in mods.values())
     pi = plan_inputs(n, seed) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)

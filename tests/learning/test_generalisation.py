@@ -220,10 +220,10 @@ class _SixInputs(torch.nn.Module):
 
 def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
     """Version-2 files exported before the team plan take six inputs: the twin calls them without it."""
-    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+    from plmarl_sitl.learning.nn.contract import PolicyForm
 
     policy = script(_SixInputs(DeployedPolicy(Actor(), *FeatureScales.from_mission(MISSION))))
-    assert input_version(policy) == 2 and not takes_plan(policy)
+    assert PolicyForm.of(policy) == PolicyForm(2, False, True) and PolicyForm.of(policy).arity == 6
     tracker = BeliefTracker(make_predictor("hold"), MISSION.signalling.buffer_len, MISSION.timing.dt_s)
     ctl = LearnedController(tracker, policy, MISSION)
     assert ctl.plan is None

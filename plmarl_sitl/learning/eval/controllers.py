@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from plmarl_sitl.learning.nn.belief import Beliefs, FailureFlags
-from plmarl_sitl.learning.nn.io import input_version, takes_plan
+from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.twin.env import Observation
 
@@ -21,12 +21,13 @@ from plmarl_sitl.twin.env import Observation
 class LearnedController:
     def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None) -> None:  # noqa: ANN001 - Mission
         self.beliefs = Beliefs(tracker)
-        if takes_plan(policy) and mission is None:
+        form = PolicyForm.of(policy)
+        if form.takes_plan and mission is None:
             raise ValueError("a policy that takes the team plan needs the mission (its plan grid)")
-        self.plan = ServiceTargets.of(mission) if takes_plan(policy) else None
+        self.plan = ServiceTargets.of(mission) if form.takes_plan else None
         self.flags = FailureFlags(float(policy.r_comm))
         self.policy = policy
-        self.version = input_version(policy)  # 1: the policies shipped before issue 12 (no map, raw f)
+        self.version = form.input_version  # 1: the policies shipped before issue 12 (no map, raw f)
 
     def reset(self) -> None:
         self.beliefs.reset()
