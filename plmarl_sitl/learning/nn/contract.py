@@ -24,7 +24,7 @@ from typing import NamedTuple, Optional
 
 import torch
 
-from plmarl_sitl.learning.nn.features import INPUT_VERSION
+INPUT_VERSION = 2  # what new exports take; 1: absolute positions, no demand map (policies before issue 12)
 
 
 class PolicyInputs(NamedTuple):

@@ -32,8 +32,8 @@ import yaml
 from torch import nn
 
 from plmarl_sitl.errors import PolicyFileError
-from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyForm, PolicyInputs
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, INPUT_VERSION, STATE_DIM
+from plmarl_sitl.learning.nn.contract import INPUT_VERSION, PolicyCall, PolicyForm, PolicyInputs
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
 from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
