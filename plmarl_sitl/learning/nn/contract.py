@@ -6,7 +6,8 @@ policy file takes, and the one adapter between the two.
   `perception.Perception`; the deployed agent's: `deploy/agent/decision.py`), the feature step
   reads it (`features.build_policy_input`, compiled into every exported policy).
 * `PolicyForm`: which call a policy file takes. The ONLY place that reads the file's
-  `input_version`, `takes_plan` and `reads_map` attributes.
+  `input_version`, `takes_plan` and `reads_map` attributes to decide how to call it (the
+  fused forms copy them, the card records them).
 * `PolicyCall`: `policy.pt` behind the typed call, `accel = call(inputs)`. The ONLY place that
   maps `PolicyInputs` onto a file's positional inputs (5, 6 or 7 of them).
 

@@ -25,9 +25,9 @@ they wrap:
 
 The folded constants are built from the eager module (`fuse_tracker`, `fuse_policy`) or
 read back from an exported unfused file (`fused_policy_from_file`; `convert.py` re-exports a
-policy directory that way). Outputs equal the
-reference module's: the tracker bit for bit, the policy to float rounding (sums in another
-order, tanh as a sigmoid; tests/learning/test_fused.py).
+policy directory that way). Outputs equal the reference module's: the tracker bit for bit,
+the policy to float rounding (sums in another order, tanh as a sigmoid;
+tests/learning/test_fused.py).
 """
 
 from __future__ import annotations
