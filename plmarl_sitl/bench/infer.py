@@ -3,10 +3,11 @@
 One decision of one deployed agent with M = N - 1 neighbours: one belief-tracker step
 (predictor.pt over the M neighbours, Algorithm 1) followed by one policy.pt call
 (policy input, attention fusion, actor), both TorchScript (the fused deployment form of
-plmarl_sitl/learning/nn/deploy.py, as exported), torch on ONE thread, no
-autograd (inference_mode). Each policy file is called with the inputs of its version
-(docs/POLICY_IO.md): version 1 without the demand map, version 2 with it, and a policy that
-takes the team plan with its plan point too. Methods are timed interleaved, call by call,
+plmarl_sitl/learning/nn/fused.py, as exported), torch on ONE thread, no
+autograd (inference_mode). Each policy file is called as a deployed agent calls it: one
+`PolicyInputs` per decision through `contract.PolicyCall`, which passes the file the inputs
+of its version (docs/POLICY_IO.md): version 1 without the demand map, version 2 with it,
+and a policy that takes the team plan with its plan point too. Methods are timed interleaved, call by call,
 in the same run, so machine load hits them equally; report the median and the 99th percentile.
 
 The team plan (model/service.py, what `deploy/agent/plan.py::AgentPlan` runs beside the
@@ -96,7 +97,7 @@ def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
 
 
 def _modules(method: str, d: Path):
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
+    from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
     from plmarl_sitl.learning.train.mappo import METHOD_PREDICTOR
 
@@ -154,21 +155,12 @@ def plan_inputs(n: int, seed: int) -> PlanInputs:
     return PlanInputs(m, *first, wire, period // int(m.timing.decision_every_s))
 
 
-def _extra_inputs(policy, demand, target) -> tuple:  # noqa: ANN001
-    """The inputs after (ego, beliefs, mask, sense, fail) that this policy file takes (docs/POLICY_IO.md)."""
-    from plmarl_sitl.learning.nn.io import input_version, takes_plan
-
-    if input_version(policy) < 2:
-        return ()
-    return (demand, target) if takes_plan(policy) else (demand,)
-
-
 def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
     from plmarl_sitl.deploy.agent.plan import AgentPlan
-    from plmarl_sitl.learning.nn.io import takes_plan
+    from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyInputs
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
@@ -179,7 +171,8 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
-    with_plan = any(takes_plan(p) for _, p, _ in mods.values())
+    policy_calls = {m: PolicyCall(p) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
+    with_plan = any(c.form.takes_plan for c in policy_calls.values())
     pi = plan_inputs(n, seed) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
@@ -187,7 +180,6 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     if pi is not None:
         plan = AgentPlan(pi.mission, 0)
         target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]))  # the plan starts
-    extra = {m: _extra_inputs(p, demand, target) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
 
     def plan_decision() -> None:
         plan.target(0, pi.ego, pi.held, pi.t_rx, (float(map_no[0]), pi.maps[map_no[0] % 2]))
@@ -207,10 +199,10 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
             state[m] = (buf, seen)
 
         def decide(m: str) -> None:
-            tracker, policy, _ = mods[m]
+            tracker = mods[m][0]
             buf, seen = state[m]
             belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
-            policy(ego, belief, mask, sense, fail, *extra[m])
+            policy_calls[m](PolicyInputs(ego, belief, mask, sense, fail, demand, target))  # each file takes its version's inputs
 
         def timed(label: str, fn) -> None:  # noqa: ANN001
             t0 = time.perf_counter_ns()

@@ -87,7 +87,7 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
             continue
         obs = env.observe()
         accel = ctl.act(obs)
-        twin_f[t] = (ctl.flags.flag[0] if lp.input_version >= 2 else obs.fail_flag[0]).tolist()
+        twin_f[t] = (ctl.perceive.flags.flag[0] if lp.input_version >= 2 else obs.fail_flag[0]).tolist()
         if late:
             seen["decisions"] += int(env.alive[0].sum())
             continue
@@ -96,14 +96,14 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 continue
             assert dec.fail == twin_f[t][i], (t, i, dec.table.dropped)
             assert torch.equal(dec.table.mask(), obs.nbr_mask[0, i]), (t, i)
-            assert torch.allclose(dec.belief[obs.nbr_mask[0, i]], ctl.beliefs.belief[0, i][obs.nbr_mask[0, i]], atol=1e-3)
+            assert torch.allclose(dec.belief[obs.nbr_mask[0, i]], ctl.perceive.beliefs.belief[0, i][obs.nbr_mask[0, i]], atol=1e-3)
             if lp.input_version >= 2:
                 t_map, cells = dec.demand.for_decision(t)
                 want = obs.demand[0][obs.demand[0, :, 2] > 0]
                 assert t_map == t - t % map_period(m.demand.refresh_s, tau) and torch.equal(cells, want), (t, i)
             if lp.takes_plan:  # the team plan's point: the same from the agent's messages as in the twin
-                assert ctl.plan is not None and ctl.plan.last is not None
-                assert torch.equal(dec.target, ctl.plan.last[0, i]), (t, i, dec.target, ctl.plan.last[0, i])
+                assert ctl.perceive.plan is not None and ctl.perceive.plan.last is not None
+                assert torch.equal(dec.target, ctl.perceive.plan.last[0, i]), (t, i, dec.target, ctl.perceive.plan.last[0, i])
                 seen["plan"] = seen.get("plan", 0) + 1
             assert torch.allclose(torch.tensor(dec.accel), accel[0, i], atol=1e-4), (t, i, dec.accel, accel[0, i])
             assert inbox.rx.malformed == 0

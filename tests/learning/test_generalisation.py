@@ -13,6 +13,7 @@ import torch
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
 from plmarl_sitl.learning.nn.belief import FailureFlags
+from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.learning.nn.features import DEMAND_FEATURES, EGO_FEATURES, TOKEN_FEATURES, policy_input
 from plmarl_sitl.learning.nn.io import script
 from plmarl_sitl.learning.train.mappo import Args, train
@@ -44,7 +45,7 @@ def _scenario(gen: torch.Generator, m: int, k: int) -> tuple[torch.Tensor, ...]:
 @pytest.mark.parametrize("reads_map", [True, False], ids=["map", "map-blind"])
 def test_a_translated_scenario_gives_the_same_actions(reads_map: bool):
     """As exported (the fused file): without a plan (the reference path) and with one (the fast path)."""
-    from plmarl_sitl.learning.nn.deploy import fuse_policy
+    from plmarl_sitl.learning.nn.fused import fuse_policy
     from plmarl_sitl.learning.nn.io import POLICY_ATTRS, freeze
 
     gen = torch.Generator().manual_seed(1)
@@ -67,14 +68,14 @@ def test_input_size_does_not_depend_on_neighbours_clusters_or_cells():
     pol = script(_policy())
     for m, k in ((0, 1), (1, 5), (7, 100), (19, 400)):
         ego, bel, mask, sense, demand = _scenario(gen, m, k)
-        ego_x, nbr_x, rel_x, _, tok_x, tok_m = policy_input(scales, ego, bel, mask, sense, torch.tensor(False), demand)
+        ego_x, nbr_x, rel_x, _, tok_x, tok_m = policy_input(scales, PolicyInputs(ego, bel, mask, sense, torch.tensor(False), demand))
         assert ego_x.shape == (EGO_FEATURES,) and nbr_x.shape == (m, 6) and rel_x.shape == (m, 3)
         assert tok_x.shape == (k, TOKEN_FEATURES) and tok_m.shape == (k,)
         assert torch.isfinite(pol(ego, bel, mask, sense, torch.tensor(False), demand)).all()
     # Empty cells and cell order change nothing: a message may carry only the nonzero cells.
     ego, bel, mask, sense, demand = _scenario(gen, 4, 50)
     padded = torch.cat([demand, torch.tensor([[0.0, 0.0, 0.0], [9e3, 9e3, 0.0]])])[torch.randperm(52, generator=gen)]
-    a, b = (policy_input(scales, ego, bel, mask, sense, torch.tensor(False), d)[0] for d in (demand, padded))
+    a, b = (policy_input(scales, PolicyInputs(ego, bel, mask, sense, torch.tensor(False), d))[0] for d in (demand, padded))
     assert torch.allclose(a, b)
     assert torch.allclose(*(pol(ego, bel, mask, sense, torch.tensor(False), d) for d in (demand, padded)), atol=1e-6)
     # No map yet (demand None) is the empty map.
@@ -90,7 +91,7 @@ def test_cells_near_a_believed_neighbour_are_claimed():
     near_nbr = torch.tensor([[780.0, 510.0, -90.0, 0.0, 0.0, 0.0]])
     on = torch.tensor([True])
     def desc(nbr: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        return policy_input(scales, ego, nbr, mask, torch.zeros(4), torch.tensor(False), demand)[0][-DEMAND_FEATURES:]
+        return policy_input(scales, PolicyInputs(ego, nbr, mask, torch.zeros(4), torch.tensor(False), demand))[0][-DEMAND_FEATURES:]
     total, free = desc(far_nbr, on).chunk(2)
     assert float(total.sum()) > 0 and torch.equal(total, free)
     total, free = desc(near_nbr, on).chunk(2)
@@ -105,12 +106,12 @@ def test_demand_tokens_say_which_cells_are_nearer_to_a_neighbour():
     demand = torch.tensor([[800.0, 500.0, 60.0], [200.0, 500.0, 30.0], [0.0, 0.0, 0.0]])
     nbr = torch.tensor([[850.0, 500.0, -90.0, 0.0, 0.0, 0.0]])  # 50 m from cell 0, 650 m from cell 1
     on = torch.tensor([True])
-    *_, tok, tok_m = policy_input(scales, ego, nbr, on, torch.zeros(4), torch.tensor(False), demand)
+    *_, tok, tok_m = policy_input(scales, PolicyInputs(ego, nbr, on, torch.zeros(4), torch.tensor(False), demand))
     assert tok_m.tolist() == [True, True, False]
     r = scales.r_comm
     assert torch.allclose(tok[0], torch.tensor([300.0 / r, 0.0, math.log1p(1.0), (50.0 - 300.0) / r, math.log1p(1.0)]))
     assert torch.allclose(tok[1, 3:], torch.tensor([(650.0 - 300.0) / r, 0.0]))
-    *_, tok, _ = policy_input(scales, ego, nbr, ~on, torch.zeros(4), torch.tensor(False), demand)
+    *_, tok, _ = policy_input(scales, PolicyInputs(ego, nbr, ~on, torch.zeros(4), torch.tensor(False), demand))
     assert tok[0, 3] == 2.0 and tok[0, 4] == 0.0  # a masked slot is nobody
 
 
@@ -196,11 +197,11 @@ def test_plan_input_is_relative_and_absent_before_a_plan():
     target = ego[:2] + torch.tensor([120.0, -40.0])
     shift = torch.tensor([37.0, -210.0])
     sh3 = torch.cat([shift, torch.zeros(1)])
-    a = policy_input(scales, ego, bel, mask, sense, fail, demand, target)[0]
-    b = policy_input(scales, ego + torch.cat([sh3, torch.zeros(3)]), bel + torch.cat([sh3, torch.zeros(3)]), mask, sense, fail,
-                     demand + torch.cat([shift, torch.zeros(1)]), target + shift)[0]
+    a = policy_input(scales, PolicyInputs(ego, bel, mask, sense, fail, demand, target))[0]
+    b = policy_input(scales, PolicyInputs(ego + torch.cat([sh3, torch.zeros(3)]), bel + torch.cat([sh3, torch.zeros(3)]), mask, sense,
+                                          fail, demand + torch.cat([shift, torch.zeros(1)]), target + shift))[0]
     assert torch.allclose(a, b, atol=1e-5)
-    none = policy_input(scales, ego, bel, mask, sense, fail, demand)[0]
+    none = policy_input(scales, PolicyInputs(ego, bel, mask, sense, fail, demand))[0]
     assert torch.equal(none[-5:], torch.zeros(5)) and a[-1] == 1.0
 
 
@@ -220,13 +221,13 @@ class _SixInputs(torch.nn.Module):
 
 def test_a_version_2_policy_without_the_plan_runs_with_six_inputs():
     """Version-2 files exported before the team plan take six inputs: the twin calls them without it."""
-    from plmarl_sitl.learning.nn.io import input_version, takes_plan
+    from plmarl_sitl.learning.nn.contract import PolicyForm
 
     policy = script(_SixInputs(DeployedPolicy(Actor(), *FeatureScales.from_mission(MISSION))))
-    assert input_version(policy) == 2 and not takes_plan(policy)
+    assert PolicyForm.of(policy) == PolicyForm(2, False, True) and PolicyForm.of(policy).arity == 6
     tracker = BeliefTracker(make_predictor("hold"), MISSION.signalling.buffer_len, MISSION.timing.dt_s)
     ctl = LearnedController(tracker, policy, MISSION)
-    assert ctl.plan is None
+    assert ctl.perceive.plan is None
     env = CoverageEnv(MISSION, 2, 0)
     ctl.reset()
     obs = env.observe()

@@ -12,6 +12,7 @@ from plmarl_sitl.learning.nn import (
     Beliefs,
     BeliefTracker,
     DeployedPolicy,
+    PolicyInputs,
     build_policy_input,
     make_predictor,
 )
@@ -37,9 +38,8 @@ def test_fusion_masks_absent_neighbours(n_nbrs: int) -> None:
     ego, bel, sense = _inputs(5, m, gen)
     mask = torch.zeros(5, m, dtype=torch.bool)
     mask[:, :n_nbrs] = True
-    ego_x, nbr_x, rel_x, mk, _, _ = build_policy_input(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3),
-                                                 SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq(),
-                                                 torch.zeros(5, 2), torch.zeros(5, dtype=torch.bool))
+    x = PolicyInputs(ego, bel, mask, sense, torch.zeros(5, dtype=torch.bool), DEMAND.expand(5, 2, 3))
+    ego_x, nbr_x, rel_x, mk, _, _ = build_policy_input(x, SCALES[0], SCALES[1], SCALES[3], SCALES[4], SCALES[5], ring_edges_sq())
     assert ego_x.shape == (5, EGO_FEATURES) and nbr_x.shape == (5, m, NBR_FEATURES) and rel_x.shape == (5, m, 3)
     fusion = AttentionFusion()
     h, msg, alpha = fusion(ego_x, nbr_x, rel_x, mk)

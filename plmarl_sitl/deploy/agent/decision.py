@@ -2,14 +2,16 @@
 
 At each due second k (see `MissionClock.second_due`): book the misses of the instants
 whose grace has passed (failure state f), advance Algorithm 1's tracker one second
-(`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds run
-`policy.pt` on (ego at the first sample of second k, beliefs, N_i mask, sensing features,
-f, demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
-takes it) -> an acceleration, held until the next decision. f and the map are the
-twin's: f latches `model.signalling.silent_in_range` on the beliefs of the decision at
-which the twin sees a drop (`failure.FailureFlag`; the twin's controllers use
-`FailureFlags`) and the map is the newest published one not after k (`demand.DemandMaps`). A policy of input version 1 is called as it was trained: without
-the map, with f = "a neighbour was dropped" (`NeighbourTable.lost`). `command()` is what goes to the
+(`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds perceive
+(`perceive`: ego at the first sample of second k, beliefs, N_i mask, sensing features, f,
+demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
+takes it, as one `PolicyInputs`) and run `policy.pt` on it through the typed call
+(`learning/nn/contract.py::PolicyCall`) -> an acceleration, held until the next decision.
+The inputs are the twin's (`learning/nn/perception.py`, checked by the replay test): f
+latches `model.signalling.silent_in_range` on the beliefs of the decision at which the twin
+sees a drop (`failure.FailureFlag`; the twin uses `FailureFlags`) and the map is the newest
+published one not after k (`demand.DemandMaps`). A policy of input version 1 gets what it
+was trained with: no map, f = "a neighbour was dropped" (`NeighbourTable.lost`). `command()` is what goes to the
 autopilot: before the mission a soft hold where offboard control began, then the
 policy's acceleration through the altitude band guard.
 """
@@ -31,6 +33,7 @@ from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.plan import AgentPlan
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
+from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
@@ -45,14 +48,15 @@ class Decision:
                  stats: LoopStats, trace: Trace, topics: Topics, lockstep: bool = False) -> None:
         self.mission, self.me, self.n = mission, me, mission.n_uavs
         self.sense_topic = topics.sense(me)  # where sensing comes from (for the warning when it does not)
-        self.tracker, self.policy = lp.tracker, lp.policy
-        self.input_version = lp.input_version
+        self.tracker, self.policy = lp.tracker, lp.call  # policy(PolicyInputs) -> accel
+        self.form = lp.form  # which inputs the file takes (and which f rule)
         self.flag = FailureFlag(self.n, clock.tau, float(lp.policy.r_comm))  # f of input version 2
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
-        self.plan = AgentPlan(mission, me) if lp.takes_plan else None  # the team plan's point (model/service.py)
+        self.plan = AgentPlan(mission, me) if self.form.takes_plan else None  # the team plan's point (model/service.py)
         self.target: torch.Tensor | None = None  # that point at the last decision
+        self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
         self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
@@ -91,10 +95,7 @@ class Decision:
             belief, _, buf, seen = self.tracker(float(t), held, t_rx, buf, seen)
             mask = torch.ones(n, dtype=torch.bool)
             mask[self.me] = False
-            args = [held[self.me], belief, mask, torch.zeros(SENSING_FEATURES), torch.tensor(t % 4 == 3)]
-            if self.input_version >= 2:
-                args.append(demand)
-            self.policy(*args)
+            self.policy(PolicyInputs(held[self.me], belief, mask, torch.zeros(SENSING_FEATURES), torch.tensor(t % 4 == 3), demand))
         sensing_features(held[:1, :3], torch.zeros(3, 2), self.mission.radii.sensing_m, self.mission.users.cluster_size)
 
     def catch_up(self, tm: float) -> bool:
@@ -105,7 +106,7 @@ class Decision:
             self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
         decided = False
         while clock.second_due(clock.next_k, tm, self.awaiting_sensing(), self.delivered,
-                               awaiting_demand=self.input_version >= 2 and self.demand.awaiting(clock.next_k)):
+                               awaiting_demand=self.form.takes_demand and self.demand.awaiting(clock.next_k)):
             k = clock.next_k
             decided |= self.second(k, max(0.0, tm - k))
             clock.next_k = k + 1
@@ -155,26 +156,13 @@ class Decision:
         for old in [s for s in self.ego_at if s < k]:
             del self.ego_at[old]
         mask = self.table.mask()
-        new_map = None
+        self.new_map = None
         if decided:
-            sense = self._sense(ego, k)
-            if self.input_version >= 2:
-                fail = torch.tensor(self.flag.on_decision(k, self.belief, ego))
-                got = self.demand.for_decision(k)
-                if got is not None and got[0] != self.used_demand_t:
-                    new_map = got[1]
-                self.used_demand_t = None if got is None else got[0]
-                if self.plan is None:
-                    a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
-                else:
-                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got)
-                    a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1], self.target)
-            else:
-                fail = torch.tensor(self.table.lost)
-                a = self.policy(ego, self.belief, mask, sense, fail)
-            if bool(fail) and not self.fail:
+            inputs = self.perceive(k, ego, mask)
+            a = self.policy(inputs)
+            if bool(inputs.fail) and not self.fail:
                 log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
-            self.fail = bool(fail)
+            self.fail = bool(inputs.fail)
             self.accel = (float(a[0]), float(a[1]), float(a[2]))
             self.stats.decisions += 1
         if self.trace.active:
@@ -193,9 +181,29 @@ class Decision:
                 "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
                 "demand_t": self.used_demand_t,  # the snapshot time of the map the last decision saw
                 **({} if self.target is None else {"target": [round(x, 1) for x in self.target.tolist()]}),
-                **({} if new_map is None else {"demand": new_map.tolist()}),  # that map's cells, when first used
+                **({} if self.new_map is None else {"demand": self.new_map.tolist()}),  # that map's cells, when first used
             })
         return decided
+
+    def perceive(self, k: int, ego: torch.Tensor, mask: torch.Tensor) -> PolicyInputs:
+        """The policy's inputs at decision k (the tracker has advanced to k): what the twin's
+        `learning/nn/perception.py::Perception` gives its agents, from this agent's messages."""
+        sense = self._sense(ego, k)
+        if self.form.predicted_fail:
+            fail = torch.tensor(self.flag.on_decision(k, self.belief, ego))
+        else:  # input version 1: f = a neighbour was dropped
+            fail = torch.tensor(self.table.lost)
+        demand = target = None
+        if self.form.takes_demand:
+            got = self.demand.for_decision(k)
+            if got is not None:
+                if got[0] != self.used_demand_t:
+                    self.new_map = got[1]
+                demand = got[1]
+            self.used_demand_t = None if got is None else got[0]
+            if self.plan is not None:
+                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got)
+        return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
         """Sensing features of the newest users' message not after second k (usually

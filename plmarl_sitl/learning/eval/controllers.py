@@ -1,10 +1,10 @@
 """Learnt policies as twin `Controller`s (`reset()`, `act(obs) -> accel`), deterministic.
 
-A LearnedController runs exactly what a deployed agent runs: the belief tracker once per
-physics second (replayed up to the observation time, see `Beliefs.catch_up`) and the
-exported policy on the raw physical tensors, batched over the twin's (B, N) agents; the
-failure flag f by the predicted-in-range rule (`FailureFlags`), the demand map as published.
-A policy of input version 1 gets neither the map nor that rule (its raw flag, as it was trained).
+A LearnedController runs exactly what a deployed agent runs, batched over the twin's (B, N)
+agents: the perception step (`learning/nn/perception.py`: the belief tracker replayed up to
+the observation time, the failure flag f of the policy's rule, the demand map as published,
+the team plan's point) and the exported policy through the typed call
+(`learning/nn/contract.py::PolicyCall`, which passes each file the inputs of its version).
 """
 
 from __future__ import annotations
@@ -12,39 +12,23 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from plmarl_sitl.learning.nn.belief import Beliefs, FailureFlags
-from plmarl_sitl.learning.nn.io import input_version, takes_plan
+from plmarl_sitl.learning.nn.contract import PolicyCall
+from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.twin.env import Observation
 
 
 class LearnedController:
     def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None) -> None:  # noqa: ANN001 - Mission
-        self.beliefs = Beliefs(tracker)
-        if takes_plan(policy) and mission is None:
-            raise ValueError("a policy that takes the team plan needs the mission (its plan grid)")
-        self.plan = ServiceTargets.of(mission) if takes_plan(policy) else None
-        self.flags = FailureFlags(float(policy.r_comm))
-        self.policy = policy
-        self.version = input_version(policy)  # 1: the policies shipped before issue 12 (no map, raw f)
+        self.policy = PolicyCall(policy)
+        self.perceive = Perception(tracker, self.policy.form, float(policy.r_comm), mission)
 
     def reset(self) -> None:
-        self.beliefs.reset()
-        self.flags.reset()
-        if self.plan is not None:
-            self.plan.reset()
+        self.perceive.reset()
 
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
-        belief, _ = self.beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-        fail = self.flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-        if self.version < 2:
-            return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, obs.fail_flag)
-        demand = obs.demand.unsqueeze(1).expand(-1, obs.ego.shape[1], -1, -1)  # one map per environment
-        if self.plan is None:
-            return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand)
-        target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
-        return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
+        return self.policy(self.perceive(obs))
 
 
 class ServiceController:

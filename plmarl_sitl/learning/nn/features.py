@@ -1,21 +1,24 @@
-"""The ONE function that turns what an agent knows into the policy's input tensors.
+"""The ONE function that turns what an agent knows (`contract.PolicyInputs`) into the
+actor's input tensors.
 
-Both the digital-twin trainer and the deployed agent call `build_policy_input` (it is also
-compiled into `policy.pt`, so a deployed agent that calls the exported policy on raw
-physical tensors runs exactly this code). Everything here is TorchScript-compatible.
+Both the digital-twin trainer (`policy_input`) and the deployed agent call
+`build_policy_input` (it is compiled into `policy.pt`, so a deployed agent that calls the
+exported policy on raw physical tensors runs exactly this code). Everything here is
+TorchScript-compatible.
 
-Inputs are physical, in the mission frame (metres from the area's SW corner, x north,
-y east, z down; m/s), see docs/POLICY_IO.md (input version 2):
+Inputs (the fields of `PolicyInputs`) are physical, in the mission frame (metres from the
+area's SW corner, x north, y east, z down; m/s), see docs/POLICY_IO.md (input version 2):
 
 * ego (..., 6): own true [p_n, p_e, p_d, v_n, v_e, v_d]
 * beliefs (..., M, 6): the belief tracker's reconstructed neighbour states, same frame
 * mask (..., M) bool: neighbour j is in N_i (heard recently enough and alive)
 * sense (..., SENSING_FEATURES = 4): `plmarl_sitl.model.coverage.sensing_features` of the agent
-* fail_flag (...) bool: the agent's failure state f (`plmarl_sitl.model.signalling.silent_in_range`, latched)
-* demand (..., K, 3): the published user-density map, [cell centre north, east, user count]
-  (`plmarl_sitl.model.demand`); any K, empty or padding cells with count 0 add nothing
-* target (..., 2): the agent's point of the team plan (`plmarl_sitl.model.service`), north and
-  east in the mission frame, and target_known (...) bool (False: no plan yet)
+* fail (...) bool: the agent's failure state f (`plmarl_sitl.model.signalling.silent_in_range`, latched)
+* demand (..., K, 3) or None: the published user-density map, [cell centre north, east, user
+  count] (`plmarl_sitl.model.demand`); any K, empty or padding cells with count 0 add
+  nothing; None (no map yet) is an empty map
+* target (..., 2) or None: the agent's point of the team plan (`plmarl_sitl.model.service`),
+  north and east in the mission frame; None: no plan yet
 
 Nothing the policy sees is an absolute horizontal position, so it cannot memorise sites,
 and no size depends on N, on the number of clusters or on the area (issue 12):
@@ -38,10 +41,10 @@ from typing import NamedTuple
 
 import torch
 
+from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 
 STATE_DIM = 6
-INPUT_VERSION = 2  # 1: absolute positions, no demand map (policies before issue 12)
 DEMAND_SECTORS = 8
 DEMAND_RING_EDGES_M = (100.0, 300.0, 600.0)  # rings: < 100 m (own cell), 100-300, 300-600, beyond
 DEMAND_BINS = DEMAND_SECTORS * (len(DEMAND_RING_EDGES_M) + 1)
@@ -148,34 +151,35 @@ def demand_tokens(
 
 
 def build_policy_input(
-    ego: torch.Tensor,
-    beliefs: torch.Tensor,
-    mask: torch.Tensor,
-    sense: torch.Tensor,
-    fail_flag: torch.Tensor,
-    demand: torch.Tensor,
+    x: PolicyInputs,
     alt_max: float,
     v_max: float,
     r_comm: float,
     claim_m: float,
     demand_unit: float,
     edges_sq: torch.Tensor,
-    target: torch.Tensor,
-    target_known: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """-> (ego_x (..., EGO_FEATURES), nbr_x (..., M, 6), rel_x (..., M, 3), mask (..., M) bool,
     tok_x (..., K, TOKEN_FEATURES), tok_mask (..., K) bool).
 
-    `demand` (..., K, 3) has ego's leading shape (expand one map over the agents of an
+    `x.demand` (..., K, 3) has ego's leading shape (expand one map over the agents of an
     environment). Neighbour slots outside the mask are ignored by the attention and by the
     claims, so they may hold any FINITE values.
     """
+    ego, beliefs, mask = x.ego, x.beliefs, x.mask
+    demand = x.demand
+    if demand is None:  # no map received yet: no demand known beyond the own sensing
+        demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
+    target = x.target
+    known = torch.full(ego.shape[:-1], target is not None, dtype=torch.bool, device=ego.device)
+    if target is None:  # no plan yet (no map yet): the plan features are 0
+        target = torch.zeros(ego.shape[:-1] + (2,), dtype=ego.dtype, device=ego.device)
     alt = ego[..., 2:3] * (-2.0 / alt_max) - 1.0
     desc = demand_descriptor(ego[..., 0:3], demand, beliefs[..., 0:3], mask, claim_m, demand_unit, edges_sq)
-    known = target_known.unsqueeze(-1).to(ego.dtype)
-    off = (target - ego[..., 0:2]) * known
-    plan = torch.cat([off / r_comm, torch.clamp(off / 50.0, -1.0, 1.0), known], -1)  # 50 m = PLAN_NEAR_M
-    ego_x = torch.cat([alt, ego[..., 3:6] / v_max, sense, fail_flag.unsqueeze(-1).to(ego.dtype), desc, plan], -1)
+    known_x = known.unsqueeze(-1).to(ego.dtype)
+    off = (target - ego[..., 0:2]) * known_x
+    plan = torch.cat([off / r_comm, torch.clamp(off / 50.0, -1.0, 1.0), known_x], -1)  # 50 m = PLAN_NEAR_M
+    ego_x = torch.cat([alt, ego[..., 3:6] / v_max, x.sense, x.fail.unsqueeze(-1).to(ego.dtype), desc, plan], -1)
     rel_x = (beliefs[..., 0:3] - ego[..., 0:3].unsqueeze(-2)) / r_comm
     nbr_x = torch.cat([rel_x, (beliefs[..., 3:6] - ego[..., 3:6].unsqueeze(-2)) / v_max], -1)
     tok_x, tok_mask = demand_tokens(ego[..., 0:3], demand, beliefs[..., 0:3], mask, r_comm, demand_unit)
@@ -183,16 +187,8 @@ def build_policy_input(
 
 
 def policy_input(
-    scales: FeatureScales, ego: torch.Tensor, beliefs: torch.Tensor, mask: torch.Tensor, sense: torch.Tensor,
-    fail_flag: torch.Tensor, demand: torch.Tensor, target: torch.Tensor | None = None,
+    scales: FeatureScales, x: PolicyInputs
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """`build_policy_input` with a mission's constants (the trainers' form); `demand` may be
-    one map per environment (B, K, 3) for ego (B, N, 6); `target` (B, N, 2), None: no plan."""
-    if demand.dim() == ego.dim():
-        demand = demand.unsqueeze(-3).expand(*ego.shape[:-1], *demand.shape[-2:])
+    """`build_policy_input` with a mission's constants: the trainers' form (the actor's inputs)."""
     s = scales
-    known = torch.full(ego.shape[:-1], target is not None, dtype=torch.bool)
-    if target is None:
-        target = torch.zeros(ego.shape[:-1] + (2,), dtype=ego.dtype)
-    return build_policy_input(ego, beliefs, mask, sense, fail_flag, demand, s.alt_max, s.v_max, s.r_comm, s.claim_m,
-                              s.demand_unit, ring_edges_sq(), target, known)
+    return build_policy_input(x, s.alt_max, s.v_max, s.r_comm, s.claim_m, s.demand_unit, ring_edges_sq())

@@ -5,8 +5,10 @@ A policy directory holds:
 * predictor.pt  the scripted `BeliefTracker` (Algorithm 1) with the method's predictor
                 inside: `forward(t, held_state, held_t_rx, buf, seen_t_rx)` and
                 `init_state(held_state)`;
-* policy.pt     the scripted `DeployedPolicy`: `forward(ego, beliefs, mask, sense,
-                fail_flag, demand) -> accel`, input features included (input version 2);
+* policy.pt     the scripted `DeployedPolicy` (or its fused form, `fused.py`):
+                `forward(ego, beliefs, mask, sense, fail_flag, demand, target) -> accel`,
+                input features included (input version 2; call it through
+                `contract.PolicyCall` with `contract.PolicyInputs`);
 * card.yaml     method, config, seed, git commit, training wall time, evaluation
                 numbers, the I/O contract constants and each file's sha256.
 
@@ -18,6 +20,7 @@ those DeprecationWarnings (`quiet_torchscript()`), nothing else.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import warnings
 from collections.abc import Iterator
@@ -31,7 +34,9 @@ from torch import nn
 from plmarl_sitl.config import ConfigError, read_yaml
 from plmarl_sitl.errors import PolicyFileError
 from plmarl_sitl.learning.nn.card import check_card
-from plmarl_sitl.learning.nn.features import EGO_FEATURES, INPUT_VERSION, STATE_DIM
+from plmarl_sitl.learning.nn.contract import INPUT_VERSION, PolicyCall, PolicyForm, PolicyInputs
+from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
+from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
 
@@ -81,8 +86,6 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    from plmarl_sitl.learning.nn.deploy import fuse_policy, fuse_tracker
-
     tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
     policy = fuse_policy(policy)  # unchanged if not fusable (no plan input, scripted)
     with quiet_torchscript():
@@ -91,14 +94,15 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
         torch.jit.save(tracker if frozen else freeze(tracker, TRACKER_ATTRS), str(out / "predictor.pt"))
         torch.jit.save(freeze(policy, POLICY_ATTRS), str(out / "policy.pt"))
     card = dict(card)
+    form = PolicyForm.of(policy)
     card["card_version"] = CARD_VERSION
     card["io"] = {
         "state_dim": STATE_DIM,
         "sense_dim": SENSING_FEATURES,
         "ego_features": EGO_FEATURES,
         "input_version": INPUT_VERSION,
-        "takes_plan": takes_plan(policy),
-        "reads_map": reads_map(policy),
+        "takes_plan": form.takes_plan,
+        "reads_map": form.reads_map,
         "demand_cell_fields": DEMAND_CELL_FIELDS,
         "buffer_len": int(tracker.buffer_len),  # type: ignore[arg-type]
         "dt_s": float(tracker.dt),  # type: ignore[arg-type]
@@ -109,24 +113,6 @@ def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, ca
     return out
 
 
-def input_version(policy: nn.Module | torch.jit.ScriptModule) -> int:
-    """The policy's input version (docs/POLICY_IO.md): 2 is called with the demand map and
-    the predicted-in-range fail flag; 1 (files without the attribute) with neither."""
-    return int(getattr(policy, "input_version", 1))
-
-
-def takes_plan(policy: nn.Module | torch.jit.ScriptModule) -> bool:
-    """True: the policy takes the team-plan target as a 7th input (model/service.py; input
-    version 2 from issue 12's T_up-50 work). Version-2 files without the attribute take six."""
-    return bool(getattr(policy, "takes_plan", False))
-
-
-def reads_map(policy: nn.Module | torch.jit.ScriptModule) -> bool:
-    """False: a map-blind policy (docs/POLICY_IO.md): called like any version-2 policy, but
-    it reads the demand map only through the plan target. Files without the attribute read it."""
-    return bool(getattr(policy, "reads_map", input_version(policy) >= 2))
-
-
 @dataclass(frozen=True)
 class LoadedPolicy:
     directory: Path
@@ -134,13 +120,22 @@ class LoadedPolicy:
     policy: torch.jit.ScriptModule
     card: dict
 
+    @functools.cached_property
+    def form(self) -> PolicyForm:
+        return PolicyForm.of(self.policy)
+
+    @functools.cached_property
+    def call(self) -> PolicyCall:
+        """The policy behind the typed call: `lp.call(PolicyInputs(...)) -> accel`."""
+        return PolicyCall(self.policy)
+
     @property
     def input_version(self) -> int:
-        return input_version(self.policy)
+        return self.form.input_version
 
     @property
     def takes_plan(self) -> bool:
-        return takes_plan(self.policy)
+        return self.form.takes_plan
 
 
 def _load_card(path: Path) -> dict:
@@ -187,7 +182,8 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
         buffer_len, scales = int(tracker.buffer_len), {k: float(getattr(policy, k)) for k in io["scales"]}
     except (AttributeError, RuntimeError) as exc:
         raise PolicyFileError(str(d / "policy.pt"), f"mismatched: not a PL-MARL policy/tracker ({exc})") from exc
-    version = input_version(policy)
+    call = PolicyCall(policy)
+    version = call.form.input_version
     if version != io.get("input_version", 1):
         raise PolicyFileError(str(d / "policy.pt"), f"mismatched: input version {version}, card.yaml says {io.get('input_version', 1)}")
     if buffer_len != io["buffer_len"]:
@@ -213,12 +209,8 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
             held = torch.zeros(2, STATE_DIM)
             buf, seen = tracker.init_state(held)
             belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
-            args = [torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES), torch.tensor(False)]
-            if version >= 2:
-                args.append(torch.zeros(1, DEMAND_CELL_FIELDS))
-            if takes_plan(policy):
-                args.append(torch.zeros(2))
-            policy(*args)
+            call(PolicyInputs(torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES),
+                              torch.tensor(False), torch.zeros(1, DEMAND_CELL_FIELDS), torch.zeros(2)))
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc
     return LoadedPolicy(d, tracker, policy, card)

@@ -21,10 +21,10 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from plmarl_sitl.learning.nn.contract import INPUT_VERSION, PolicyInputs
 from plmarl_sitl.learning.nn.features import (
     DEMAND_FEATURES,
     EGO_FEATURES,
-    INPUT_VERSION,
     NBR_FEATURES,
     REL_FEATURES,
     TOKEN_FEATURES,
@@ -183,12 +183,8 @@ class DeployedPolicy(nn.Module):
         demand: Optional[torch.Tensor] = None,  # noqa: UP045 - TorchScript needs Optional
         target: Optional[torch.Tensor] = None,  # noqa: UP045
     ) -> torch.Tensor:
-        if demand is None:  # no map received yet: no demand known beyond the own sensing
-            demand = torch.zeros(ego.shape[:-1] + (1, 3), dtype=ego.dtype, device=ego.device)
-        known = torch.full(ego.shape[:-1], target is not None, dtype=torch.bool, device=ego.device)
-        if target is None:  # no plan yet (no map yet)
-            target = torch.zeros(ego.shape[:-1] + (2,), dtype=ego.dtype, device=ego.device)
+        # The file keeps the positional forward (docs/POLICY_IO.md; callers use contract.PolicyCall).
+        x = PolicyInputs(ego, beliefs, mask, sense, fail_flag, demand, target)
         ego_x, nbr_x, rel_x, m, tok_x, tok_m = build_policy_input(
-            ego, beliefs, mask, sense, fail_flag, demand, self.alt_max, self.v_max, self.r_comm, self.claim_m,
-            self.demand_unit, self.edges_sq, target, known)
+            x, self.alt_max, self.v_max, self.r_comm, self.claim_m, self.demand_unit, self.edges_sq)
         return self.actor(ego_x, nbr_x, rel_x, m, tok_x, tok_m) * self.a_max  # tanh mean: already inside (-1, 1)

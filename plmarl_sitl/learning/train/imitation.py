@@ -24,9 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
+from plmarl_sitl.learning.nn.belief import BeliefTracker
+from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
-from plmarl_sitl.learning.nn.plan import ServiceTargets
+from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
@@ -96,20 +97,16 @@ def imitate_oracle(
             env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
                               random_launch=args.general)
             teacher = OracleController(env)
-            plan = ServiceTargets.of(m)
-            beliefs = Beliefs(tracker)
-            flags = FailureFlags(scales.r_comm)
+            perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
             obs = env.reset()
             teacher.reset()
             use_teacher = torch.from_numpy(rng.random(n_eps) < beta).view(-1, 1, 1)
             with torch.no_grad():
                 while not env.done:
-                    belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                    fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                    target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
-                    x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target)
+                    inputs = perceive(obs)
+                    x = policy_input(scales, inputs)
                     if args.teacher == "plan":
-                        a_teacher = plan.accel(obs.ego, target)
+                        a_teacher = perceive.plan.accel(obs.ego, inputs.target)
                     else:
                         a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)

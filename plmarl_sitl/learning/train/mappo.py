@@ -36,7 +36,8 @@ from torch import nn
 
 from plmarl_sitl.config import PAPER_MISSION
 from plmarl_sitl.errors import UserError
-from plmarl_sitl.learning.nn.belief import Beliefs, BeliefTracker, FailureFlags
+from plmarl_sitl.learning.nn.belief import BeliefTracker
+from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import (
     DEMAND_BINS,
     EGO_FEATURES,
@@ -45,7 +46,7 @@ from plmarl_sitl.learning.nn.features import (
     policy_input,
     ring_edges_sq,
 )
-from plmarl_sitl.learning.nn.plan import ServiceTargets
+from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
@@ -209,18 +210,13 @@ def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
 def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: list[tuple[Mission, int]], envs: int,
              general: bool) -> float:
     """Mean coverage of the deterministic actor over the validation set (no failures)."""
-    beliefs, flags, covs = Beliefs(tracker), FailureFlags(scales.r_comm), []
+    covs = []
     for m, seed in sets:
         env = CoverageEnv(m, envs, seed, random_launch=general)
         obs = env.reset()
-        beliefs.reset()
-        flags.reset()
-        plan = ServiceTargets.of(m)
+        perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
         while not env.done:
-            belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-            fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-            target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
-            u = actor(*policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target))
+            u = actor(*policy_input(scales, perceive(obs)))
             obs, _, info = env.step(action_to_accel(u, scales.a_max))
             covs.append(info.coverage.mean())
     return float(torch.stack(covs).mean())
@@ -245,8 +241,6 @@ def train(args: Args, progress=None) -> dict:
     T = math.ceil(mission.timing.episode_s / mission.timing.dt_s / mission.timing.decision_every_s)  # decisions per episode
     G = EGO_FEATURES + CRITIC_EXTRA
     tracker = make_tracker(args.method, mission, args.predictor_state)
-    beliefs = Beliefs(tracker)
-    flags = FailureFlags(scales.r_comm)
     actor = Actor(args.embed_dim, log_std_init=args.log_std_init, reads_map=args.reads_map)
     critic = Critic(G)
     vnorm = ValueNorm()
@@ -308,16 +302,11 @@ def train(args: Args, progress=None) -> dict:
 
         # -------------------------------------------------------------- rollout
         obs = env.reset()
-        beliefs.reset()
-        flags.reset()
-        plan = ServiceTargets.of(scenario)
+        perceive = Perception(tracker, PolicyForm.trained(args.reads_map), scales.r_comm, scenario)
         cov_last = []
         with torch.no_grad():
             for step in range(T):
-                belief, _ = beliefs.catch_up(obs.t, obs.nbr_state, obs.nbr_t_rx)
-                fail = flags.update(obs.nbr_mask, belief, obs.ego, obs.alive)
-                target = plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
-                x = policy_input(scales, obs.ego, belief, obs.nbr_mask, obs.sense, fail, obs.demand, target)
+                x = policy_input(scales, perceive(obs))
                 gs = critic_input(env, x[0], scales)
                 dist = actor.dist(*x)
                 u = dist.sample()

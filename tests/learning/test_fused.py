@@ -1,4 +1,4 @@
-"""The fused tracker and policy (plmarl_sitl/learning/nn/deploy.py) compute what the reference modules compute."""
+"""The fused tracker and policy (plmarl_sitl/learning/nn/fused.py) compute what the reference modules compute."""
 
 from __future__ import annotations
 
@@ -7,7 +7,8 @@ import torch
 
 from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, make_predictor
 from plmarl_sitl.learning.nn.belief import NEVER
-from plmarl_sitl.learning.nn.deploy import fuse_directory, fuse_policy, fuse_tracker, fused_policy_from_file, is_fused
+from plmarl_sitl.learning.nn.convert import fuse_directory
+from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker, fused_policy_from_file, is_fused
 from plmarl_sitl.learning.nn.io import POLICY_ATTRS, TRACKER_ATTRS, freeze, load_policy
 
 
@@ -175,7 +176,7 @@ def test_shipped_policies_are_fused_and_agree_with_their_reference(method: str) 
     from pathlib import Path
 
     lp = load_policy(Path(__file__).resolve().parents[2] / "policies" / method)
-    assert is_fused(lp.policy), f"policies/{method}/policy.pt is not the fused form: run python -m plmarl_sitl.learning.nn.deploy"
+    assert is_fused(lp.policy), f"policies/{method}/policy.pt is not the fused form: run python -m plmarl_sitl.learning.nn.convert"
     gen = torch.Generator().manual_seed(9)
     with torch.no_grad():
         for case in range(20):
@@ -211,15 +212,15 @@ def test_fuse_directory_rewrites_an_unfused_directory_in_place(reads_map: bool, 
 
 
 def test_fuse_command_bad_directory_is_one_line(tmp_path) -> None:  # noqa: ANN001
-    """`python -m plmarl_sitl.learning.nn.deploy` on a directory that is not a policy: one line, exit 2."""
+    """`python -m plmarl_sitl.learning.nn.convert` on a directory that is not a policy: one line, exit 2."""
     import subprocess
     import sys
 
     (tmp_path / "card.yaml").write_text("method: [unclosed")
     for arg in (str(tmp_path / "missing"), str(tmp_path)):
-        r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.deploy", arg], capture_output=True, text=True)
+        r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.convert", arg], capture_output=True, text=True)
         lines = [ln for ln in r.stderr.splitlines() if "Deprecat" not in ln and ln.strip()]
-        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("deploy: error: "), r.stderr
+        assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("convert: error: "), r.stderr
         assert "Traceback" not in r.stderr
-    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.deploy"], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.learning.nn.convert"], capture_output=True, text=True)
     assert r.returncode == 2 and "usage:" in r.stderr

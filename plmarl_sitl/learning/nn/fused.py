@@ -24,14 +24,14 @@ they wrap:
 * the masked softmaxes compare against constant tensors (no scalar-to-tensor ops).
 
 The folded constants are built from the eager module (`fuse_tracker`, `fuse_policy`) or
-read back from an exported unfused file (`fused_policy_from_file`). Outputs equal the
-reference module's: the tracker bit for bit, the policy to float rounding (sums in another
-order, tanh as a sigmoid; tests/learning/test_deploy.py).
+read back from an exported unfused file (`fused_policy_from_file`; `convert.py` re-exports a
+policy directory that way). Outputs equal the reference module's: the tracker bit for bit,
+the policy to float rounding (sums in another order, tanh as a sigmoid;
+tests/learning/test_fused.py).
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Optional
 
 import torch
@@ -39,6 +39,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from plmarl_sitl.learning.nn.belief import MAX_AOI, NEVER, BeliefTracker, backfill
+from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import (
     DEMAND_BINS,
     DEMAND_RING_EDGES_M,
@@ -385,14 +386,13 @@ def fused_policy_from_file(policy: torch.jit.ScriptModule) -> nn.Module:
     loaded file stays inside as the reference for other shapes. Returns the file unchanged if
     it is already fused or does not take the plan; raises ValueError on another graph.
     """
-    if is_fused(policy) or not bool(getattr(policy, "takes_plan", False)):
+    form = PolicyForm.of(policy)
+    if is_fused(policy) or not form.takes_plan:
         return policy
-    from plmarl_sitl.learning.nn.io import reads_map
-
     lin = _const_inputs(policy.graph, "aten::linear")
     vec = [c[0] for c in _const_inputs(policy.graph, "aten::matmul") if len(c) == 1]
     shapes = [len(c) for c in lin]
-    with_map = reads_map(policy)
+    with_map = form.reads_map
     expected = [2, 2, 2, 1, 1, 2, 2, 2] if with_map else [2, 2, 2, 2, 2]
     if shapes != expected or len(vec) != 2:
         raise ValueError(f"policy graph is not the expected DeployedPolicy (linear constants {shapes}, {len(vec)} vectors)")
@@ -404,58 +404,3 @@ def fused_policy_from_file(policy: torch.jit.ScriptModule) -> nn.Module:
     (tok_w, tok_b), (key_w,), (query_w,) = demand
     consts.update({"tok_w": tok_w, "tok_b": tok_b, "key_w": key_w, "query_w": query_w})
     return FusedPolicy(policy, consts)
-
-
-def fuse_directory(directory: str | Path) -> dict:
-    """Re-export a shipped policy directory with its policy in the fused form, in place
-    (same weights, read back from the frozen file; no training checkpoint needed).
-
-    The card keeps every field; `export` records the re-export and the previous files'
-    sha256. Returns the new card (unchanged if there is nothing to fuse).
-    """
-    from plmarl_sitl.errors import PolicyFileError
-    from plmarl_sitl.learning.nn.io import export_policy, load_policy
-
-    d = Path(directory)
-    lp = load_policy(d)
-    try:
-        policy = fused_policy_from_file(lp.policy)
-    except ValueError as exc:
-        raise PolicyFileError(str(d / "policy.pt"), f"cannot fuse: {exc}") from exc
-    if policy is lp.policy:
-        return lp.card  # already fused, or not a version-2 policy with the plan
-    card = {k: v for k, v in lp.card.items() if k not in ("card_version", "io", "sha256")}
-    card["export"] = {
-        "fused": {"predictor.pt": is_fused(lp.tracker), "policy.pt": True},
-        "fused_from_sha256": dict(lp.card["sha256"]),
-        "how": "python -m plmarl_sitl.learning.nn.deploy DIR (weights read back from the frozen file; "
-               "outputs equal to float32 rounding)",
-    }
-    export_policy(d, lp.tracker, policy, card)
-    return load_policy(d).card
-
-
-def main(argv: list[str]) -> int:
-    """`python -m plmarl_sitl.learning.nn.deploy DIR...`: fuse each policy directory in place.
-    A directory that is not a loadable policy is one line and exit 2 (`run_reporting`);
-    directories before it stay converted, it and those after are untouched."""
-    import sys
-
-    from plmarl_sitl.errors import run_reporting
-
-    if not argv:
-        print("usage: python -m plmarl_sitl.learning.nn.deploy POLICY_DIR [POLICY_DIR ...]", file=sys.stderr)
-        return 2
-
-    def body() -> None:
-        for arg in argv:
-            c = fuse_directory(arg)
-            print(arg, c.get("export", {}).get("fused"), c["sha256"])
-
-    return run_reporting("deploy", body)
-
-
-if __name__ == "__main__":
-    import sys
-
-    raise SystemExit(main(sys.argv[1:]))
