@@ -285,3 +285,18 @@ def test_streams_share_a_per_vehicle_phase_and_leave_bundled() -> None:
     run(collect())
     assert max(counts) >= 3  # HEARTBEAT, SYS_STATUS, ... ride on a LOCAL_POSITION_NED tick
     assert all(c >= 1 for c in counts)
+
+
+def test_state_changes_are_logged_for_verbose(caplog) -> None:
+    """`plmarl autopilot -v` logs every mode and arming change (it logged nothing; issue 26)."""
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="plmarl.autopilot"):
+        host, c = airborne("px4", alt=12.0)
+        assert c.command(d.MAV_CMD_NAV_LAND) == d.MAV_RESULT_ACCEPTED
+        host.advance(60.0)
+    lines = [r.getMessage() for r in caplog.records]
+    assert "vehicle 1: AUTO.LOITER, armed, 0.0 m" in lines
+    assert any(x.startswith("vehicle 1: AUTO.TAKEOFF, armed") for x in lines)
+    assert any(x.startswith("vehicle 1: AUTO.LAND, armed, 1") for x in lines)
+    assert lines[-1].endswith("disarmed, 0.0 m")

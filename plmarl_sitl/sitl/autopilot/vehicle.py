@@ -148,11 +148,14 @@ class Vehicle:
         self.fleet.set_deadline(self.index, dl)
 
     def _announce_state(self) -> None:
-        """Send a HEARTBEAT right away on a mode or arming change.
+        """Send a HEARTBEAT right away on a mode or arming change, and log it (INFO: the
+        `-v` of `plmarl autopilot`, the world's log in a swarm).
 
         Clients learn the mode only from heartbeats (1 Hz); without this a failsafe would
         look up to a second late to MAVSDK, which judges offboard loss to within 0.5 s.
         """
+        log.info("vehicle %d: %s, %s, %.1f m", self.sysid, self._mode_spec.name, "armed" if self._armed else "disarmed",
+                 self.altitude() + 0.0)
         self.send(self._heartbeat(self))
 
     @property
