@@ -11,6 +11,7 @@ stdin into a fresh private directory (0700, files 0600) that is deleted at exit.
                        {"op": "start", "uav": I, "argv": [...], "outputs": {KEY: REL}, "nice": N}
                            `plmarl agent ARGV` ("%BUNDLE%" in ARGV is the bundle directory)
                        {"op": "signal", "uav": I, "sig": N}             e.g. SIGKILL for a node failure
+                       {"op": "ping"}                                    the launcher is there (each second)
                        {"op": "stop"}, or end of file                    stop every agent, then exit
     host -> launcher   {"op": "hello", "pid", "python", "source"}     once the broker answered from here
                        {"op": "started", "uav", "pid"}, {"op": "log", "uav", "text"},
@@ -18,8 +19,9 @@ stdin into a fresh private directory (0700, files 0600) that is deleted at exit.
                        {"op": "error", "text"}: one line, then exit 1 (e.g. the broker cannot be reached)
 
 Lifetime: the agents stop (SIGTERM, then SIGKILL after STOP_GRACE_S) when the launcher
-says so, when stdin ends (the launcher, or the SSH connection carrying it, is gone), on
-SIGTERM or SIGHUP, and when stdout breaks; each agent also has PR_SET_PDEATHSIG, so a
+says so, when stdin ends (the launcher, or the SSH connection carrying it, is gone), when
+nothing came down stdin for `--fence` seconds (a cut link: a TCP connection whose other
+end went silent can stay open for hours), on SIGTERM or SIGHUP, and when stdout breaks; each agent also has PR_SET_PDEATHSIG, so a
 SIGKILLed companion takes its agents along. No process is left on the host.
 """
 
@@ -45,23 +47,47 @@ BUNDLE = "%BUNDLE%"
 STOP_GRACE_S = 5.0
 REACH_TIMEOUT_S = 5.0
 LINE_LIMIT = 64 << 20  # a policy file travels base64 in one line
+# Output waiting for a launcher that does not read (a cut link: the SSH connection's buffers
+# are full) is dropped past this, rather than block the companion and, behind it, its agents.
+OUT_BACKLOG = 4 << 20
+
+
+class _Upstream(asyncio.Protocol):
+    """stdout as a non-blocking pipe; its end means the launcher is gone."""
+
+    def __init__(self, gone: asyncio.Event) -> None:
+        self.gone = gone
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.gone.set()
 
 
 class Companion:
-    def __init__(self, name: str, bundle: Path) -> None:
+    def __init__(self, name: str, bundle: Path, fence_s: float | None = None) -> None:
         self.name = name
         self.bundle = bundle
+        self.fence_s = fence_s
         self.agents: dict[int, asyncio.subprocess.Process] = {}
         self.tasks: list[asyncio.Task] = []
         self.stopping = asyncio.Event()
+        self.out: asyncio.WriteTransport | None = None  # stdout, once the event loop runs
+        self.dropped = 0  # output lines dropped for a launcher that did not read them
 
     # ------------------------------------------------------------------ to the launcher
     def say(self, **msg: object) -> None:
-        try:
-            sys.stdout.buffer.write(json.dumps(msg).encode() + b"\n")
-            sys.stdout.buffer.flush()
-        except (BrokenPipeError, OSError):
+        line = json.dumps(msg).encode() + b"\n"
+        if self.out is None:  # before the event loop: hello or error
+            try:
+                sys.stdout.buffer.write(line)
+                sys.stdout.buffer.flush()
+            except OSError:
+                self.stopping.set()
+        elif self.out.is_closing():
             self.stopping.set()  # nobody listens any more: stop
+        elif self.out.get_write_buffer_size() > OUT_BACKLOG:
+            self.dropped += 1
+        else:
+            self.out.write(line)
 
     # ------------------------------------------------------------------ from the launcher
     def inside(self, rel: str) -> Path:
@@ -117,7 +143,7 @@ class Companion:
             self.signal(int(msg["uav"]), int(msg["sig"]))
         elif op == "stop":
             self.stopping.set()
-        else:
+        elif op != "ping":
             raise ValueError(f"unknown op {op!r}")
 
     async def read_commands(self) -> None:
@@ -126,7 +152,13 @@ class Companion:
         await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
         try:
             while not self.stopping.is_set():
-                line = await reader.readline()
+                try:
+                    async with asyncio.timeout(self.fence_s):
+                        line = await reader.readline()
+                except TimeoutError:
+                    print(f"plmarl-companion {self.name}: no word from the launcher for {self.fence_s:g} s: "
+                          "stopping the agents", file=sys.stderr, flush=True)
+                    break
                 if not line:  # the launcher (or the connection carrying it) is gone
                     break
                 await self.handle(json.loads(line))
@@ -155,12 +187,21 @@ class Companion:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGHUP):
             loop.add_signal_handler(sig, self.stopping.set)
+        self.out, _ = await loop.connect_write_pipe(lambda: _Upstream(self.stopping), sys.stdout)
         reader = asyncio.create_task(self.read_commands())
         try:
             await self.stopping.wait()
         finally:
             reader.cancel()
             await self.stop_agents()
+            if self.dropped:
+                print(f"plmarl-companion {self.name}: {self.dropped} output lines dropped (the launcher did not read them)",
+                      file=sys.stderr, flush=True)
+            if not self.out.is_closing():
+                with contextlib.suppress(TimeoutError):  # the last lines (exit codes, traces) out first
+                    async with asyncio.timeout(STOP_GRACE_S):
+                        while self.out.get_write_buffer_size() and not self.out.is_closing():
+                            await asyncio.sleep(0.02)
         return 0
 
 
@@ -176,10 +217,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="plmarl-companion", description=__doc__.splitlines()[0])
     p.add_argument("--name", required=True, help="this host's name in the hosts file")
     p.add_argument("--reach", required=True, metavar="HOST:PORT", help="the swarm's broker, checked before anything starts")
+    p.add_argument("--fence", type=float, default=None, metavar="S",
+                   help="stop the agents and exit when the launcher has said nothing for S seconds (default: never)")
     args = p.parse_args(argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher stops us (a terminal's Ctrl-C is its)
     bundle = Path(tempfile.mkdtemp(prefix=f"plmarl-{args.name}-"))  # 0700
-    companion = Companion(args.name, bundle)
+    companion = Companion(args.name, bundle, args.fence)
     try:
         try:
             source = reach(args.reach)

@@ -43,6 +43,8 @@ log = logging.getLogger("plmarl.hosts")
 # `plmarl agent` options that name a file it reads, and where the file goes in the bundle.
 INPUT_FILES = {"--mission": "mission", "--swarm-key": "keys", "--broker-credentials": "keys", "--mavlink-key": "keys"}
 OUTPUT_FILES = {"--trace": "trace", "--stats-json": "stats"}
+PING_S = 1.0  # the launcher tells each companion it is there ...
+FENCE_S = 10.0  # ... which stops its agents after this long without a word (a cut link)
 ABANDON_AFTER_KILL_S = 3.0  # a host that does not confirm a SIGKILL within this is cut loose
 CLOSE_GRACE_S = 8.0  # the companion stops its agents (5 s grace each) and says bye
 
@@ -91,6 +93,7 @@ class RemoteHost:
     _hello: asyncio.Future | None = None
     _error: str | None = None
     _reader: asyncio.Task | None = None
+    _pinger: asyncio.Task | None = None
 
     @property
     def command(self) -> list[str]:
@@ -108,7 +111,7 @@ class RemoteHost:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         loop = asyncio.get_running_loop()
         self._hello = loop.create_future()
-        cmd = [*self.command, "--reach", reach]
+        cmd = [*self.command, "--reach", reach, "--fence", f"{FENCE_S:g}"]
         log.info("host %s: %s", self.host.name, shlex.join(cmd))
         with open(self.log_dir / f"{self.host.name}.stderr", "wb") as err:
             try:
@@ -126,9 +129,15 @@ class RemoteHost:
         except TimeoutError:
             raise HostFailed(f"host {self.host.name} did not answer within {timeout_s:g} s "
                              f"({shlex.join(self.host.run)}){self._tail()}") from None
+        self._pinger = asyncio.create_task(self._ping(), name=f"host-{self.host.name}-ping")
         if source != self.host.address:
             log.warning("host %s reaches the broker from %s, the hosts file says %s", self.host.name, source, self.host.address)
         return str(source)
+
+    async def _ping(self) -> None:
+        while self.proc is not None and self.proc.returncode is None:
+            self.send(op="ping")
+            await asyncio.sleep(PING_S)
 
     def _tail(self) -> str:
         said = self.said()
@@ -236,6 +245,8 @@ class RemoteHost:
 
     async def close(self) -> None:
         """Stop the agents still running there and the companion; bounded."""
+        if self._pinger is not None:
+            self._pinger.cancel()
         if self.proc is None:
             return
         if self._hello is None or not self._hello.done() or self._hello.cancelled() or self._hello.exception():
