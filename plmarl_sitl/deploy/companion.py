@@ -23,6 +23,12 @@ says so, when stdin ends (the launcher, or the SSH connection carrying it, is go
 nothing came down stdin for `--fence` seconds (a cut link: a TCP connection whose other
 end went silent can stay open for hours), on SIGTERM or SIGHUP, and when stdout breaks; each agent also has PR_SET_PDEATHSIG, so a
 SIGKILLed companion takes its agents along. No process is left on the host.
+
+The agents are forked from one forkserver per host that imported torch and the agent
+once (`deploy/companion_child.py`, as `sitl/forked.py` does for a launcher's local
+agents): a host with several agents pays that start-up once and shares the pages. Each is
+still `plmarl agent ARGV`, named plmarl-agentI in ps; its output goes to a file in the
+bundle that the companion forwards line by line.
 """
 
 from __future__ import annotations
@@ -31,8 +37,8 @@ import argparse
 import asyncio
 import base64
 import contextlib
-import functools
 import json
+import multiprocessing
 import os
 import shutil
 import signal
@@ -41,12 +47,13 @@ import sys
 import tempfile
 from pathlib import Path, PurePosixPath
 
-from plmarl_sitl.proc import agent_child_setup
+from plmarl_sitl.proc import die_with_parent
 
 BUNDLE = "%BUNDLE%"
 STOP_GRACE_S = 5.0
 REACH_TIMEOUT_S = 5.0
 LINE_LIMIT = 64 << 20  # a policy file travels base64 in one line
+LOG_POLL_S = 0.1  # how often an agent's new output is forwarded
 # Output waiting for a launcher that does not read (a cut link: the SSH connection's buffers
 # are full) is dropped past this, rather than block the companion and, behind it, its agents.
 OUT_BACKLOG = 4 << 20
@@ -67,7 +74,9 @@ class Companion:
         self.name = name
         self.bundle = bundle
         self.fence_s = fence_s
-        self.agents: dict[int, asyncio.subprocess.Process] = {}
+        self.forks = multiprocessing.get_context("forkserver")
+        self.forks.set_forkserver_preload(["plmarl_sitl.deploy.companion_child"])
+        self.agents: dict[int, multiprocessing.process.BaseProcess] = {}
         self.tasks: list[asyncio.Task] = []
         self.stopping = asyncio.Event()
         self.out: asyncio.WriteTransport | None = None  # stdout, once the event loop runs
@@ -104,23 +113,40 @@ class Companion:
             f.write(base64.b64decode(data))
 
     async def start(self, uav: int, argv: list[str], outputs: dict[str, str], nice: int) -> None:
+        from plmarl_sitl.deploy.companion_child import run_agent  # (the forkserver has it loaded)
+
         argv = [a.replace(BUNDLE, str(self.bundle)) for a in argv]
         (self.bundle / "out").mkdir(mode=0o700, exist_ok=True)
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
-        proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "plmarl_sitl.cli", "agent", *argv, stdin=asyncio.subprocess.DEVNULL,
-            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT, cwd=self.bundle, env=env,
-            preexec_fn=functools.partial(agent_child_setup, nice), limit=LINE_LIMIT)
+        log_path = self.bundle / "out" / f"agent{uav}.log"
+        proc = self.forks.Process(target=run_agent, name=f"plmarl-agent{uav}",
+                                  args=(argv, str(log_path), str(self.bundle), nice, os.getpid(), f"plmarl-agent{uav}"))
+        # The first start launches the forkserver, which imports torch: in a thread, so that
+        # the commands (and the pings) keep being read meanwhile.
+        await asyncio.get_running_loop().run_in_executor(None, proc.start)
         self.agents[uav] = proc
         self.say(op="started", uav=uav, pid=proc.pid)
-        self.tasks.append(asyncio.create_task(self.follow(uav, proc, outputs)))
+        self.tasks.append(asyncio.create_task(self.follow(uav, proc, log_path, outputs)))
 
-    async def follow(self, uav: int, proc: asyncio.subprocess.Process, outputs: dict[str, str]) -> None:
+    async def follow(self, uav: int, proc: multiprocessing.process.BaseProcess, log_path: Path,
+                     outputs: dict[str, str]) -> None:
         """Forward the agent's output line by line; at its exit, its output files, then its code."""
-        assert proc.stdout is not None
-        while line := await proc.stdout.readline():
-            self.say(op="log", uav=uav, text=line.decode(errors="replace").rstrip("\n"))
-        code = await proc.wait()
+        pending, offset = b"", 0
+        while True:
+            done = proc.exitcode is not None
+            with contextlib.suppress(FileNotFoundError):
+                with open(log_path, "rb") as f:
+                    f.seek(offset)
+                    chunk = f.read()
+                offset += len(chunk)
+                *lines, pending = (pending + chunk).split(b"\n")
+                for line in lines:
+                    self.say(op="log", uav=uav, text=line.decode(errors="replace"))
+            if done:
+                break
+            await asyncio.sleep(LOG_POLL_S)
+        if pending:
+            self.say(op="log", uav=uav, text=pending.decode(errors="replace"))
+        code = proc.exitcode
         for key, rel in outputs.items():
             with contextlib.suppress(OSError, ValueError):
                 self.say(op="file", uav=uav, key=key, data=base64.b64encode(self.inside(rel).read_bytes()).decode())
@@ -128,7 +154,7 @@ class Companion:
 
     def signal(self, uav: int, sig: int) -> None:
         proc = self.agents.get(uav)
-        if proc is not None and proc.returncode is None:
+        if proc is not None and proc.pid is not None and proc.exitcode is None:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(proc.pid, sig)
 
@@ -167,18 +193,13 @@ class Companion:
 
     # ------------------------------------------------------------------ stop
     async def stop_agents(self) -> None:
-        live = [p for p in self.agents.values() if p.returncode is None]
-        for p in live:
-            with contextlib.suppress(ProcessLookupError):
-                p.send_signal(signal.SIGTERM)
-        for p in live:
-            try:
-                async with asyncio.timeout(STOP_GRACE_S):
-                    await p.wait()
-            except TimeoutError:
-                with contextlib.suppress(ProcessLookupError):
-                    p.kill()
-                await p.wait()
+        live = [u for u, p in self.agents.items() if p.exitcode is None]
+        for u in live:
+            self.signal(u, signal.SIGTERM)
+        for u in live:
+            if not await _exited(self.agents[u], STOP_GRACE_S):
+                self.signal(u, signal.SIGKILL)
+                await _exited(self.agents[u], STOP_GRACE_S)
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(STOP_GRACE_S):
                 await asyncio.gather(*self.tasks, return_exceptions=True)
@@ -205,6 +226,15 @@ class Companion:
         return 0
 
 
+async def _exited(proc: multiprocessing.process.BaseProcess, timeout_s: float) -> bool:
+    """Whether the forked process has exited within `timeout_s` (its exit code is polled)."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout_s
+    while proc.exitcode is None and loop.time() < deadline:
+        await asyncio.sleep(0.05)
+    return proc.exitcode is not None
+
+
 def reach(target: str) -> str:
     """Connect to the broker at HOST:PORT from here; our source address (what the launcher
     sees us as). Raises OSError, said in one line by the caller."""
@@ -221,6 +251,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="stop the agents and exit when the launcher has said nothing for S seconds (default: never)")
     args = p.parse_args(argv)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the launcher stops us (a terminal's Ctrl-C is its)
+    die_with_parent()  # under `ip netns exec`, the launcher itself; under ssh, sshd's session
+    # The forkserver inherits these before it imports torch (one BLAS thread per agent).
+    os.environ.update(OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
     bundle = Path(tempfile.mkdtemp(prefix=f"plmarl-{args.name}-"))  # 0700
     companion = Companion(args.name, bundle, args.fence)
     try:
