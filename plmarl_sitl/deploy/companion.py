@@ -74,8 +74,7 @@ class Companion:
         self.name = name
         self.bundle = bundle
         self.fence_s = fence_s
-        self.forks = multiprocessing.get_context("forkserver")
-        self.forks.set_forkserver_preload(["plmarl_sitl.deploy.companion_child"])
+        self.forks: multiprocessing.context.ForkServerContext | None = None  # at the first agent
         self.agents: dict[int, multiprocessing.process.BaseProcess] = {}
         self.tasks: list[asyncio.Task] = []
         self.stopping = asyncio.Event()
@@ -115,6 +114,9 @@ class Companion:
     async def start(self, uav: int, argv: list[str], outputs: dict[str, str], nice: int) -> None:
         from plmarl_sitl.deploy.companion_child import run_agent  # (the forkserver has it loaded)
 
+        if self.forks is None:
+            self.forks = multiprocessing.get_context("forkserver")
+            self.forks.set_forkserver_preload(["plmarl_sitl.deploy.companion_child"])
         argv = [a.replace(BUNDLE, str(self.bundle)) for a in argv]
         (self.bundle / "out").mkdir(mode=0o700, exist_ok=True)
         log_path = self.bundle / "out" / f"agent{uav}.log"
@@ -163,8 +165,12 @@ class Companion:
         if op == "file":
             self.write_file(str(msg["path"]), str(msg["data"]))
         elif op == "start":
-            await self.start(int(msg["uav"]), [str(a) for a in msg["argv"]], dict(msg.get("outputs", {})),
-                             int(msg.get("nice", 0)))
+            uav = int(msg["uav"])
+            try:
+                await self.start(uav, [str(a) for a in msg["argv"]], dict(msg.get("outputs", {})), int(msg.get("nice", 0)))
+            except (OSError, ImportError, RuntimeError) as exc:  # e.g. torch missing on this host
+                self.say(op="log", uav=uav, text=f"plmarl-companion {self.name}: cannot start the agent: {exc}")
+                self.say(op="exit", uav=uav, code=1)
         elif op == "signal":
             self.signal(int(msg["uav"]), int(msg["sig"]))
         elif op == "stop":
@@ -187,7 +193,11 @@ class Companion:
                     break
                 if not line:  # the launcher (or the connection carrying it) is gone
                     break
-                await self.handle(json.loads(line))
+                try:
+                    await self.handle(json.loads(line))
+                except (ValueError, KeyError, TypeError) as exc:  # counted as dropped, as any bad input
+                    print(f"plmarl-companion {self.name}: bad command dropped ({exc}): {line[:120]!r}",
+                          file=sys.stderr, flush=True)
         finally:
             self.stopping.set()
 

@@ -94,6 +94,7 @@ class RemoteHost:
     _error: str | None = None
     _reader: asyncio.Task | None = None
     _pinger: asyncio.Task | None = None
+    closed: bool = False  # its companion has exited: nothing there runs any more
 
     @property
     def command(self) -> list[str]:
@@ -154,6 +155,7 @@ class RemoteHost:
         except (ValueError, OSError) as exc:  # a line over the limit, a broken pipe
             log.warning("host %s: its output broke: %s", self.host.name, exc)
         code = await self.proc.wait()
+        self.closed = True
         if not self._hello.done():
             why = self._error or f"{shlex.join(self.host.run)} exited with code {code} before it answered{self._tail()}"
             self._hello.set_exception(HostFailed(f"host {self.host.name}: {why}"))
@@ -225,6 +227,9 @@ class RemoteHost:
         log_path.write_text(f"# agent {uav} on host {self.host.name} ({self.host.address})\n")
         self._logs[uav] = log_path
         agent = self.agents[uav] = RemoteAgent(self, uav)
+        if self.closed:
+            agent.finish(255)  # its host's connection is gone already
+            return agent
         self.send(op="start", uav=uav, argv=args, outputs=outputs, nice=nice)
         assert self.proc is not None and self.proc.stdin is not None
         with contextlib.suppress(ConnectionError):
@@ -237,6 +242,8 @@ class RemoteHost:
         if self.agents[uav].returncode is None:
             log.warning("host %s did not confirm agent %d's SIGKILL: closing its connection", self.host.name, uav)
             self.kill()
+            if self.closed:
+                self.agents[uav].finish(255)
 
     def kill(self) -> None:
         if self.proc is not None and self.proc.returncode is None:

@@ -115,3 +115,19 @@ def test_a_companion_that_cannot_reach_the_broker_says_so(tmp_path):
             await host.close()
 
     asyncio.run(main())
+
+
+def test_the_companion_writes_bundle_files_privately_and_only_inside_its_directory(tmp_path):
+    from plmarl_sitl.deploy.companion import Companion
+
+    bundle = tmp_path / "bundle"
+    bundle.mkdir(mode=0o700)
+    c = Companion("cc-a", bundle)
+    c.write_file("keys/swarm.key", "YWJj")  # base64 of "abc"
+    key = bundle / "keys" / "swarm.key"
+    assert key.read_bytes() == b"abc" and key.stat().st_mode & 0o777 == 0o600
+    assert (bundle / "keys").stat().st_mode & 0o777 == 0o700
+    for bad in ("../escape", "/etc/passwd", "keys/../../escape", ""):
+        with pytest.raises(ValueError):
+            c.write_file(bad, "YWJj")
+    assert not (tmp_path / "escape").exists()
