@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plmarl_sitl.config import ConfigError, _require, load_yaml
+from plmarl_sitl.deploy.mqtt.url import parse_broker_url
+from plmarl_sitl.errors import UserError
 
 NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 # The interpreter's path is one word of a remote shell's command line (ssh joins argv
@@ -88,10 +90,14 @@ class HostsFile:
         return next((h for h in self.hosts if uav in h.uavs), None)
 
 
-def load_hosts(path: Path, n_uavs: int) -> HostsFile:
-    """The hosts file at `path`, checked against a mission of `n_uavs` UAVs and against this
-    machine (the launcher's address must be one of its own). Raises ConfigError (a
-    UserError: one line, exit 2) naming the file and the key."""
+def load_hosts(path: Path, n_uavs: int, autopilot: str = "emulator", broker: str = "embedded") -> HostsFile:
+    """The hosts file at `path`, checked against a mission of `n_uavs` UAVs, the run's
+    autopilots and broker, and this machine (the launcher's address must be one of its
+    own). Raises ConfigError or UserError (one line, exit 2), naming the file and the key."""
+    if autopilot != "emulator":
+        raise UserError("--hosts needs the emulated autopilots (the world's vehicles are what remote agents fly)")
+    if broker not in ("embedded", "mosquitto") and parse_broker_url(broker)[0] in ("127.0.0.1", "localhost", "::1"):
+        raise UserError(f"--hosts with the broker {broker}: a loopback address the other hosts cannot reach")
     hosts = load_yaml(HostsFile, path)
     for k, h in enumerate(hosts.hosts):
         for j, u in enumerate(h.uavs):

@@ -58,7 +58,7 @@ from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
-from plmarl_sitl.sitl.hosts import Host, HostsFile, load_hosts
+from plmarl_sitl.sitl.hosts import Host, load_hosts
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 from plmarl_sitl.sitl.monitor import SwarmMonitor
@@ -280,7 +280,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
     if not (opts.policy / "card.yaml").exists():
         raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
-    hosts = _load_hosts(opts, mission.n_uavs)
+    hosts = load_hosts(opts.hosts, mission.n_uavs, opts.autopilot, opts.broker) if opts.hosts is not None else None
     bind = hosts.launcher.address if hosts is not None else "127.0.0.1"
     out = opts.out or default_out_dir()
     out.mkdir(parents=True, exist_ok=True)
@@ -360,8 +360,13 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if gate is not None:
             await gate.start()
             bus_url = gate.url
-        if remote is not None:
-            await _connect_hosts(remote, parse_broker_url(bus_url), console)
+        if remote is not None:  # every host's companion reaches the broker before any agent starts
+            try:
+                for line in await remote.connect(bus_url):
+                    console.print(line, highlight=False)
+                    log.info("%s", line)
+            except HostFailed as exc:
+                raise ComponentFailed(str(exc)) from None
         if real:
             assert opts.arducopter is not None and copter_parm is not None
             copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
@@ -511,32 +516,6 @@ def _host_lost(host: Host, fleet: AgentFleet, script: LauncherEvents, world: Sit
             world.agent_failed(u, f"host {host.name} lost")
         if u in fleet.procs:
             fleet.kill(u)
-
-
-def _load_hosts(opts: UpOptions, n: int) -> HostsFile | None:
-    """The hosts file, checked before anything starts (UserError: one line, exit 2)."""
-    if opts.hosts is None:
-        return None
-    if opts.autopilot != "emulator":
-        raise UserError("--hosts needs the emulated autopilots (the world's vehicles are what remote agents fly)")
-    hosts = load_hosts(opts.hosts, n)
-    if opts.broker not in ("embedded", "mosquitto") and parse_broker_url(opts.broker)[0] in ("127.0.0.1", "localhost", "::1"):
-        raise UserError(f"--hosts with the broker {opts.broker}: a loopback address the other hosts cannot reach")
-    return hosts
-
-
-async def _connect_hosts(remote: RemoteHosts, broker: tuple[str, int], console) -> None:  # noqa: ANN001 - rich Console
-    """Start every host's companion; each checks it reaches the broker before any agent starts."""
-    host, port = broker
-    try:
-        sources = await remote.connect(f"{host}:{port}")
-    except HostFailed as exc:
-        raise ComponentFailed(str(exc)) from None
-    for r in remote.hosts:
-        line = (f"host {r.host.name} ({sources[r.host.name]}) flies UAVs {', '.join(map(str, r.host.uavs))}: "
-                f"broker {host}:{port} reached from there")
-        console.print(line, highlight=False)
-        log.info("%s", line)
 
 
 async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Task) -> None:  # noqa: ANN001

@@ -34,6 +34,7 @@ from pathlib import Path
 import yaml
 
 from plmarl_sitl.deploy.companion import BUNDLE, LINE_LIMIT
+from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import PlmarlError
 from plmarl_sitl.learning.nn.io import FILES as POLICY_FILES
 from plmarl_sitl.sitl.hosts import Host, HostsFile
@@ -283,15 +284,18 @@ class RemoteHosts:
         self.gone: set[str] = set()  # hosts declared lost
         self._heard: dict[str, tuple[tuple[int, ...], int, float]] = {}  # host -> (members, datagrams, wall s)
 
-    async def connect(self, reach: str) -> dict[str, str]:
-        """Every host's companion, started at once; raises HostFailed (one line) for the first
-        that fails. Returns each host's source address towards the broker."""
+    async def connect(self, broker_url: str) -> list[str]:
+        """Every host's companion, started at once, each reaching the broker from its host;
+        raises HostFailed (one line) for the first that fails. Returns a line per host."""
+        host, port = parse_broker_url(broker_url)
+        reach = f"{host}:{port}"
         results = await asyncio.gather(*(r.connect(reach, self.file.connect_timeout_s) for r in self.hosts),
                                        return_exceptions=True)
         for res in results:
             if isinstance(res, BaseException):
                 raise res
-        return {r.host.name: str(s) for r, s in zip(self.hosts, results, strict=True)}
+        return [f"host {r.host.name} ({source}) flies UAVs {', '.join(map(str, r.host.uavs))}: broker {reach} reached "
+                "from there" for r, source in zip(self.hosts, results, strict=True)]
 
     def lost(self, datagrams: Sequence[int], out_of_mission: set[int], now: float) -> list[Host]:
         """Hosts lost as of wall time `now`: none of their agents still in the mission (not in
