@@ -47,6 +47,7 @@ import sys
 import tempfile
 from pathlib import Path, PurePosixPath
 
+from plmarl_sitl.deploy.companion_child import PRELOAD, run_agent
 from plmarl_sitl.proc import die_with_parent
 
 BUNDLE = "%BUNDLE%"
@@ -112,11 +113,9 @@ class Companion:
             f.write(base64.b64decode(data))
 
     async def start(self, uav: int, argv: list[str], outputs: dict[str, str], nice: int) -> None:
-        from plmarl_sitl.deploy.companion_child import run_agent  # (the forkserver has it loaded)
-
         if self.forks is None:
             self.forks = multiprocessing.get_context("forkserver")
-            self.forks.set_forkserver_preload(["plmarl_sitl.deploy.companion_child"])
+            self.forks.set_forkserver_preload(PRELOAD)
         argv = [a.replace(BUNDLE, str(self.bundle)) for a in argv]
         (self.bundle / "out").mkdir(mode=0o700, exist_ok=True)
         log_path = self.bundle / "out" / f"agent{uav}.log"

@@ -1,25 +1,27 @@
-"""An agent forked by a companion's forkserver (`deploy/companion.py`), which imported this
-module and everything `plmarl agent` needs once: a host running several agents pays the
-interpreter and torch start-up (~1.2 s of CPU) once and shares those pages between them.
-Nothing here starts a thread at import: forking a process with threads is unsafe."""
+"""An agent forked by a companion's forkserver (`deploy/companion.py`). The forkserver
+imports PRELOAD once, everything `plmarl agent` needs: a host running several agents pays
+the interpreter and torch start-up (~1.2 s of CPU) once and shares those pages between them.
+This module itself stays light: the companion imports it for `run_agent` and must not load
+torch (nor start a thread: forking a process with threads is unsafe)."""
 
 import os
 import sys
 
-# As `plmarl agent` does: one BLAS/OpenMP thread per agent, set before torch loads.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+from plmarl_sitl.proc import agent_child_setup, set_process_name, sigterm_when_gone
 
-import psutil  # noqa: E402, F401  (the agent reports its RSS with it)
-import torch  # noqa: E402, F401
-
-import plmarl_sitl.deploy.agent.core  # noqa: E402, F401
-import plmarl_sitl.deploy.agent.program  # noqa: E402, F401
-import plmarl_sitl.deploy.mavlink.connect  # noqa: E402, F401
-import plmarl_sitl.deploy.mqtt.transport  # noqa: E402, F401
-import plmarl_sitl.learning.nn.io  # noqa: E402, F401
-import plmarl_sitl.mission  # noqa: E402, F401
-from plmarl_sitl.proc import agent_child_setup, set_process_name, sigterm_when_gone  # noqa: E402
+# What the forkserver imports before it forks an agent (its environment already says one
+# BLAS/OpenMP thread per agent: the companion sets it before the forkserver starts).
+PRELOAD = [
+    "plmarl_sitl.deploy.companion_child",
+    "psutil",  # the agent reports its RSS with it
+    "torch",
+    "plmarl_sitl.deploy.agent.core",
+    "plmarl_sitl.deploy.agent.program",
+    "plmarl_sitl.deploy.mavlink.connect",
+    "plmarl_sitl.deploy.mqtt.transport",
+    "plmarl_sitl.learning.nn.io",
+    "plmarl_sitl.mission",
+]
 
 
 def run_agent(argv: list[str], log_path: str, cwd: str, nice: int, companion: int, name: str) -> None:
