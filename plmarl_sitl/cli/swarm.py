@@ -18,6 +18,12 @@ examples:
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
   plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
       --speedup 5 --headless    # one real ArduCopter SITL per UAV
+  plmarl swarm up missions/paper_urban.yaml --hosts hosts.yaml --broker mosquitto --lockstep --headless
+      # agents on companion computers reached by ssh; hosts.yaml:
+      #   launcher: {address: 10.0.0.1}      # the broker and the vehicles' UDP ports listen here
+      #   hosts:
+      #     - {name: cc-a, run: [ssh, -o, BatchMode=yes, pi@10.0.0.2], address: 10.0.0.2, uavs: [0, 1]}
+      #     - {name: cc-b, run: [ssh, -o, BatchMode=yes, pi@10.0.0.3], address: 10.0.0.3, uavs: [2, 3]}
 
 The mission clock starts once every vehicle is airborne under its agent. Ctrl-C stops
 everything cleanly. Afterwards: plmarl report RUN_DIR draws the plots."""
@@ -88,6 +94,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "SETUP_SIGNING). Unsigned or badly signed commands and setpoints are then dropped and counted")
     up.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
                     help="with --mavlink-sign: use DIR/vehicleI.key (64 hex characters, mode 0600) instead of fresh keys")
+    up.add_argument("--hosts", type=Path, default=None, metavar="HOSTS.yaml",
+                    help="run the agents of some UAVs on other hosts: per host a command prefix that runs a command "
+                    "there (e.g. [ssh, user@host]), its address and its UAV ids (the others run here). The world and "
+                    "the broker stay here, listening on the hosts file's launcher address; each host needs Python with "
+                    "plmarl_sitl installed, and gets its files (mission, policy, keys, login) through the prefix's "
+                    "stdin. A host that falls silent mid-mission is recorded as node failures. Emulated autopilots only")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
     up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
     up.set_defaults(func=run_up)
@@ -153,7 +165,7 @@ def run_up(args: argparse.Namespace) -> int:
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
         auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
         mavlink_sign=args.mavlink_sign, mavlink_keys=args.mavlink_keys,
-        lockstep=args.lockstep, straggler_s=args.straggler,
+        lockstep=args.lockstep, straggler_s=args.straggler, hosts=args.hosts,
     )
     try:
         summary = launch(opts)

@@ -4,7 +4,8 @@ Used by the integration tests, `plmarl bench agent` and the sim-to-SITL gap run;
 launcher builds on it. Every child gets OPENBLAS/OMP threads = 1 and its own log file.
 A fleet either execs each agent (`python -m plmarl_sitl.cli agent ...`, exactly what a
 user runs) or, with `forked=True`, forks it from a forkserver that has imported torch
-once (`sitl.forked`), which is how a launcher starts 20 agents on 2 cores quickly.
+once (`sitl.forked`), which is how a launcher starts 20 agents on 2 cores quickly. The
+UAVs in `remote` run on other hosts (`sitl.remote`), with the same arguments.
 """
 
 from __future__ import annotations
@@ -18,15 +19,20 @@ import signal
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from plmarl_sitl.proc import agent_child_setup
 from plmarl_sitl.sitl.forked import ForkedProcess, fork_agent, warm_up
+from plmarl_sitl.sitl.remote import RemoteAgent
+
+if TYPE_CHECKING:
+    from plmarl_sitl.sitl.remote import RemoteHost
 
 
 @dataclass
 class AgentProc:
     uav_id: int
-    proc: asyncio.subprocess.Process | ForkedProcess
+    proc: asyncio.subprocess.Process | ForkedProcess | RemoteAgent
     log_path: Path
     trace_path: Path | None
     stats_path: Path | None
@@ -48,14 +54,17 @@ class AgentProc:
 SITL_AGENT_NICE = 5
 
 
-def _signal(p: asyncio.subprocess.Process | ForkedProcess, sig: int) -> None:
+def _signal(p: asyncio.subprocess.Process | ForkedProcess | RemoteAgent, sig: int) -> None:
     """Signal a running agent with os.kill. Not `p.send_signal`/`p.kill`: for an exec'd agent
     they are `Popen.send_signal`, which polls first, and that waitpid can reap an agent that
     has just exited before asyncio's child watcher does; the watcher then reports exit 255
     ("Unknown child process") instead of the agent's own code. An exited agent keeps its pid
     until it is reaped; the one window left is the instant between the watcher's reap and its
-    callback setting returncode (pids are handed out in sequence: a reuse within it is remote)."""
-    if p.returncode is None:
+    callback setting returncode (pids are handed out in sequence: a reuse within it is remote).
+    An agent on another host gets the signal from its companion there."""
+    if isinstance(p, RemoteAgent):
+        p.send_signal(sig)
+    elif p.returncode is None:
         with contextlib.suppress(ProcessLookupError):
             os.kill(p.pid, sig)
 
@@ -74,6 +83,7 @@ class AgentFleet:
     forked: bool = False
     nice: int = 0
     procs: dict[int, AgentProc] = field(default_factory=dict)
+    remote: dict[int, RemoteHost] = field(default_factory=dict)  # UAVs whose agent runs on another host
 
     def warm_up(self) -> None:
         """Forked fleets: get the forkserver importing before the first `spawn`."""
@@ -125,8 +135,10 @@ class AgentFleet:
             cmd += ["--stats-json", str(stats_path)]
         cmd += extra or []
         threads = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
-        proc: asyncio.subprocess.Process | ForkedProcess
-        if self.forked:
+        proc: asyncio.subprocess.Process | ForkedProcess | RemoteAgent
+        if uav_id in self.remote:
+            proc = await self.remote[uav_id].spawn(uav_id, cmd, log_path, nice=self.nice)
+        elif self.forked:
             proc = await fork_agent(cmd, str(log_path), threads, name=f"plmarl-agent{uav_id}", nice=self.nice)
         else:
             with open(log_path, "wb") as log:

@@ -3,7 +3,10 @@
 This process starts the broker (amqtt in a child process, unless an external one is
 given; behind a `BrokerGate` when the mission has a broker outage) and hosts the SITL
 world (`SitlWorld`: autopilots, users, link emulator); it forks one `plmarl agent` per
-UAV (`sitl.forked`) and watches them. With `--autopilot arducopter=PATH` the autopilots
+UAV (`sitl.forked`) and watches them. With `--hosts HOSTS.yaml` the agents of the UAVs a host
+lists run on that host instead (`sitl.hosts`, `sitl.remote`), reached through its command
+prefix (ssh); the broker and the vehicles' ports then listen on the launcher's address
+from the hosts file, and a host that falls silent is recorded as node failures. With `--autopilot arducopter=PATH` the autopilots
 are real: one ArduCopter SITL process per UAV (`sitl.arducopter`), each agent on its
 SERIAL0, the world following each vehicle on its SERIAL1 (`sitl.external`). The world starts mission time once every vehicle
 flies under its agent; the mission's events fire on that clock, from one schedule
@@ -19,7 +22,8 @@ Everything is recorded in the run directory:
     tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer; ArduCopter:
                       the world's SERIAL1 link, both ways)
     arducopter/vehicleI/  ArduCopter's working directory: arducopter.log, plmarl.parm, logs/
-    agents/agentI.log     each agent's log (and its P-AoI trace)
+    agents/agentI.log     each agent's log (and its P-AoI trace); a remote agent's comes back over its host's link
+    hosts/NAME.stderr     with --hosts: what each host's command prefix (ssh) said
     launcher.log      world, bus and launcher log
 
 Shutdown (mission end, Ctrl-C, SIGTERM or a failed component) stops the agents (SIGTERM,
@@ -56,12 +60,14 @@ from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
+from plmarl_sitl.sitl.hosts import Host, load_hosts
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
+from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -114,6 +120,7 @@ class UpOptions:
     # compute; an agent owing an answer for straggler_s wall seconds is declared failed.
     lockstep: bool = False
     straggler_s: float = DEFAULT_STRAGGLER_S
+    hosts: Path | None = None  # a hosts file: some agents on other machines (`sitl.hosts`)
 
     def start_timeout(self) -> float:
         """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
@@ -184,9 +191,11 @@ BROKER_GUARANTEES = {
 }
 
 
-async def _start_broker(spec: str, access: BrokerAccess | None, out: Path) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
+async def _start_broker(spec: str, access: BrokerAccess | None, out: Path, bind: str = "127.0.0.1",
+                        port: int = 0) -> tuple[AmqttProcess | MosquittoBroker | None, str, int]:
     if spec in ("embedded", "mosquitto"):
-        broker = AmqttProcess(access=access) if spec == "embedded" else MosquittoBroker(access=access)
+        broker = (AmqttProcess(bind, port, access=access) if spec == "embedded"
+                  else MosquittoBroker(bind, port, access=access))
         try:
             await asyncio.to_thread(broker.start, 20.0, out)  # amqtt imports and hashes passwords first
         except (RuntimeError, TimeoutError, OSError, subprocess.CalledProcessError) as exc:
@@ -279,6 +288,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     size_warning = swarm_size_warning(card, mission.n_uavs)
     if size_warning is not None:
         console.print(f"[yellow]warning:[/] {size_warning}", highlight=False)
+    hosts = load_hosts(opts.hosts, mission.n_uavs, opts.autopilot, opts.broker) if opts.hosts is not None else None
+    bind = hosts.launcher.address if hosts is not None else "127.0.0.1"
     out = opts.out or default_out_dir()
     run_lock = claim_run_dir(out)  # noqa: F841 - held by this frame until the run ends (sitl/rundir.py)
     handler = _setup_logging(out)
@@ -312,14 +323,17 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
                   "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
                   "command it", highlight=False)
-    fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
-    fleet.warm_up()  # the agents' imports load on the other core meanwhile
+    remote = RemoteHosts(hosts, out / "hosts") if hosts is not None else None
+    fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE, remote=remote.placement if remote else {})
+    if len(fleet.remote) < n:
+        fleet.warm_up()  # the agents' imports load on the other core meanwhile
     # Our own broker: a login per process and an ACL; an external one: its own business.
     access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
     creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
     world_login = load_credentials(creds["world"]) if creds else None
     monitor_login = load_credentials(creds["monitor"]) if creds else None
-    broker, up_host, up_port = await _start_broker(opts.broker, access, out)
+    broker, up_host, up_port = await _start_broker(opts.broker, access, out, bind,
+                                                   (hosts.launcher.broker_port or 0) if hosts is not None else 0)
     guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
                                        "(docs/SECURITY.md has the ACL to give it)")
     console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
@@ -328,7 +342,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
     # needs it (a lockstep world emulates the outage: `SitlWorld._outage_emulated`).
     schedule = EventSchedule.of(mission)
-    gate = BrokerGate(up_host, up_port) if schedule.has("broker_outage") and not opts.lockstep else None
+    gate = BrokerGate(up_host, up_port, host=bind) if schedule.has("broker_outage") and not opts.lockstep else None
     bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
     script: LauncherEvents | None = None
@@ -354,6 +368,13 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if gate is not None:
             await gate.start()
             bus_url = gate.url
+        if remote is not None:  # every host's companion reaches the broker before any agent starts
+            try:
+                for line in await remote.connect(bus_url):
+                    console.print(line, highlight=False)
+                    log.info("%s", line)
+            except HostFailed as exc:
+                raise ComponentFailed(str(exc)) from None
         if real:
             assert opts.arducopter is not None and copter_parm is not None
             copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
@@ -371,10 +392,11 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                               events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
                               swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
         else:
-            base_port = free_udp_ports(n)
-            agent_urls = [f"udpout://127.0.0.1:{base_port + i}" for i in range(n)]
+            base_port = (hosts.launcher.vehicle_base_port if hosts is not None else None) or free_udp_ports(n, bind)
+            agent_urls = [f"udpout://{bind}:{base_port + i}" for i in range(n)]
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                              speedup=opts.speedup, base_port=base_port, seed=mission.seed, episode_s=duration, events=schedule,
+                              speedup=opts.speedup, base_port=base_port, bind_host=bind, seed=mission.seed,
+                              episode_s=duration, events=schedule,
                               swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
                               lockstep=opts.lockstep, straggler_s=opts.straggler_s)
         world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
@@ -401,7 +423,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = None if observer is None else tg.create_task(observer.run(), name="launcher-bus")
-            watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout(), copters), name="watchdog")
+            watch = tg.create_task(_watch(fleet, script, world, opts.start_timeout(), copters, remote), name="watchdog")
             view = None if opts.headless else tg.create_task(_live(Live, console, monitor, world_task), name="live-view")
             await world_task
             for t in (bus_task, watch, view):
@@ -412,6 +434,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     finally:
         # Agents first, while the vehicles still answer: each commands hold and exits.
         await fleet.stop()
+        if remote is not None:
+            await remote.close()
         if world is not None:
             world.stop()
             world.vehicles.close()
@@ -446,9 +470,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
 
 async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float,
-                 copters: ArduCopterFleet | None = None) -> None:
+                 copters: ArduCopterFleet | None = None, remote: RemoteHosts | None = None) -> None:
     """Fail fast, with a one-line reason, when an agent or an ArduCopter dies unasked or
-    nothing takes off."""
+    nothing takes off; a host gone silent in the mission is node failures, not a failure of the run."""
     loop = asyncio.get_running_loop()
     t_start = loop.time()
     while True:
@@ -456,6 +480,10 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
         gone = copters.exited() if copters is not None else None
         if gone is not None:
             raise ComponentFailed(gone.exit_reason())
+        if remote is not None and world.t0 is not None and world.host is not None:
+            heard = [c.datagrams for c in world.host.counters()]
+            for host in remote.lost(heard, script.killed | world.failed_agents, loop.time()):
+                _host_lost(host, fleet, script, world, remote.file.silence_s)
         for i, ap in list(fleet.procs.items()):
             rc = ap.proc.returncode
             if rc is None or i in script.killed:
@@ -479,6 +507,26 @@ def _agent_failed(fleet: AgentFleet, script: LauncherEvents | None, record: Call
     if i in fleet.procs:
         fleet.kill(i)
     record({"t": float(k) if k is not None else -1.0, "type": "agent_failed", "uav": i, "why": why})
+
+
+def _host_lost(host: Host, fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, silence_s: float) -> None:
+    """A host none of whose agents has been heard for silence_s (its link is down, it lost
+    power): each of its UAVs still in the mission is a node failure. The world takes the UAV
+    out of the mission (its vehicle flies on under its setpoint-loss failsafe) and, in
+    lockstep, stops waiting for its agent; the agent is killed, should its host come back."""
+    t = float(world.mission_t or 0)
+    for u in host.uavs:
+        if u in script.killed:
+            continue
+        script.killed.add(u)
+        world.vehicles.mark_failed(u)
+        entry = {"t": t, "type": "node_failure", "uav": u, "cause": "host_lost", "host": host.name}
+        log.warning("host %s silent for %g s: %s", host.name, silence_s, entry)
+        script.record(entry)
+        if world.barrier is not None:
+            world.agent_failed(u, f"host {host.name} lost")
+        if u in fleet.procs:
+            fleet.kill(u)
 
 
 async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Task) -> None:  # noqa: ANN001

@@ -105,6 +105,7 @@ class WorldConfig:
     boot: str = "instant"  # autopilot start-up: instant, or real (the personality's measured timeline)
     speedup: float = 1.0
     base_port: int = 14540
+    bind_host: str = "127.0.0.1"  # the vehicles' UDP ports listen here (a swarm over hosts: the launcher's address)
     seed: int | None = None  # users' seed; None: mission.seed
     loss: float = 0.0  # per-delivery loss probability
     latency_s: float = 0.0  # sim seconds between a tx and its deliveries
@@ -196,6 +197,7 @@ class SitlWorld:
                 origin=m.origin,
                 home_offsets_ned=[tuple(map(float, h)) for h in homes],
                 base_port=cfg.base_port,
+                bind_host=cfg.bind_host,
                 boot=cfg.boot,
                 signing_keys=list(cfg.mavlink_keys) or None,
                 # Lockstep: every vehicle's telemetry on the same grid points, so all agents
@@ -340,8 +342,8 @@ class SitlWorld:
         """The world's broker connection broke or came back (a stalled or stopped broker, a
         scripted outage): recorded as `broker_lost` / `broker_back` at the mission second.
         The physics and telemetry do not wait for it; the agents fly on their predictions."""
-        if self.mission_t is None or self.on_event is None:
-            return  # before the mission: the start-up waits for the bus anyway
+        if self.mission_t is None or self.on_event is None or self._stop.is_set():
+            return  # before the mission the start-up waits for the bus anyway; after it the broker is stopped on purpose
         entry = {"t": float(self.mission_t), "type": "broker_back" if up else "broker_lost"}
         log.warning("world: %s at t = %d s", "broker connection back" if up else "lost the broker connection", self.mission_t)
         self.on_event(entry)
