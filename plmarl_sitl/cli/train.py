@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eval-episodes", type=int, default=100, help="deterministic evaluation episodes for the card (0: skip)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1; measured fastest here)")
     p.add_argument("--imitation-rounds", type=int, default=6,
-                   help="Oracle-imitation (DAgger) warm-start rounds before MAPPO; 0 = MAPPO from scratch (default: 6)")
+                   help="imitation (DAgger) warm-start rounds before MAPPO; 0 = MAPPO from scratch (default: 6)")
     p.add_argument("--imitation-episodes", type=int, default=40, help="imitation episodes per round (default: 40)")
     p.add_argument("--imitation-tup-chunks", type=int, default=5,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
