@@ -10,7 +10,6 @@ from pathlib import Path
 from plmarl_sitl.cmdline import add_seed, progress, tup_arg
 from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.errors import UserError
-
 from plmarl_sitl.learning.eval.methods import methods_help, parse_methods
 
 DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,service,greedy,clairvoyant"

@@ -224,7 +224,7 @@ class ClairvoyantController:
     def _fresh(self) -> torch.Tensor:
         """(B, V + 1, N, 2) fresh plans (greedy variants, service), improved, assigned."""
         env = self.env
-        b_all, n = env.num_envs, env.n
+        b_all = env.num_envs
         pos = env.pos[..., :2].double()
         out = pos.unsqueeze(1).repeat(1, FIRSTS + 1, 1, 1)  # dead UAVs' targets: where they are
         live_n = env.alive.sum(-1)

@@ -8,8 +8,8 @@ import torch
 from plmarl_sitl.mission import Failure, Launch, load_mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.twin.env import CoverageEnv
-from plmarl_sitl.twin.heuristic import HeuristicController
 from plmarl_sitl.twin.greedy import GreedyController
+from plmarl_sitl.twin.heuristic import HeuristicController
 from plmarl_sitl.twin.rollout import run_episodes
 
 MISSION = load_mission("missions/paper_urban.yaml")
