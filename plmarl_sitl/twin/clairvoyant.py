@@ -94,7 +94,7 @@ class ClairvoyantController:
         j = torch.clamp(torch.round(xy[..., 1] / self.grid_m).long(), 0, self.cols - 1)
         return i * self.cols + j
 
-    def _covers(self, users: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
+    def covers(self, users: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
         """users (b, U, 2), pts (b, ..., 2) -> (b, ..., U) bool: the point covers the user."""
         shape = pts.shape
         p = pts.reshape(shape[0], -1, 1, 2)
@@ -114,7 +114,7 @@ class ClairvoyantController:
         d2 = ((self.cells[idx] - users.unsqueeze(-2)) ** 2).sum(-1)
         return idx, inside & (d2 <= self.r2)
 
-    def _greedy_variants(self, users: torch.Tensor, k: int) -> torch.Tensor:
+    def greedy_variants(self, users: torch.Tensor, k: int) -> torch.Tensor:
         """(b, V, k) cell indices: greedy plans (connected, 2 d_safe apart) whose first point
         is the best cell (V = 0: the plain greedy) or the next best peaks 2 R apart."""
         b, n_cells = users.shape[0], self.cells.shape[0]
@@ -141,7 +141,7 @@ class ClairvoyantController:
                 gain = torch.zeros(b * FIRSTS, n_cells, dtype=users.dtype).scatter_add_(1, flat, w).view(b, FIRSTS, n_cells)
                 best = torch.where(allowed, gain, torch.full_like(gain, -1.0)).argmax(-1)  # ties: lowest index
             chosen.append(best)
-            unserved = unserved * ~self._covers(users, self.cells[best])
+            unserved = unserved * ~self.covers(users, self.cells[best])
             near = near | self.link_ok[best]
             apart = apart & self.apart_ok[best]
             allowed = near & apart
@@ -166,14 +166,14 @@ class ClairvoyantController:
         onehot[..., skip, :] = 0.0
         return onehot
 
-    def _improve(self, users: torch.Tensor, plan: torch.Tensor) -> torch.Tensor:
+    def improve(self, users: torch.Tensor, plan: torch.Tensor) -> torch.Tensor:
         """Local improvement of plans (b, V, k) cell indices: each point in turn moves to the
         best of the cells within MOVE_CELLS that covers more users, 2 d_safe from the others,
         with the plan still connected."""
         k = plan.shape[-1]
         plan = plan.clone()
         pts = self.cells[plan]  # (b, V, k, 2)
-        cov = self._covers(users, pts).to(torch.int16)  # (b, V, k, U)
+        cov = self.covers(users, pts).to(torch.int16)  # (b, V, k, U)
         cnt = cov.sum(2)  # (b, V, U) points covering each user
         for _ in range(SWEEPS):
             moved = False
@@ -185,7 +185,7 @@ class ClairvoyantController:
                 cand = ni.clamp(0, self.rows - 1) * self.cols + nj.clamp(0, self.cols - 1)  # (b, V, M)
                 cp = self.cells[cand]
                 base = cnt - cov[:, :, i]
-                new_cov = ((base.unsqueeze(2) + self._covers(users, cp)) > 0).sum(-1)  # (b, V, M)
+                new_cov = ((base.unsqueeze(2) + self.covers(users, cp)) > 0).sum(-1)  # (b, V, M)
                 now = (cnt > 0).sum(-1)
                 d2 = ((cp.unsqueeze(-2) - pts.unsqueeze(-3)) ** 2).sum(-1)  # (b, V, M, k)
                 me = torch.zeros(k, dtype=torch.bool)
@@ -206,7 +206,7 @@ class ClairvoyantController:
                 plan[..., i] = to
                 pts[:, :, i] = self.cells[to]
                 cnt = cnt - cov[:, :, i]
-                cov[:, :, i] = self._covers(users, pts[:, :, i]).to(torch.int16)
+                cov[:, :, i] = self.covers(users, pts[:, :, i]).to(torch.int16)
                 cnt = cnt + cov[:, :, i]
             if not moved:
                 break
@@ -235,8 +235,8 @@ class ClairvoyantController:
                     continue
                 envs = lo + torch.nonzero(live_n[lo:hi] == k).flatten()
                 users = env.users.xy[envs].double()
-                plans = torch.cat([self._greedy_variants(users, k), self._service_plan(users, k)], 1)
-                plans = self._improve(users, plans)
+                plans = torch.cat([self.greedy_variants(users, k), self._service_plan(users, k)], 1)
+                plans = self.improve(users, plans)
                 pts = self.cells[plans]  # (b, V + 1, k, 2)
                 for j, e in enumerate(envs.tolist()):
                     live = torch.nonzero(env.alive[e]).flatten()
