@@ -83,7 +83,10 @@ def run(args: argparse.Namespace) -> int:
     mission = load_mission(args.mission)
     loaded = {m: load_policy(Path(args.policies) / m, mission) for m in sorted(needed_policies(args.methods))}
     decisions = math.ceil(mission.timing.episode_s / mission.timing.decision_every_s)
-    total = decisions * args.episodes * len(args.methods) * len(args.tup)
+    from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
+
+    runs = sum(1 if m in GLOBAL_KNOWLEDGE else len(args.tup) for m in args.methods)  # global knowledge: once
+    total = decisions * args.episodes * runs
     with progress(disable=args.json) as bar:
         task = bar.add_task(f"eval {','.join(args.methods)} on {mission.name} (seed {args.seed})", total=total)
         res = evaluate_methods(

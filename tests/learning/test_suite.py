@@ -97,10 +97,10 @@ def test_global_knowledge_references_do_not_depend_on_tup(tmp_path: Path, method
 # ---------------------------------------------------------------------- transient definitions
 def test_transient_trough_and_plateau_on_a_known_trace() -> None:
     t = np.arange(1, 201)
-    oracle = np.where(t < 100, 1.0, 0.8)[None, :]
+    reference = np.where(t < 100, 1.0, 0.8)[None, :]
     # Drops to 0.5 at t = 100, recovers linearly to 0.8 at t = 130, then flat.
     c = np.where(t < 100, 0.9, np.minimum(0.5 + 0.01 * (t - 100), 0.8))[None, :]
-    res = failure_transient(c, oracle, 100)
+    res = failure_transient(c, reference, 100)
     assert res["trough_mean"] == pytest.approx(0.5)
     assert res["pre_failure_mean"] == pytest.approx(0.9)
     assert res["reference_post_level_mean"] == pytest.approx(0.8)

@@ -111,11 +111,11 @@ def test_failure_curriculum_fails_the_requested_share():
 
 
 def test_greedy_is_high_and_heuristic_below_it():
-    oracle = run_episodes(MISSION, lambda env: GreedyController(env), episodes=4, seed=3)
+    greedy = run_episodes(MISSION, lambda env: GreedyController(env), episodes=4, seed=3)
     heur = run_episodes(MISSION, lambda env: HeuristicController(env.mission), episodes=4, seed=3)
-    assert oracle.coverage.mean() >= 0.9
-    assert heur.coverage.mean() < oracle.coverage.mean() - 0.1
-    assert oracle.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
+    assert greedy.coverage.mean() >= 0.9
+    assert heur.coverage.mean() < greedy.coverage.mean() - 0.1
+    assert greedy.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
 
 
 def _events_mission(*events):

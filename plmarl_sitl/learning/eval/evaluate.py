@@ -20,7 +20,7 @@ import numpy as np
 
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.controllers import LearnedController
-from plmarl_sitl.learning.eval.methods import ALL_METHODS
+from plmarl_sitl.learning.eval.methods import ALL_METHODS, GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import best_reference
 from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
@@ -112,6 +112,9 @@ def evaluate_methods(
     for tup in tups:
         m = mission.with_tup(tup)
         for method in methods:
+            if method in GLOBAL_KNOWLEDGE and tup != tups[0]:  # T_up-independent: run once, serve every T_up
+                runs[(method, tup)] = runs[(method, tups[0])]
+                continue
             runs[(method, tup)] = run_method(
                 m, controller_factory(method, loaded), episodes, seed, batch=batch, from_s=from_s,
                 failure_prob=failure_prob, on_decision=on_decision,

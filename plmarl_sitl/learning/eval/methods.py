@@ -20,6 +20,9 @@ METHOD_HELP = {
 }
 ALL_METHODS = tuple(METHOD_HELP)
 DEPRECATED_METHODS = {"oracle": "greedy"}  # old name -> new name, accepted for one release
+# Methods that plan with global knowledge and never read the signalled states: their episodes
+# do not depend on T_up, so a sweep runs them once (tests/learning/test_suite.py checks it).
+GLOBAL_KNOWLEDGE = ("greedy", "clairvoyant")
 
 
 def methods_help() -> str:

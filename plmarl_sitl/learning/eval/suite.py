@@ -26,6 +26,7 @@ import numpy as np
 from plmarl_sitl.config import ConfigError, load_yaml
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, run_method
+from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import ABOUT, REFERENCES, best_reference, pairwise_wins
 from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.eval.transient import failure_transient
@@ -37,7 +38,6 @@ from plmarl_sitl.mission import Mission, load_mission
 # which `run_method` uses (a test pins the two together).
 FAILURE_AT_S = 100.0
 BATCH = 50  # parallel twin episodes per rollout (as `plmarl eval`)
-GLOBAL_KNOWLEDGE = ("greedy", "clairvoyant")  # methods whose episodes do not depend on T_up
 
 
 @dataclass(frozen=True)
