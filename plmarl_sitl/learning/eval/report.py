@@ -237,4 +237,10 @@ def print_tables(res: dict) -> None:
         p = f"{pv[(m, tup)]:.2g}" if (m, tup) in pv else "-"
         t.add_row(m, str(tup), f"{r['coverage_mean']:.3f}", f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]",
                   frac, r.get("best_reference", "-"), f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
-    Console().print(t)
+    console = Console()
+    console.print(t)
+    from plmarl_sitl.learning.eval.references import ABOUT
+
+    for m in dict.fromkeys(m for m, _ in rows):
+        if m in ABOUT:
+            console.print(f"reference {m}: {ABOUT[m]}")
