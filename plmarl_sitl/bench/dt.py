@@ -1,4 +1,4 @@
-"""`plmarl bench dt`: speed of the vectorised twin and of one Oracle episode.
+"""`plmarl bench dt`: speed of the vectorised twin and of one greedy-reference episode.
 
 An agent-step is one agent advanced by one 1-s physics step (the unit VMAS reports), so a
 decision of tau = 3 s for B envs of N agents is 3 B N agent-steps. Actions are uniform
@@ -85,14 +85,14 @@ def _shards_mode(mission_path: str, envs: int, seed: int) -> float | None:
     return sum(s for s, _ in results) / max(w for _, w in results)
 
 
-def _time_oracle(mission, seed: int) -> float:
+def _time_greedy(mission, seed: int) -> float:
     import torch
 
     from plmarl_sitl.twin.env import CoverageEnv
-    from plmarl_sitl.twin.oracle import OracleController
+    from plmarl_sitl.twin.greedy import GreedyController
 
     env = CoverageEnv(mission, 1, seed)
-    ctl = OracleController(env)
+    ctl = GreedyController(env)
     with torch.inference_mode():
         obs = env.reset()
         t0 = time.perf_counter()
@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> dict:
     torch.set_num_threads(1)
     return {
         "rows": rows,
-        "oracle_episode_s": _time_oracle(mission, args.seed),
+        "greedy_episode_s": _time_greedy(mission, args.seed),
         "machine": machine_info(),
         "n_uavs": mission.n_uavs,
         "seed": args.seed,
@@ -138,4 +138,4 @@ def print_table(res: dict) -> None:
         shards = f"{r['shards_mode']:,.0f}" if r["shards_mode"] else "-"
         t.add_row(str(r["envs"]), f"{r['threads_mode']:,.0f}", shards, f"{r['agent_steps_per_s']:,.0f}")
     console.print(t)
-    console.print(f"one Oracle episode (200 s, batch 1): {res['oracle_episode_s']:.2f} s wall")
+    console.print(f"one greedy-reference episode (200 s, batch 1): {res['greedy_episode_s']:.2f} s wall")

@@ -18,7 +18,7 @@ SUBCOMMANDS = ["sim", "bench", "autopilot", "train", "eval", "suite", "world", "
 
 EPILOG = """\
 examples:
-  plmarl sim missions/paper_urban.yaml --method oracle --episodes 20 --seed 1
+  plmarl sim missions/paper_urban.yaml --method service --episodes 20 --seed 1
   plmarl bench dt --json
 
 Every run takes --seed and prints it; the same seed gives the same numbers."""

@@ -12,7 +12,7 @@ import json
 
 TARGETS = {
     "autopilot": "vehicles one autopilot-emulator process sustains at 1x, and the speedup 20 vehicles sustain",
-    "dt": "speed of the vectorised digital twin (agent-steps/s) and of one Oracle episode",
+    "dt": "speed of the vectorised digital twin (agent-steps/s) and of one greedy-reference episode",
     "agent": "deployed agent in SITL: decision-loop latency, RSS and start-up at N = 20, speedup 10",
     "infer": "per-agent decision latency of the exported policies (PL-MARL vs GRU), N = 4..20",
     "swarm": "wall time of the 200 s mission as a SITL swarm (N = 4, 20) at the fastest speedup with coverage gap <= 0.03",

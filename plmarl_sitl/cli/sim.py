@@ -7,31 +7,36 @@ import json
 import math
 
 from plmarl_sitl.cmdline import add_seed, progress, tup_arg
+from plmarl_sitl.learning.eval.methods import METHOD_HELP, canonical_method
 from plmarl_sitl.learning.eval.stats import mean_ci95
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.twin.heuristic import HeuristicController
-from plmarl_sitl.twin.oracle import OracleController
 from plmarl_sitl.twin.rollout import run_episodes
 
-METHODS = {
-    "oracle": lambda env: OracleController(env),
-    "heuristic": lambda env: HeuristicController(env.mission),
-}
+METHODS = ("service", "greedy", "clairvoyant", "heuristic")  # the controllers that need no trained policy
+
+
+def _method(text: str) -> str:
+    name = canonical_method(text)
+    if name not in METHODS:
+        raise argparse.ArgumentTypeError(f"invalid choice {text!r} (choose from {', '.join(METHODS)})")
+    return name
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sim",
-        help="run episodes of the Oracle or the heuristic in the digital twin",
+        help="run episodes of a controller that needs no trained policy (service, greedy, clairvoyant, heuristic) in the digital twin",
         description="Run episodes of a mission in the vectorised digital twin with a non-learned "
         "controller and report mean coverage C (95%% CI over episodes), lambda_2 and the closest "
-        "approach of two UAVs. oracle: greedy grid placement with global knowledge (the paper's "
-        "ceiling); heuristic: decentralised, local sensing and held neighbour states only.",
-        epilog="example:\n  plmarl sim missions/paper_urban.yaml --method oracle --episodes 20 --seed 1 --json",
+        "approach of two UAVs. " + "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS) + ". "
+        "None of them is a proven bound. ('oracle' is still accepted for greedy, for one release.)",
+        epilog="examples:\n  plmarl sim missions/paper_urban.yaml --method service --episodes 20 --seed 1 --json\n"
+        "  plmarl sim missions/paper_urban.yaml --method clairvoyant --episodes 4 --seed 1",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("mission", help="mission YAML, e.g. missions/paper_urban.yaml")
-    p.add_argument("--method", choices=sorted(METHODS), default="oracle", help="controller (default: oracle)")
+    p.add_argument("--method", type=_method, default="greedy", metavar="|".join(METHODS),
+                   help="controller (default: greedy)")
     p.add_argument("--episodes", type=int, default=20, help="number of episodes (default: 20)")
     add_seed(p)
     p.add_argument("--tup", type=tup_arg, help="signalling interval T_up in seconds (default: the mission's)")
@@ -50,8 +55,10 @@ def run(args: argparse.Namespace) -> int:
     decisions = math.ceil(mission.timing.episode_s / mission.timing.decision_every_s)
     with progress(disable=args.json) as bar:
         task = bar.add_task(f"{args.method} on {mission.name} (seed {args.seed})", total=args.episodes * decisions)
+        from plmarl_sitl.learning.eval.evaluate import controller_factory
+
         res = run_episodes(
-            mission, METHODS[args.method], args.episodes, args.seed, on_decision=lambda b: bar.advance(task, b)
+            mission, controller_factory(args.method, {}), args.episodes, args.seed, on_decision=lambda b: bar.advance(task, b)
         )
     mean, (lo, hi) = mean_ci95(res.coverage)
     out = {
@@ -59,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         "coverage_ci95": [lo, hi],
         "lambda2_mean": float(res.lambda2.mean()),
         "min_separation_m": float(res.min_separation.min()),
+        "method": args.method,
         "episodes": args.episodes,
         "seed": args.seed,
     }

@@ -8,14 +8,16 @@ from pathlib import Path
 
 from plmarl_sitl.cmdline import comma_list, progress
 from plmarl_sitl.config import PROJECT_POLICIES, PROJECT_SUITE
+from plmarl_sitl.learning.eval.methods import methods_help, parse_methods
 
-DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,oracle"
+DEFAULT_METHODS = "pl-marl,gru,tag-mappo,dead-reckoning,service,greedy,clairvoyant"
 
 
 def _methods(text: str) -> list[str]:
-    from plmarl_sitl.learning.eval.evaluate import ALL_METHODS  # here: `plmarl --help` must not load torch
-
-    return comma_list(str, "method", choices=ALL_METHODS)(text)
+    try:
+        return parse_methods(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,11 +32,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "run --seed S uses 1_000_000_000 + 10000 S + 100 v + k). Training refuses twin seeds in that range "
         "(plmarl_sitl/learning/train/seeds.py), so no suite episode is a training episode.\n\n"
         "Each row: coverage (mean C(t) for t > --from-s, mean and 95% CI over episodes), the mean per-episode "
-        "fraction of the Oracle on the same episodes, lambda_2, and the two-sided Mann-Whitney U p-value of "
-        "PL-MARL against the row's method; failure families add the transient (trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
-        "The Oracle ignores signalling, so it runs once per family and serves every T_up.",
+        "fraction of the best reference on the same episodes and which reference that was (per episode the best of "
+        "service, greedy and clairvoyant among the methods run; none is a proven bound: a reference a method beats "
+        "is no ceiling), lambda_2, and the two-sided Mann-Whitney U p-value of "
+        "PL-MARL against the row's method; failure families add the transient against the same best reference "
+        "(trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
+        "greedy and clairvoyant ignore signalling, so they run once per family and serve every T_up.\n\n"
+        "Methods: " + methods_help() + ". ('oracle' is still accepted for greedy, for one release.)",
         epilog="examples:\n  plmarl suite all --episodes 30 --tup 5,15,50 --out runs/suite\n"
-        "  plmarl suite random,launch --episodes 10 --json\n  plmarl suite --list",
+        "  plmarl suite random,launch --episodes 10 --json\n"
+        "  plmarl suite random,failure --methods service,pl-marl,greedy,clairvoyant --tup 15 --episodes 10\n  plmarl suite --list",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("families", nargs="?", default=None, help="'all' or a comma list of family names (see --list)")

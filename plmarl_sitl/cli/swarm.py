@@ -15,6 +15,7 @@ examples:
   plmarl swarm up missions/paper_urban.yaml --speedup 10
   plmarl swarm up missions/node_failure.yaml --speedup 10 --headless --out runs/failure
   plmarl swarm up missions/scale_20.yaml --lockstep --headless    # deterministic, as fast as the agents compute
+  plmarl swarm up missions/paper_urban.yaml --policy service --lockstep --headless    # the plan follower, not learnt
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
   plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
       --speedup 5 --headless    # one real ArduCopter SITL per UAV
@@ -27,6 +28,16 @@ examples:
 
 The mission clock starts once every vehicle is airborne under its agent. Ctrl-C stops
 everything cleanly. Afterwards: plmarl report RUN_DIR draws the plots."""
+
+
+def policy_arg(text: str) -> Path:
+    """A policy directory; a bare name that is not one (e.g. `service`) is the project's policies/NAME."""
+    from plmarl_sitl.config import PROJECT_POLICIES
+
+    path = Path(text)
+    if not path.is_dir() and len(path.parts) == 1 and (PROJECT_POLICIES / text).is_dir():
+        return PROJECT_POLICIES / text
+    return path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -62,7 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--headless", action="store_true", help="no live view: one status line every 10 s of sim time")
     up.add_argument("--out", type=Path, default=None, metavar="DIR", help="run directory (default runs/<timestamp>)")
     add_seed(up, default=None)
-    up.add_argument("--policy", type=Path, default=None, metavar="DIR", help="policy directory (default policies/pl-marl)")
+    up.add_argument("--policy", type=policy_arg, default=None, metavar="DIR|NAME",
+                    help="policy directory, or the name of one of the project's (policies/NAME: pl-marl, gru, tag-mappo, "
+                    "or service, the plan follower, not learnt); default policies/pl-marl")
     up.add_argument("--autopilot", type=autopilot_arg, default=("emulator", None), metavar="emulator|arducopter=PATH",
                     help="the autopilots: emulator (the point-mass emulator in the world's process, default) or "
                     "arducopter=PATH (one real ArduCopter SITL process per UAV, PATH the `arducopter` binary built from "

@@ -1,6 +1,6 @@
 """Coverage rate C(t) and the local user sensing an agent gets.
 
-Definition used everywhere (twin, oracle, SITL world, evaluation): a ground user is
+Definition used everywhere (twin, references, SITL world, evaluation): a ground user is
 *covered* when at least one live UAV is within its coverage radius r_max(h) of it in
 ground distance, where r_max(h) = min(R_s, r_PL(h)) and r_PL(h) is the ground distance
 at which the mean Crowded-Urban A2G path loss reaches `channel.max_path_loss_db`.

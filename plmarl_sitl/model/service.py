@@ -34,7 +34,7 @@ from scipy.sparse import csr_matrix
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 
-GRID_M = 25.0  # candidate service points: the Oracle's grid; also the spacing of a cell's sub-points
+GRID_M = 25.0  # candidate service points: the greedy reference's grid; also the spacing of a cell's sub-points
 LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
 LAUNCH_ROUND_M = 0.01  # the fitted launch line, rounded: the same in every agent's copy (launch_line)
 REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more

@@ -1,4 +1,4 @@
-"""A decentralised hand-written controller: the non-learned baseline below the Oracle.
+"""A decentralised hand-written controller: the non-learned baseline below the references.
 
 Each UAV uses only what a deployed agent has (its own state, held neighbour states,
 its own user sensing):

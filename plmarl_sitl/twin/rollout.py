@@ -2,7 +2,7 @@
 
 `rollout` steps batches of episodes and keeps per-second traces; `run_episodes` (for
 `plmarl sim`) and the evaluation sweeps (`learning.eval.evaluate`) reduce those traces
-their own way. Every controller, hand-written (oracle, heuristic) or learnt, is a
+their own way. Every controller, hand-written (greedy, clairvoyant, heuristic) or learnt, is a
 `Controller`.
 """
 

@@ -81,7 +81,8 @@ def test_cli_sim_json_is_one_object_and_deterministic():
         assert r.returncode == 0, r.stderr
     outs = [json.loads(r.stdout) for r in runs]
     assert outs[0] == outs[1]
-    assert set(outs[0]) == {"coverage_mean", "coverage_ci95", "lambda2_mean", "min_separation_m", "episodes", "seed"}
+    assert set(outs[0]) == {"coverage_mean", "coverage_ci95", "lambda2_mean", "min_separation_m", "method", "episodes", "seed"}
+    assert outs[0]["method"] == "heuristic"
     lo, hi = outs[0]["coverage_ci95"]
     assert lo <= outs[0]["coverage_mean"] <= hi and outs[0]["seed"] == 5 and outs[0]["episodes"] == 3
 

@@ -8,8 +8,8 @@ import torch
 from plmarl_sitl.mission import Failure, Launch, load_mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.twin.env import CoverageEnv
+from plmarl_sitl.twin.greedy import GreedyController
 from plmarl_sitl.twin.heuristic import HeuristicController
-from plmarl_sitl.twin.oracle import OracleController
 from plmarl_sitl.twin.rollout import run_episodes
 
 MISSION = load_mission("missions/paper_urban.yaml")
@@ -110,12 +110,12 @@ def test_failure_curriculum_fails_the_requested_share():
     assert 0.13 < float(planned) < 0.27
 
 
-def test_oracle_is_high_and_heuristic_below_it():
-    oracle = run_episodes(MISSION, lambda env: OracleController(env), episodes=4, seed=3)
+def test_greedy_is_high_and_heuristic_below_it():
+    greedy = run_episodes(MISSION, lambda env: GreedyController(env), episodes=4, seed=3)
     heur = run_episodes(MISSION, lambda env: HeuristicController(env.mission), episodes=4, seed=3)
-    assert oracle.coverage.mean() >= 0.9
-    assert heur.coverage.mean() < oracle.coverage.mean() - 0.1
-    assert oracle.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
+    assert greedy.coverage.mean() >= 0.9
+    assert heur.coverage.mean() < greedy.coverage.mean() - 0.1
+    assert greedy.min_separation.min() >= 2 * MISSION.radii.safe_m - 1.0
 
 
 def _events_mission(*events):

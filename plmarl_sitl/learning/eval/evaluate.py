@@ -2,7 +2,8 @@
 
 Every method sees the same episodes: batch k of a sweep point uses twin seed `seed + k`,
 and no controller draws from the twin's generator, so users start and move identically.
-That makes "fraction of the Oracle on the same episodes" and paired comparisons exact.
+That makes "fraction of the best reference on the same episodes" (learning/eval/references.py)
+and paired comparisons exact.
 
 Coverage of an episode = mean C(t) over the steady-state window t in (from_s, T]
 (default: after the first 50 s, which the swarm needs to fly out from the launch line;
@@ -19,6 +20,8 @@ import numpy as np
 
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.controllers import LearnedController
+from plmarl_sitl.learning.eval.methods import ALL_METHODS, GLOBAL_KNOWLEDGE
+from plmarl_sitl.learning.eval.references import best_reference
 from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
@@ -26,7 +29,6 @@ from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
-ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic", "service")
 
 
 @dataclass
@@ -45,10 +47,14 @@ def needed_policies(methods: list[str]) -> set[str]:
 
 
 def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeController:
-    if method == "oracle":
-        from plmarl_sitl.twin.oracle import OracleController
+    if method == "greedy":
+        from plmarl_sitl.twin.greedy import GreedyController
 
-        return lambda env: OracleController(env)
+        return lambda env: GreedyController(env)
+    if method == "clairvoyant":
+        from plmarl_sitl.twin.clairvoyant import ClairvoyantController
+
+        return lambda env: ClairvoyantController(env)
     if method == "heuristic":
         from plmarl_sitl.twin.heuristic import HeuristicController
 
@@ -106,11 +112,15 @@ def evaluate_methods(
     for tup in tups:
         m = mission.with_tup(tup)
         for method in methods:
+            if method in GLOBAL_KNOWLEDGE and tup != tups[0]:  # T_up-independent: run once, serve every T_up
+                runs[(method, tup)] = runs[(method, tups[0])]
+                continue
             runs[(method, tup)] = run_method(
                 m, controller_factory(method, loaded), episodes, seed, batch=batch, from_s=from_s,
                 failure_prob=failure_prob, on_decision=on_decision,
             )
     results, p_values, extra = [], [], []
+    refs = {t: best_reference({m: (runs[(m, t)].coverage, runs[(m, t)].trace) for m in methods}) for t in tups}
     for tup in tups:
         for method in methods:
             r = runs[(method, tup)]
@@ -119,11 +129,11 @@ def evaluate_methods(
                             "lambda2_mean": float(r.lambda2.mean())})
             row = {"method": method, "tup": tup, "coverage_full_mean": float(r.coverage_full.mean()),
                    "coverage_full_ci95": list(mean_ci95(r.coverage_full)[1])}
-            if ("oracle", tup) in runs:
-                o = runs[("oracle", tup)]
-                frac = r.coverage / np.maximum(o.coverage, 1e-9)
-                fm, (flo, fhi) = mean_ci95(frac)
-                row.update({"fraction_of_oracle_mean": fm, "fraction_of_oracle_ci95": [flo, fhi]})
+            best = refs[tup]
+            if best is not None:
+                fm, (flo, fhi) = mean_ci95(r.coverage / np.maximum(best.coverage, 1e-9))
+                row.update({"fraction_of_best_mean": fm, "fraction_of_best_ci95": [flo, fhi],
+                            "best_reference": best.label(), "best_reference_coverage_mean": float(best.coverage.mean())})
             extra.append(row)
         if "pl-marl" in methods:
             for other in methods:
@@ -134,4 +144,5 @@ def evaluate_methods(
     traces = {f"{m}@{t}": r.trace.mean(0).tolist() for (m, t), r in runs.items()}
     return {"results": results, "p_values": p_values,
             "extra": {"rows": extra, "from_s": from_s, "episodes": episodes, "seed": seed,
-                      "failure_prob": failure_prob, "mean_traces": traces}}
+                      "failure_prob": failure_prob, "mean_traces": traces,
+                      "references": {str(t): None if b is None else b.shares() for t, b in refs.items()}}}

@@ -96,7 +96,7 @@ def build(d: Path, policies: Path, narrative: str) -> str:
             f"`plmarl eval missions/paper_urban.yaml --methods pl-marl,gru,tag-mappo,dead-reckoning,oracle --tup 5,10,...,50 "
             f"--episodes {ex['episodes']} --seed {ex['seed']} --out docs/results/learning --json`", "",
             f"Coverage = mean C(t) for t > {ex['from_s']} s, mean [95% CI] over {ex['episodes']} paired episodes; "
-            "(x%) = mean per-episode fraction of the Oracle on the same episodes.", "",
+            "(x%) = mean per-episode fraction of the Oracle (now called `greedy`) on the same episodes.", "",
             coverage_table_md(res), "",
             "Whole-episode mean coverage (t = 1..200 s, includes the fly-out from the launch line):", "",
             full_table_md(res), "",

@@ -4,7 +4,7 @@
 
 Trajectories: (1) the trained PL-MARL policy flying the mission (deterministic, its own
 tracker, T_up = 15 s), the distribution a deployed agent's neighbours actually follow;
-(2) the mixed controllers the engine was trained on (Oracle, heuristic, random waypoints,
+(2) the mixed controllers the engine was trained on (the greedy reference, heuristic, random waypoints,
 OU accelerations), fresh seeds. Every tracker sees the same updates (T_up = 60 s, random
 phase per neighbour, see `plmarl_sitl.learning.train.predictor.position_errors`).
 """

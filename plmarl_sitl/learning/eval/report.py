@@ -21,7 +21,9 @@ def coverage_table_md(res: dict) -> str:
     rows = _rows_by(res)
     methods = list(dict.fromkeys(r["method"] for r in res["results"]))
     tups = sorted({r["tup"] for r in res["results"]})
-    has_oracle = "oracle" in methods
+    # Results saved before issue 24 hold the fraction of the Oracle (the greedy) under its old key.
+    key = next((k for k in ("fraction_of_best_mean", "fraction_of_oracle_mean") if any(k in r for r in rows.values())), None)
+    has_ref = key is not None
     head = "| T_up (s) | " + " | ".join(methods) + " |"
     lines = [head, "|" + "---|" * (len(methods) + 1)]
     for t in tups:
@@ -29,8 +31,8 @@ def coverage_table_md(res: dict) -> str:
         for m in methods:
             r = rows[(m, t)]
             c = f"{r['coverage_mean']:.3f} [{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]"
-            if has_oracle and m != "oracle":
-                c += f" ({100 * r['fraction_of_oracle_mean']:.0f}%)"
+            if has_ref:
+                c += f" ({100 * r[key]:.0f}%)" if key in r else ""
             cells.append(c)
         lines.append(f"| {t} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -45,6 +47,19 @@ def _per_tup_table(res: dict, key: str, fmt: str) -> str:
     for t in tups:
         lines.append(f"| {t} | " + " | ".join(format(rows[(m, t)][key], fmt) for m in methods) + " |")
     return "\n".join(lines)
+
+
+def best_reference_md(res: dict) -> str:
+    """One line per T_up: the per-episode best reference's mean coverage and which one it was."""
+    rows = _rows_by(res)
+    seen: dict[int, dict] = {}
+    for (_, t), r in rows.items():
+        if "best_reference" in r:
+            seen.setdefault(t, r)
+    if not seen:
+        return "No reference method in this run (greedy, clairvoyant or service): no fractions."
+    return "\n".join(f"Best reference at T_up {t} s: {r['best_reference_coverage_mean']:.3f} ({r['best_reference']})."
+                     for t, r in sorted(seen.items()))
 
 
 def lambda_table_md(res: dict) -> str:
@@ -66,7 +81,8 @@ def pvalue_table_md(res: dict) -> str:
 
 
 COLOURS = {"pl-marl": "tab:blue", "gru": "tab:orange", "tag-mappo": "tab:green", "dead-reckoning": "tab:red",
-           "oracle": "black", "heuristic": "tab:gray", "service": "tab:purple"}
+           "greedy": "black", "clairvoyant": "tab:brown", "heuristic": "tab:gray", "service": "tab:purple"}
+REFERENCE_LINES = ("greedy", "clairvoyant")  # drawn dashed
 
 
 def plot_coverage_vs_tup(res: dict, path: Path) -> None:
@@ -84,7 +100,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
         lo = np.array([rows[(m, t)]["coverage_ci95"][0] for t in tups])
         hi = np.array([rows[(m, t)]["coverage_ci95"][1] for t in tups])
         c = COLOURS.get(m)
-        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m == "oracle" else "-", color=c)
+        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m in REFERENCE_LINES else "-", color=c)
         ax.fill_between(tups, lo, hi, alpha=0.2, color=c)
     ax.set_xlabel("signalling interval T_up (s)")
     ax.set_ylabel(f"steady-state coverage (t > {res['extra']['from_s']} s)")
@@ -98,7 +114,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_training_curves(curves: dict[str, list[dict]], oracle: float | None, path: Path) -> None:
+def plot_training_curves(curves: dict[str, list[dict]], greedy: float | None, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -112,8 +128,8 @@ def plot_training_curves(curves: dict[str, list[dict]], oracle: float | None, pa
         ys = np.convolve(y, np.ones(k) / k, mode="valid") if len(y) >= k else y
         ax.plot(x[len(x) - len(ys):], ys, label=m, color=COLOURS.get(m))
         ax.plot(x, y, alpha=0.2, color=ax.lines[-1].get_color())
-    if oracle is not None:
-        ax.axhline(oracle, ls="--", color="k", label="Oracle bound")
+    if greedy is not None:
+        ax.axhline(greedy, ls="--", color="k", label="greedy reference")
     ax.set_xlabel("training episode")
     ax.set_ylabel("coverage C (stochastic policy, episode mean)")
     ax.set_ylim(0, 1)
@@ -141,7 +157,11 @@ def results_markdown(res: dict, figs_rel: dict[str, str], command: str) -> str:
         "",
         f"Deterministic policies, {ex['episodes']} paired episodes per cell (same twin seeds for every method), "
         f"failure probability {ex['failure_prob']}. Coverage = mean C(t) for t > {ex['from_s']} s "
-        "(steady state), mean [95% CI]; in brackets the mean per-episode fraction of the Oracle's coverage on the same episodes.",
+        "(steady state), mean [95% CI]; in brackets the mean per-episode fraction of the best reference's coverage on the "
+        "same episodes (per episode the best of greedy, clairvoyant and service among the methods run; "
+        "plmarl_sitl/learning/eval/references.py). No reference is a proven bound.",
+        "",
+        best_reference_md(res),
         "",
         coverage_table_md(res),
         "",
@@ -186,11 +206,11 @@ def write_outputs(res: dict, mission, loaded: dict, out: Path, results_md: str |
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(res, indent=1))
     plot_coverage_vs_tup(res, out / "coverage_vs_tup.png")
-    oracle = [r["coverage_mean"] for r in res["results"] if r["method"] == "oracle"]
+    greedy = [r["coverage_mean"] for r in res["results"] if r["method"] == "greedy"]
     curves = load_curves(loaded)
     figs = {"Coverage vs T_up": "coverage_vs_tup.png"}
     if curves:
-        plot_training_curves(curves, float(np.mean(oracle)) if oracle else None, out / "training_curves.png")
+        plot_training_curves(curves, float(np.mean(greedy)) if greedy else None, out / "training_curves.png")
         figs["Training curves"] = "training_curves.png"
     command = res["extra"].get("command") or "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     (out / "results.md").write_text(results_markdown(res, figs, command))
@@ -209,12 +229,18 @@ def print_tables(res: dict) -> None:
 
     rows = _rows_by(res)
     t = Table(title=f"coverage (t > {res['extra']['from_s']} s), deterministic, {res['extra']['episodes']} episodes")
-    for c in ("method", "T_up", "coverage", "95% CI", "of Oracle", "full episode", "lambda2", "p vs PL-MARL"):
+    for c in ("method", "T_up", "coverage", "95% CI", "of best ref.", "best reference", "full episode", "lambda2", "p vs PL-MARL"):
         t.add_column(c)
     pv = {(p["versus"], p["tup"]): p["p"] for p in res["p_values"]}
     for (m, tup), r in rows.items():
-        frac = f"{100 * r['fraction_of_oracle_mean']:.0f}%" if "fraction_of_oracle_mean" in r else "-"
+        frac = f"{100 * r['fraction_of_best_mean']:.0f}%" if "fraction_of_best_mean" in r else "-"
         p = f"{pv[(m, tup)]:.2g}" if (m, tup) in pv else "-"
         t.add_row(m, str(tup), f"{r['coverage_mean']:.3f}", f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]",
-                  frac, f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
-    Console().print(t)
+                  frac, r.get("best_reference", "-"), f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
+    console = Console()
+    console.print(t)
+    from plmarl_sitl.learning.eval.references import ABOUT
+
+    for m in dict.fromkeys(m for m, _ in rows):
+        if m in ABOUT:
+            console.print(f"reference {m}: {ABOUT[m]}")

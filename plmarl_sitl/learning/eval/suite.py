@@ -5,12 +5,13 @@ YAMLs (usually `extends: ../paper_urban.yaml` with one change). Its E episodes a
 over its missions in turn (episode i runs mission i mod len(missions)); mission variant v
 of run `--seed S` seeds its twin batches with `suite_twin_seed(S, v, k)`, all at or above
 EVAL_SEED_BASE, a range every training twin refuses (plmarl_sitl/learning/train/seeds.py).
-Every method sees the same episodes, so the fraction of the Oracle is per episode and exact.
+Every method sees the same episodes, so the fraction of the best reference (per episode, the
+best of greedy, clairvoyant and service among those run: learning/eval/references.py) is exact.
 
 The rollouts are `evaluate.run_method` (coverage = mean C(t) for t > from_s, lambda_2 over
-the same window). The Oracle plans with global knowledge and never reads the signalled
-states, so its episodes do not depend on T_up: it runs once per mission variant and is
-the reference for every T_up (tests/learning/test_suite.py checks the independence).
+the same window). The greedy and clairvoyant references plan with global knowledge and never
+read the signalled states, so their episodes do not depend on T_up: they run once per mission
+variant and serve every T_up (tests/learning/test_suite.py checks the independence).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ import numpy as np
 from plmarl_sitl.config import ConfigError, load_yaml
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, run_method
+from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
+from plmarl_sitl.learning.eval.references import ABOUT, REFERENCES, best_reference, pairwise_wins
 from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
 from plmarl_sitl.learning.eval.transient import failure_transient
 from plmarl_sitl.learning.nn.io import LoadedPolicy
@@ -121,9 +124,10 @@ def twin_seeds(run_seed: int, episodes: int, family: LoadedFamily, batch: int = 
 
 
 def decisions(family: LoadedFamily, episodes: int, tups: list[int], methods: list[str]) -> int:
-    """Agent-batch decisions the family costs (for the progress bar); the Oracle runs once."""
-    per_tup = [m for m in methods if m != "oracle"]
-    runs = len(per_tup) * len(family_tups(family, tups)) + ("oracle" in methods)
+    """Agent-batch decisions the family costs (for the progress bar); the global-knowledge
+    references run once."""
+    per_tup = [m for m in methods if m not in GLOBAL_KNOWLEDGE]
+    runs = len(per_tup) * len(family_tups(family, tups)) + sum(m in methods for m in GLOBAL_KNOWLEDGE)
     return runs * sum(
         e * math.ceil(m.timing.episode_s / m.timing.decision_every_s)
         for m, e in zip(family.missions, episodes_per_mission(episodes, len(family.missions)), strict=True)
@@ -161,12 +165,12 @@ def run_family(
         return _concat(parts)
 
     runs: dict[tuple[str, int], MethodRun] = {}
-    if "oracle" in methods:
-        oracle = run("oracle", fam_tups[0])
-        runs.update({("oracle", t): oracle for t in fam_tups})
+    for method in (m for m in methods if m in GLOBAL_KNOWLEDGE):
+        once = run(method, fam_tups[0])
+        runs.update({(method, t): once for t in fam_tups})
     for tup in fam_tups:
         for method in methods:
-            if method != "oracle":
+            if method not in GLOBAL_KNOWLEDGE:
                 runs[(method, tup)] = run(method, tup)
     return runs
 
@@ -174,9 +178,13 @@ def run_family(
 def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], methods: list[str], tups: list[int]) -> dict:
     """Rows, p-values and (for failure families) transients of one family."""
     n = family.n_uavs
-    rows, p_values, transients = [], [], []
+    rows, p_values, transients, references = [], [], [], []
     for tup in family_tups(family, tups):
-        oracle = runs.get(("oracle", tup))
+        best = best_reference({m: (runs[(m, tup)].coverage, runs[(m, tup)].trace) for m in methods})
+        if best is not None:
+            references.append({"family": family.name, "tup": tup, "best": best.label(), "shares": best.shares(),
+                               "coverage_mean": float(best.coverage.mean()),
+                               "wins": pairwise_wins({m: runs[(m, tup)].coverage for m in methods})})
         for method in methods:
             r = runs[(method, tup)]
             mean, ci = mean_ci95(r.coverage)
@@ -184,20 +192,22 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
             row = {"family": family.name, "n_uavs": n[0] if len(n) == 1 else n, "tup": tup, "method": method,
                    "episodes": int(r.coverage.size), "coverage_mean": mean, "coverage_ci95": list(ci),
                    "coverage_full_mean": float(r.coverage_full.mean()), "lambda2_mean": lam, "lambda2_ci95": list(lam_ci)}
-            if oracle is not None:
-                fm, fci = mean_ci95(r.coverage / np.maximum(oracle.coverage, 1e-9))
-                row.update({"fraction_of_oracle_mean": fm, "fraction_of_oracle_ci95": list(fci)})
+            if best is not None:
+                fm, fci = mean_ci95(r.coverage / np.maximum(best.coverage, 1e-9))
+                row.update({"fraction_of_best_mean": fm, "fraction_of_best_ci95": list(fci), "best_reference": best.label(),
+                            "best_reference_coverage_mean": float(best.coverage.mean())})
             if method != "pl-marl" and "pl-marl" in methods:
                 p = mann_whitney_p(runs[("pl-marl", tup)].coverage, r.coverage)
                 row["p_pl_marl_vs"] = p
                 p_values.append({"family": family.name, "tup": tup, "method": "pl-marl", "versus": method, "p": p})
             rows.append(row)
             horizon = r.trace.shape[1]
-            if family.spec.failure_prob > 0 and oracle is not None and FAILURE_AT_S < horizon:
-                t = failure_transient(r.trace, oracle.trace, int(FAILURE_AT_S))
+            if family.spec.failure_prob > 0 and best is not None and FAILURE_AT_S < horizon:
+                t = failure_transient(r.trace, best.trace, int(FAILURE_AT_S))
                 transients.append({"family": family.name, "tup": tup, "method": method, **t})
     traces = {f"{m}@{t}": [round(float(x), 4) for x in r.trace.mean(0)] for (m, t), r in runs.items()}
-    return {"rows": rows, "p_values": p_values, "transients": transients, "traces": {family.name: traces}}
+    return {"rows": rows, "p_values": p_values, "transients": transients, "references": references,
+            "traces": {family.name: traces}}
 
 
 def run_suite(
@@ -217,7 +227,7 @@ def run_suite(
         raise UserError("--episodes must be >= 2 (a confidence interval needs two episodes)")
     out: dict = {"episodes": episodes, "seed": run_seed, "from_s": from_s, "methods": methods, "tups": tups,
                  "eval_seed_base": EVAL_SEED_BASE, "families": [], "rows": [], "p_values": [], "transients": [],
-                 "traces": {}}
+                 "references": [], "reference_about": {r: ABOUT[r] for r in REFERENCES if r in methods}, "traces": {}}
     for fam in families:
         if on_family:
             on_family(fam.name)
@@ -230,7 +240,7 @@ def run_suite(
         })
         runs = run_family(fam, loaded, methods, tups, episodes, run_seed, from_s=from_s, on_decision=on_decision)
         part = summarise(fam, runs, methods, tups)
-        for key in ("rows", "p_values", "transients"):
+        for key in ("rows", "p_values", "transients", "references"):
             out[key] += part[key]
         out["traces"].update(part["traces"])
     return out

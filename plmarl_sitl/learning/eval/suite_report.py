@@ -11,41 +11,58 @@ from plmarl_sitl.learning.eval.report import COLOURS
 from plmarl_sitl.learning.eval.transient import PLATEAU_FRACTION, WINDOW_S
 
 SUMMARY_METHODS = ("pl-marl", "tag-mappo", "gru", "dead-reckoning", "service")
+REFERENCE_COLUMNS = ("greedy", "clairvoyant")  # service is a method column too
 
 
-def _pct(row: dict, key: str = "fraction_of_oracle_mean") -> str:
+def _pct(row: dict, key: str = "fraction_of_best_mean") -> str:
     return f"{100 * row[key]:.0f}%" if key in row else "-"
 
 
+def references_text(res: dict) -> str:
+    """What each reference of the run is, and how the fractions are taken."""
+    about = res.get("reference_about", {})
+    if not about:
+        return "No reference method in this run: no fractions."
+    lines = ["References (none is a proven bound; a reference a method beats is not a ceiling):", ""]
+    lines += [f"* `{k}`: {v}" for k, v in about.items()]
+    lines += ["", "'of best' = mean per-episode ratio to the best reference of that episode (the one among "
+              f"{', '.join(about)} with the highest coverage on it); 'best reference' = the mean of that per-episode "
+              "best, and which reference it was how often."]
+    return "\n".join(lines)
+
+
 def summary_table_md(res: dict) -> str:
-    """Family x T_up: each learnt method's coverage and its share of the Oracle (the issue's table)."""
+    """Family x T_up: each method's coverage and its share of the best reference, the references."""
     methods = [m for m in SUMMARY_METHODS if m in res["methods"]]
-    has_oracle = "oracle" in res["methods"]
-    head = ["family", "N", "T_up (s)"] + methods + (["Oracle"] if has_oracle else [])
+    refs = [m for m in REFERENCE_COLUMNS if m in res["methods"]]
+    best = {(b["family"], b["tup"]): b for b in res.get("references", [])}
+    head = ["family", "N", "T_up (s)"] + methods + refs + (["best reference"] if best else [])
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     by = {(r["family"], r["tup"], r["method"]): r for r in res["rows"]}
     for fam in res["families"]:
         for tup in fam["tup"]:
             cells = [fam["name"], "/".join(map(str, fam["n_uavs"])), str(tup)]
-            for m in methods:
+            for m in methods + refs:
                 r = by[(fam["name"], tup, m)]
-                cells.append(f"{r['coverage_mean']:.3f} ({_pct(r)})" if has_oracle else f"{r['coverage_mean']:.3f}")
-            if has_oracle:
-                cells.append(f"{by[(fam['name'], tup, 'oracle')]['coverage_mean']:.3f}")
+                cells.append(f"{r['coverage_mean']:.3f} ({_pct(r)})" if best else f"{r['coverage_mean']:.3f}")
+            if best:
+                b = best[(fam["name"], tup)]
+                cells.append(f"{b['coverage_mean']:.3f} ({b['best']})")
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def family_table_md(res: dict, family: str) -> str:
-    lines = ["| T_up (s) | method | coverage [95% CI] | of Oracle [95% CI] | full episode | lambda_2 [95% CI] | p (PL-MARL vs) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| T_up (s) | method | coverage [95% CI] | of best reference [95% CI] | best reference | full episode "
+             "| lambda_2 [95% CI] | p (PL-MARL vs) |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in (r for r in res["rows"] if r["family"] == family):
-        frac = (f"{100 * r['fraction_of_oracle_mean']:.1f}% [{100 * r['fraction_of_oracle_ci95'][0]:.1f}, "
-                f"{100 * r['fraction_of_oracle_ci95'][1]:.1f}]") if "fraction_of_oracle_mean" in r else "-"
+        frac = (f"{100 * r['fraction_of_best_mean']:.1f}% [{100 * r['fraction_of_best_ci95'][0]:.1f}, "
+                f"{100 * r['fraction_of_best_ci95'][1]:.1f}]") if "fraction_of_best_mean" in r else "-"
         p = f"{r['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in r else "-"
         lines.append(
             f"| {r['tup']} | {r['method']} | {r['coverage_mean']:.3f} [{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}] "
-            f"| {frac} | {r['coverage_full_mean']:.3f} | {r['lambda2_mean']:.2f} [{r['lambda2_ci95'][0]:.2f}, "
+            f"| {frac} | {r.get('best_reference', '-')} | {r['coverage_full_mean']:.3f} | {r['lambda2_mean']:.2f} [{r['lambda2_ci95'][0]:.2f}, "
             f"{r['lambda2_ci95'][1]:.2f}] | {p} |"
         )
     return "\n".join(lines)
@@ -55,14 +72,14 @@ def transient_table_md(res: dict) -> str:
     def med(v: float | None) -> str:
         return "never" if v is None else f"{v:.0f}"
 
-    lines = ["| family | T_up (s) | method | pre-failure | trough [95% CI] | post-failure (of Oracle) | Oracle level "
+    lines = ["| family | T_up (s) | method | pre-failure | trough [95% CI] | post-failure (of best reference) | reference level "
              "| reach s (median) | reached by 30 s | plateau s (median) | settled by 30 s | never settled |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for t in res["transients"]:
         lines.append(
             f"| {t['family']} | {t['tup']} | {t['method']} | {t['pre_failure_mean']:.3f} | {t['trough_mean']:.3f} "
             f"[{t['trough_ci95'][0]:.3f}, {t['trough_ci95'][1]:.3f}] | {t['post_failure_mean']:.3f} "
-            f"({100 * t['post_failure_fraction_of_oracle_mean']:.0f}%) | {t['oracle_post_level_mean']:.3f} "
+            f"({100 * t['post_failure_fraction_of_reference_mean']:.0f}%) | {t['reference_post_level_mean']:.3f} "
             f"| {med(t['reach_s_median'])} | {100 * t['reach_within_target_share']:.0f}% | {med(t['plateau_s_median'])} "
             f"| {100 * t['plateau_within_target_share']:.0f}% | {t['plateau_never']} |"
         )
@@ -75,10 +92,11 @@ def results_markdown(res: dict, figures: dict[str, str]) -> str:
         f"Deterministic policies; {res['episodes']} episodes per family and T_up, the same episodes for every method "
         f"(twin seeds {res['eval_seed_base']} + {res['seed']} x 10000 + 100 x mission + batch: the evaluation range, "
         "disjoint from every training seed). Coverage = mean C(t) for t > "
-        f"{res['from_s']} s; 'of Oracle' = mean per-episode ratio to the Oracle on the same episode; lambda_2 = mean "
+        f"{res['from_s']} s; lambda_2 = mean "
         "algebraic connectivity of the weighted comm graph over the same window; p = two-sided Mann-Whitney U of "
         "PL-MARL's per-episode coverage against the row's method.", "",
-        "## Summary: coverage (share of the Oracle)", "", summary_table_md(res), "",
+        references_text(res), "",
+        "## Summary: coverage (share of the best reference)", "", summary_table_md(res), "",
     ]
     for fam in res["families"]:
         parts += [f"## {fam['name']}: {fam['about']}", "",
@@ -87,7 +105,7 @@ def results_markdown(res: dict, figures: dict[str, str]) -> str:
     if res["transients"]:
         parts += ["## Failure transient", "",
                   "Per episode (definitions in plmarl_sitl/learning/eval/transient.py): trough = min C(t) from the "
-                  "failure on; Oracle level = the Oracle's mean C over the second half of the post-failure time on the "
+                  "failure on; reference level = the best reference's mean C over the second half of the post-failure time on the "
                   f"same episode; reach = first s after the failure whose {WINDOW_S}-s mean of C is at least "
                   f"{100 * PLATEAU_FRACTION:.0f}% of that level; plateau = first s from which every later {WINDOW_S}-s "
                   "mean stays there (settling time). Medians over episodes; 'by 30 s' = share of episodes.", "",
@@ -127,7 +145,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
             x = [r["tup"] for r in rs]
             y = np.array([r["coverage_mean"] for r in rs])
             c = COLOURS.get(m)
-            ax.plot(x, y, marker="o", ms=3, label=m, color=c, ls="--" if m == "oracle" else "-")
+            ax.plot(x, y, marker="o", ms=3, label=m, color=c, ls="--" if m in REFERENCE_COLUMNS else "-")
             ax.fill_between(x, [r["coverage_ci95"][0] for r in rs], [r["coverage_ci95"][1] for r in rs], alpha=0.2, color=c)
         ax.set_title(f"{fam['name']} (N = {'/'.join(map(str, fam['n_uavs']))})", fontsize=9)
         ax.set_xticks(fam["tup"])
@@ -143,7 +161,7 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
 
 
 def plot_coverage_vs_n(res: dict, scaling: list[str], path: Path) -> bool:
-    """Fig. 4b: coverage and share of the Oracle against N for the scaling families."""
+    """Fig. 4b: coverage and share of the best reference against N for the scaling families."""
     fams = [f for f in res["families"] if f["name"] in scaling and len(f["n_uavs"]) == 1]
     if len(fams) < 2:
         return False
@@ -160,11 +178,11 @@ def plot_coverage_vs_n(res: dict, scaling: list[str], path: Path) -> bool:
         c = COLOURS.get(m)
         a1.errorbar(ns, [r["coverage_mean"] for r in rs], yerr=np.abs(np.array([r["coverage_ci95"] for r in rs]).T
                     - [r["coverage_mean"] for r in rs]), marker="o", ms=3, capsize=2, label=m, color=c,
-                    ls="--" if m == "oracle" else "-")
-        if m != "oracle" and "fraction_of_oracle_mean" in rs[0]:
-            a2.plot(ns, [r["fraction_of_oracle_mean"] for r in rs], marker="o", ms=3, label=m, color=c)
+                    ls="--" if m in REFERENCE_COLUMNS else "-")
+        if m not in REFERENCE_COLUMNS and "fraction_of_best_mean" in rs[0]:
+            a2.plot(ns, [r["fraction_of_best_mean"] for r in rs], marker="o", ms=3, label=m, color=c)
     a1.set_ylabel("coverage")
-    a2.set_ylabel("fraction of the Oracle")
+    a2.set_ylabel("fraction of the best reference")
     for ax in (a1, a2):
         ax.set_xlabel("swarm size N (trained at N = 4)")
         ax.set_xticks(ns)
@@ -187,7 +205,7 @@ def plot_failure_transient(res: dict, path: Path) -> bool:
         traces = res["traces"][fam]
         for m in res["methods"]:
             y = np.array(traces[f"{m}@{tup}"])
-            ax.plot(np.arange(1, y.size + 1), y, label=m, color=COLOURS.get(m), ls="--" if m == "oracle" else "-", lw=1.2)
+            ax.plot(np.arange(1, y.size + 1), y, label=m, color=COLOURS.get(m), ls="--" if m in REFERENCE_COLUMNS else "-", lw=1.2)
         ax.axvline(fail_s, color="k", lw=0.8, ls=":")
         ax.text(fail_s + 2, 0.05, "node failure", fontsize=8)
         ax.set_xlabel("t (s)")
@@ -246,10 +264,18 @@ def print_summary(res: dict) -> None:
     from rich.table import Table
 
     t = Table(title=f"held-out suite, coverage t > {res['from_s']} s, {res['episodes']} episodes per cell")
-    for c in ("family", "T_up", "method", "coverage", "95% CI", "of Oracle", "lambda2", "p PL-MARL vs"):
+    for c in ("family", "T_up", "method", "coverage", "95% CI", "of best ref.", "best reference", "lambda2", "p PL-MARL vs"):
         t.add_column(c)
     for r in res["rows"]:
         p = f"{r['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in r else "-"
         t.add_row(r["family"], str(r["tup"]), r["method"], f"{r['coverage_mean']:.3f}",
-                  f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]", _pct(r), f"{r['lambda2_mean']:.2f}", p)
-    Console().print(t)
+                  f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]", _pct(r), r.get("best_reference", "-"),
+                  f"{r['lambda2_mean']:.2f}", p)
+    console = Console()
+    console.print(t)
+    for b in res.get("references", []):
+        wins = ", ".join(f"{k} in {100 * v:.0f}%" for k, v in b["wins"].items() if k.startswith("clairvoyant>"))
+        console.print(f"{b['family']} T_up {b['tup']}: best reference {b['coverage_mean']:.3f} ({b['best']})"
+                      + (f"; {wins} of episodes" if wins else ""))
+    for k, v in res.get("reference_about", {}).items():
+        console.print(f"reference {k}: {v}")

@@ -1,4 +1,5 @@
-"""The coverage transient after a node failure (Fig. 5a), per episode against the Oracle.
+"""The coverage transient after a node failure (Fig. 5a), per episode against the best reference
+(the reference with the highest steady-state coverage on that episode: learning/eval/references.py).
 
 Traces are C(t) per second: column j holds C at t = j + 1 s. A node failing at t_f is
 dead from the physics step that ends at t_f on, so C(t_f) is already post-failure.
@@ -6,16 +7,17 @@ Definitions (T = episode length, all per episode, then summarised over episodes)
 
 * pre-failure level: mean C over t in [t_f - 20, t_f);
 * trough: min C over t in [t_f, T];
-* post-failure coverage: mean C over [t_f, T], also as a fraction of the Oracle's mean
+* post-failure coverage: mean C over [t_f, T], also as a fraction of the reference's mean
   over the same seconds of the same episode;
-* the Oracle's post-failure level L: mean of the Oracle's C over the second half of the
+* the reference's post-failure level L: mean of the reference's C over the second half of the
   post-failure time, t in [t_f + (T - t_f) / 2, T] (after its own re-planning transient);
 * reach time: the smallest s >= 0 such that the mean C over the WINDOW_S seconds
   [t_f + s, t_f + s + WINDOW_S) is at least PLATEAU_FRACTION * L (the issue's criterion:
-  "reaches >= 95 % of the Oracle's post-failure level", target s <= 30 s);
+  "reaches >= 95 % of the Oracle's post-failure level", target s <= 30 s; the greedy was "the
+  Oracle" then);
 * time to plateau (settling time): the smallest s >= 0 from which every later such window
   mean stays at least PLATEAU_FRACTION * L. A swarm that dips after reaching the level
-  (the Oracle re-plans and flies through a trough) settles only after the dip.
+  (the greedy reference re-plans and flies through a trough) settles only after the dip.
 Both are "never" (nan) when no such window fits before T.
 """
 
@@ -57,26 +59,26 @@ def settle_times(trace: np.ndarray, levels: np.ndarray, fail_s: int) -> np.ndarr
     return first
 
 
-def failure_transient(trace: np.ndarray, oracle_trace: np.ndarray, fail_s: int) -> dict:
+def failure_transient(trace: np.ndarray, reference_trace: np.ndarray, fail_s: int) -> dict:
     """Summary over episodes of one method's transient (traces (E, T), the same episodes)."""
     horizon = trace.shape[1]
     post = trace[:, fail_s - 1 :]
-    oracle_post = oracle_trace[:, fail_s - 1 :]
+    reference_post = reference_trace[:, fail_s - 1 :]
     half = fail_s + (horizon - fail_s) // 2
-    level = oracle_trace[:, half - 1 :].mean(1)
+    level = reference_trace[:, half - 1 :].mean(1)
     reach = reach_times(trace, level, fail_s)
     settle = settle_times(trace, level, fail_s)
     trough, trough_ci = mean_ci95(post.min(1))
-    frac, frac_ci = mean_ci95(post.mean(1) / np.maximum(oracle_post.mean(1), 1e-9))
+    frac, frac_ci = mean_ci95(post.mean(1) / np.maximum(reference_post.mean(1), 1e-9))
     return {
         "failure_at_s": fail_s,
         "pre_failure_mean": float(trace[:, max(fail_s - 1 - PRE_S, 0) : fail_s - 1].mean()),
         "trough_mean": trough,
         "trough_ci95": list(trough_ci),
         "post_failure_mean": float(post.mean()),
-        "post_failure_fraction_of_oracle_mean": frac,
-        "post_failure_fraction_of_oracle_ci95": list(frac_ci),
-        "oracle_post_level_mean": float(level.mean()),
+        "post_failure_fraction_of_reference_mean": frac,
+        "post_failure_fraction_of_reference_ci95": list(frac_ci),
+        "reference_post_level_mean": float(level.mean()),
         # Medians over all episodes, "never" counted as +inf (None when most never get there).
         "reach_s_median": _median_with_never(reach),
         "reach_within_target_share": float(np.mean(reach <= TARGET_S)),

@@ -53,6 +53,9 @@ class PolicyCard:
     seed: int = field(default=0, metadata={"min": 0, "max": MAX_SEED})
     git_commit: str = ""
     note: str = ""
+    learnt: bool = True  # False: a policy file that is not learnt (policies/service, the plan follower)
+    mission_file: str = ""  # the mission file it was made from (policies/service)
+    cruise_alt_m: float | None = field(default=None, metadata={"min": 0.0})  # a fixed flying altitude (policies/service)
     # The swarm sizes [lo, hi] and the vehicle model it was trained with (cards from issue 26 on).
     trained_on: Any = None
     # Free-form records of how the policy was made.

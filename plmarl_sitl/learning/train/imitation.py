@@ -1,9 +1,10 @@
-"""Warm start for MAPPO: imitate the Oracle (DAgger), centralised knowledge used in training only.
+"""Warm start for MAPPO: imitate a teacher (DAgger; the team plan, or the greedy reference),
+centralised knowledge used in training only.
 
 Why: with Table I's budget (1000 episodes, lr 1e-4) MAPPO from scratch settles in a local
 optimum where the four symmetric agents split over the two clusters nearest the launch
-line (about 0.5 coverage; see docs/RESULTS.md). The Oracle of the twin (global knowledge,
-greedy placement + Hungarian assignment) is a teacher that is available in the DT at
+line (about 0.5 coverage; see docs/RESULTS.md). The greedy reference ("the Oracle" before
+issue 24; global knowledge, greedy placement + Hungarian assignment) is a teacher that is available in the DT at
 training time, exactly like the centralised critic: the student acts on its OWN local
 inputs (own state, beliefs from its tracker, local sensing, fail flag), so nothing about
 decentralised execution changes.
@@ -33,7 +34,7 @@ from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.env import CoverageEnv
-from plmarl_sitl.twin.oracle import OracleController
+from plmarl_sitl.twin.greedy import GreedyController
 
 
 @dataclass
@@ -53,8 +54,8 @@ class ImitationArgs:
     # True: every batch draws its scenario (N, clusters, layout) and random launch lines
     # (plmarl_sitl.learning.train.scenarios); False: the mission as given.
     general: bool = True
-    # The teacher: "oracle" = the Oracle's action from the current global state
-    # (OracleController.act_from_state); "plan" = fly to the agent's own team-plan point
+    # The teacher: "oracle" = the greedy reference's action from the current global state
+    # (GreedyController.act_from_state; the key keeps the name recorded in older cards); "plan" = fly to the agent's own team-plan point
     # (model/service.py), a teacher that uses only what the student has.
     teacher: str = "plan"
 
@@ -96,7 +97,7 @@ def imitate_oracle(
             m = m.with_tup(tup)
             env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
                               random_launch=args.general)
-            teacher = OracleController(env)
+            teacher = GreedyController(env)
             perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
             obs = env.reset()
             teacher.reset()

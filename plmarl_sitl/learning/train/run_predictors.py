@@ -27,7 +27,7 @@ from plmarl_sitl.learning.train.predictor import (
 from plmarl_sitl.learning.train.trajectories import mixed_mobility, record
 from plmarl_sitl.mission import load_mission
 
-# The Oracle share is the largest: trained policies imitate it first (train/imitation.py).
+# The greedy reference's share (key "oracle", its name when these mixes were fixed) is the largest: trained policies imitate it first (train/imitation.py).
 DATA_MIX = {"oracle": 96, "heuristic": 64, "waypoint": 96, "ou": 64}
 
 

@@ -4,7 +4,7 @@ One integer seeds a `CoverageEnv`; it fixes everything random in its episodes: r
 cluster layouts, users' start and motion, mixed-mobility kinds and random node failures.
 So "held out" means "seeded from a range training never uses":
 
-* training (engine data, Oracle imitation, MAPPO rollouts) seeds every twin it builds
+* training (engine data, imitation, MAPPO rollouts) seeds every twin it builds
   through `training_twin_seed`, which refuses seeds at or above EVAL_SEED_BASE;
 * the suite (`plmarl suite`) seeds every twin through `suite_twin_seed`, which only
   returns seeds at or above EVAL_SEED_BASE.

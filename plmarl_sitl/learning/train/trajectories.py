@@ -3,7 +3,8 @@
 UAV trajectories (true [p, v] every physics second) are recorded under a mix of
 controllers, each run on the mixed-mobility curriculum (RWP, GM, RPGM users):
 
-* `oracle`    the twin's Oracle (global knowledge, purposeful flight to cluster sites)
+* `oracle`    the greedy reference (twin/greedy.py; its key keeps the old name "the Oracle"; global
+              knowledge, purposeful flight to cluster sites)
 * `heuristic` the decentralised heuristic (seek users, explore, keep links)
 * `waypoint`  random waypoints in the area and altitude band, random cruise speed
 * `ou`        Ornstein-Uhlenbeck random accelerations (smooth random manoeuvres)
@@ -85,9 +86,9 @@ def record(
     env = CoverageEnv(mission, episodes, training_twin_seed(seed), failure_prob=failure_prob)
     gen = torch.Generator().manual_seed(seed + 7919)
     if controller == "oracle":
-        from plmarl_sitl.twin.oracle import OracleController
+        from plmarl_sitl.twin.greedy import GreedyController
 
-        ctl: object = OracleController(env)
+        ctl: object = GreedyController(env)
     elif controller == "heuristic":
         from plmarl_sitl.twin.heuristic import HeuristicController
 

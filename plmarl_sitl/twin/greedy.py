@@ -1,4 +1,5 @@
-"""Oracle bound: sequential greedy grid search with global knowledge (the paper's ceiling).
+"""Greedy clairvoyant placement (method `greedy`; called "the Oracle" before issue 24):
+sequential greedy grid search with global knowledge.
 
 Every decision it sees every user and every UAV (no signalling, no staleness) and:
 1. places live UAVs one at a time on a grid at the altitude with the largest coverage
@@ -9,8 +10,10 @@ Every decision it sees every user and every UAV (no signalling, no staleness) an
 3. flies there with the same point-mass dynamics as everyone else.
 
 A new plan replaces the current one only when it covers more users (or a UAV died), so
-the swarm does not chase ties. It is a bound on what coordination can achieve on the same
-episodes; it still pays the flight time from the launch point, like every policy.
+the swarm does not chase ties. It still pays the flight time from the launch point, like
+every policy. It is a reference, NOT a bound: a greedy placement is not optimal, and the plan
+follower `service` beats it by 1-3 % on several suite families (docs/RESULTS.md, issue 24).
+`twin/clairvoyant.py` is the stronger reference, and the reports take the best of them.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from plmarl_sitl.twin.env import CoverageEnv, Observation
 _CHUNK = 16  # environments per (B, cells, users) block: bounds memory at large batches
 
 
-class OracleController:
+class GreedyController:
     def __init__(self, env: CoverageEnv, grid_m: float = 25.0, link_frac: float = 0.95) -> None:
         self.env = env
         m = env.mission
@@ -91,7 +94,7 @@ class OracleController:
         targets[e, live[rows]] = places[torch.from_numpy(np.asarray(cols))]
 
     def act_from_state(self, obs: Observation) -> torch.Tensor:
-        """The Oracle's action from the current state alone, for imitation labels.
+        """The greedy's action from the current state alone, for imitation labels.
 
         `act` keeps its plan (it re-plans only for more users or a death), so once a
         student has flown elsewhere `act` still sends every UAV to the slot it was given at
@@ -113,7 +116,16 @@ class OracleController:
 
     def act(self, obs: Observation) -> torch.Tensor:
         env = self.env
-        b, n = env.num_envs, env.n
+        targets = self.plan_targets()
+        target = torch.cat([targets, torch.full((env.num_envs, env.n, 1), -self.alt, dtype=env.dtype)], -1)
+        tau = float(env.mission.timing.decision_every_s)
+        return goto_accel(env.pos, env.vel, target, env.limits.max_speed, env.limits.max_accel, time_const=tau)
+
+    def plan_targets(self) -> torch.Tensor:
+        """(B, N, 2) every UAV's target after this decision's re-plan (new plans only when they
+        cover more users, or a UAV died). The clairvoyant reference reads it as a candidate."""
+        env = self.env
+        b = env.num_envs
         alive = env.alive
         if self.targets is None:
             self.targets = env.pos[..., :2].clone()
@@ -121,12 +133,10 @@ class OracleController:
         for lo in range(0, b, _CHUNK):
             sl = slice(lo, min(b, lo + _CHUNK))
             users = env.users.xy[sl]
-            placements, gain = self.plan(users, n)
+            placements, gain = self.plan(users, env.n)
             current = self._covered_by(users, self.targets[sl], alive[sl])
             replan = (gain > current) | (alive[sl] != self._alive[sl]).any(-1)
             for j in torch.nonzero(replan).flatten().tolist():
                 self._assign(self.targets, lo + j, users[j : j + 1], placements[j])
         self._alive = alive.clone()
-        target = torch.cat([self.targets, torch.full((b, n, 1), -self.alt, dtype=env.dtype)], -1)
-        tau = float(env.mission.timing.decision_every_s)
-        return goto_accel(env.pos, env.vel, target, env.limits.max_speed, env.limits.max_accel, time_const=tau)
+        return self.targets

@@ -1,0 +1,49 @@
+"""The evaluation methods by name, what each one is (for --help), and deprecated aliases.
+
+No heavy import here: the command line builds its help from it without loading torch.
+"""
+
+from __future__ import annotations
+
+import sys
+
+# One line per method: what it is. The order is the order of --help and of the reports.
+METHOD_HELP = {
+    "pl-marl": "the letter's method: MLP predictor phi + attention policy (policies/pl-marl)",
+    "gru": "GRU predictor + the same policy (policies/gru)",
+    "tag-mappo": "no predictor, held states as they are (policies/tag-mappo)",
+    "dead-reckoning": "the PL-MARL policy with a constant-velocity tracker (ablation)",
+    "service": "the plan follower: each UAV flies to its point of the team plan, no learning (a reference)",
+    "greedy": "greedy clairvoyant placement with global knowledge (a reference; called 'oracle' before)",
+    "clairvoyant": "best of several plans re-chosen every decision with true states and users (a reference)",
+    "heuristic": "hand-written decentralised controller, local sensing only",
+}
+ALL_METHODS = tuple(METHOD_HELP)
+DEPRECATED_METHODS = {"oracle": "greedy"}  # old name -> new name, accepted for one release
+# Methods that plan with global knowledge and never read the signalled states: their episodes
+# do not depend on T_up, so a sweep runs them once (tests/learning/test_suite.py checks it).
+GLOBAL_KNOWLEDGE = ("greedy", "clairvoyant")
+
+
+def methods_help() -> str:
+    """'name: what it is; ...' for a command's description."""
+    return "; ".join(f"{m}: {h}" for m, h in METHOD_HELP.items())
+
+
+def canonical_method(name: str) -> str:
+    """The method's current name; a deprecated alias is mapped, with a one-line note on stderr."""
+    new = DEPRECATED_METHODS.get(name)
+    if new is None:
+        return name
+    print(f"note: method {name!r} is now {new!r} (greedy clairvoyant placement: a reference, not a bound); "
+          f"{name!r} is accepted for one more release", file=sys.stderr)
+    return new
+
+
+def parse_methods(text: str) -> list[str]:
+    """'a,b,c' -> method names (aliases mapped); ValueError naming the unknown ones."""
+    out = [canonical_method(m.strip()) for m in text.split(",") if m.strip()]
+    bad = [m for m in out if m not in METHOD_HELP]
+    if bad or not out:
+        raise ValueError(f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(ALL_METHODS)}")
+    return list(dict.fromkeys(out))
