@@ -21,10 +21,15 @@ policy) is timed as two extra rows, interleaved the same way, when any timed pol
 
 Its inputs are a real twin instant: the paper's area with N UAVs on their launch line and N
 clusters of 60 users on a 200 m lattice (as the suite's zero-shot families), the maps of
-t = 0 and of the next map instant alternating. The amortised plan row is plan per decision + plan per map / decisions per map (add it to
-a method's decision). The plan is numpy: run the bench with OPENBLAS_NUM_THREADS=1, as every
-deployed agent runs (deploy/agent/program.py); a multi-threaded BLAS on a loaded machine
-makes a re-placement 10-100x slower. The result records the setting.
+t = 0 and of the next map instant alternating. The amortised plan row is plan per decision
++ plan per map / decisions per map; a row `METHOD + team plan` adds it to the decision of
+each method that takes the plan: the decision's cost including the coordination. `--area`
+sets the side of the square area (the plan grid and the neighbours' positions; the clusters
+stay on their 200 m lattice, the launch line through the centre): `--n 4,100 --area 3000`
+is issue 24's N = 100 over 3 km. The plan is numpy: run the bench with
+OPENBLAS_NUM_THREADS=1, as every deployed agent runs (deploy/agent/program.py); a
+multi-threaded BLAS on a loaded machine makes a re-placement 10-100x slower. The result
+records the setting.
 
 A method is a name looked up as <--policies>/<name>/, or LABEL=DIR for any policy
 directory (to time, say, the shipped and an earlier file set in one run; a DIR that does
@@ -57,6 +62,7 @@ def default_methods() -> str:
 PLAN_DECISION = "team plan / decision"
 PLAN_MAP = "team plan / new map"
 PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
+WITH_PLAN = " + team plan"  # a plan-taking method's decision plus the amortised plan: the cost including the coordination
 PAPER = Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"
 
 
@@ -71,6 +77,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="directory with <method>/predictor.pt, policy.pt (default: the project's policies/, from any directory)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random inputs (default: 0)")
+    p.add_argument("--area", type=area_side, default=None, metavar="M",
+                   help="side of the square area of the team plan's map and of the neighbours' positions, metres "
+                        "(default: the paper mission's, 1000); e.g. --n 4,100 --area 3000 for the cost of N = 100 over 3 km")
 
 
 def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
@@ -113,14 +122,30 @@ def _modules(method: str, d: Path):
     return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(fuse_policy(policy), POLICY_ATTRS), "untrained"  # as exported
 
 
-def lattice_mission(n: int):  # noqa: ANN201 - Mission
-    """The paper's area with N UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
-    from plmarl_sitl.mission import load_mission
+def area_side(text: str) -> float:
+    """--area: a finite side of at least 100 m (a mission's smallest area)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 100.0 <= v < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a side of at least 100 m")
+    return v
+
+
+def lattice_mission(n: int, area_m: float | None = None):  # noqa: ANN201 - Mission
+    """The paper's area (or a square of side area_m, launch line through its centre) with N
+    UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
+    from plmarl_sitl.mission import Area, load_mission
 
     m = load_mission(PAPER)
     users = dataclasses.replace(m.users, count=n * m.users.cluster_size, layout="lattice", cluster_centers=(),
                                 cluster_spacing_m=200.0)
-    return dataclasses.replace(m, n_uavs=n, users=users, launch=dataclasses.replace(m.launch, spacing_m=25.0))
+    launch = dataclasses.replace(m.launch, spacing_m=25.0)
+    if area_m is not None:
+        m = dataclasses.replace(m, area=Area(area_m, area_m))
+        launch = dataclasses.replace(launch, north_m=area_m / 2, east_m=area_m / 2)
+    return dataclasses.replace(m, n_uavs=n, users=users, launch=launch)
 
 
 @dataclasses.dataclass
@@ -135,13 +160,13 @@ class PlanInputs:
     decisions_per_map: int
 
 
-def plan_inputs(n: int, seed: int) -> PlanInputs:
+def plan_inputs(n: int, seed: int, area_m: float | None = None) -> PlanInputs:
     import torch
 
     from plmarl_sitl.model.demand import map_period
     from plmarl_sitl.twin.env import CoverageEnv
 
-    m = lattice_mission(n)
+    m = lattice_mission(n, area_m)
     env = CoverageEnv(m, 1, seed)
     obs = env.reset()
     first = (obs.ego[0, 0].clone(), obs.nbr_state[0, 0].clone(), obs.nbr_t_rx[0, 0].clone())
@@ -163,7 +188,7 @@ def _extra_inputs(policy, demand, target) -> tuple:  # noqa: ANN001
     return (demand, target) if takes_plan(policy) else (demand,)
 
 
-def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
+def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None = None) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
@@ -172,15 +197,16 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
-    held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([1000.0, 1000.0, -100.0]),
+    side = 1000.0 if area_m is None else area_m
+    held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([side, side, -100.0]),
                       torch.randn(m_nbrs, 3, generator=gen)], -1)
     t_rx = torch.zeros(m_nbrs)
-    ego = torch.tensor([500.0, 500.0, -100.0, 1.0, 0.0, 0.0])
+    ego = torch.tensor([side / 2, side / 2, -100.0, 1.0, 0.0, 0.0])
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
     with_plan = any(takes_plan(p) for _, p, _ in mods.values())
-    pi = plan_inputs(n, seed) if with_plan else None
+    pi = plan_inputs(n, seed, area_m) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
     plan, map_no, target = None, [0], None
@@ -238,8 +264,12 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
                      "calls": len(ts)})
     if pi is not None:
         med = {r["method"]: r["median_us"] for r in rows}
+        amortised = med[PLAN_DECISION] + med[PLAN_MAP] / pi.decisions_per_map
         rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": pi.decisions_per_map,
-                     "median_us": med[PLAN_DECISION] + med[PLAN_MAP] / pi.decisions_per_map, "p99_us": None, "calls": 0})
+                     "median_us": amortised, "p99_us": None, "calls": 0})
+        for m, (_, p, _) in mods.items():  # the decision including the coordination, for the methods that take the plan
+            if takes_plan(p):
+                rows.append({"method": m + WITH_PLAN, "n": n, "median_us": med[m] + amortised, "p99_us": None, "calls": 0})
     return rows
 
 
@@ -256,10 +286,10 @@ def run(args: argparse.Namespace) -> dict:
     gen = torch.Generator().manual_seed(args.seed)
     rows = []
     for n in args.n:
-        rows += _time_n(mods, n, args.calls, gen, args.seed)
+        rows += _time_n(mods, n, args.calls, gen, args.seed, getattr(args, "area", None))
     weights = {m: mods[m][2] for m in mods}
     return {"rows": rows, "weights": weights, "dirs": {m: str(d) for m, (_, d) in methods.items()},
-            "machine": machine_info(), "torch_threads": 1, "calls": args.calls,
+            "machine": machine_info(), "torch_threads": 1, "calls": args.calls, "area_m": getattr(args, "area", None) or 1000.0,
             "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
             "load_avg_start": load_start, "load_avg": [float(x) for x in os.getloadavg()]}
 
@@ -277,6 +307,11 @@ def print_table(res: dict) -> None:
     Console().print(f"load average {res['load_avg_start']} at the start, {res['load_avg']} at the end, OPENBLAS_NUM_THREADS={res['openblas_threads']}")
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})
+    for m in sorted({r["method"] for r in res["rows"] if r["method"].endswith(WITH_PLAN)}):
+        if (m, ns[0]) in by and (m, ns[-1]) in by and len(ns) > 1:
+            Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
+                            f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f}; a new map at N={ns[-1]}: "
+                            f"{by[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms, area {res['area_m']:g} m")
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:

@@ -59,6 +59,7 @@ class ServiceGrid:
         n_axis = np.arange(0.0, area_n + 1e-9, GRID_M)
         e_axis = np.arange(0.0, area_e + 1e-9, GRID_M)
         self.cands = np.stack(np.meshgrid(n_axis, e_axis, indexing="ij"), -1).reshape(-1, 2)  # (C, 2)
+        self.cand_shape = (len(n_axis), len(e_axis))  # the candidates' lattice, row-major
         self.cand_n, self.cand_e = (np.ascontiguousarray(a) for a in self.cands.T)  # columns: ~8x faster distances
         centres = cell_centres(area_n, area_e, cell_m, torch.float64).numpy()  # (K, 2)
         offs = (np.arange(self.sub) + 0.5) / self.sub * cell_m - 0.5 * cell_m
@@ -67,6 +68,9 @@ class ServiceGrid:
         self.r2 = cover_r * cover_r
         self.link_m = LINK_FRAC * comm_m  # a point within this of an earlier one keeps the plan connected
         self.apart_m = 2.0 * safe_m
+        # Candidates are exact multiples of GRID_M, so those more than this many steps from a pick
+        # along either axis are farther than R_link and 2 d_safe: a pick changes neither test there.
+        self.window = int(max(self.link_m, self.apart_m) // GRID_M) + 1
         self.tiles = _Tiles(self.subpts, max(cover_r, GRID_M))
         # cover: candidate -> the sub-points within the coverage radius; covered_by: the transpose
         cand, pt = self._cover_pairs()
@@ -91,24 +95,29 @@ class ServiceGrid:
     def place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Greedy service points for maps counts (B, K): -> (points (B, n, 2), served (B,) users).
 
-        A candidate's gain is the weight of the unserved sub-points it covers. The gains are
-        whole numbers (user counts), so they are kept exactly by updating them incrementally:
-        from scratch only over the sub-points that hold users, and after each pick minus the
-        weight of the sub-points it newly served, for the candidates that cover those (the
-        candidates near the pick). Ties go to the lowest candidate index; a pick with no
-        allowed candidate left takes candidate 0, as argmax over all -1 does."""
+        Each pick is the allowed candidate with the largest gain (the weight of the unserved
+        sub-points it covers); ties go to the lowest candidate index, and a pick with no
+        allowed candidate left takes candidate 0 (argmax over all -1). Only what is near a
+        pick changes with it, so only that is updated (issue 24: 100 picks on a 3 km map):
+        the gains, whole numbers kept exactly, lose the weight of the sub-points the pick
+        newly serves at the candidates that cover those; the link and spacing tests change
+        only in the window of candidates within R_link or 2 d_safe of the pick (a batch of
+        maps, the twin's small areas, updates them whole: one vector operation per pick)."""
         w = self._weights(counts)
         b, c = w.shape[0], len(self.cands)
+        nr, ne = self.cand_shape
+        k = self.window
         unserved = np.ones(w.shape, dtype=bool)
-        rows, pts = np.nonzero(w)
+        rows, pts = np.nonzero(w)  # the gains from scratch over the sub-points with users only
         owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pts)
         gain = np.bincount(rows[owner] * c + cand, weights=w[rows, pts][owner], minlength=b * c).reshape(b, c)
-        allowed = np.ones((b, c), dtype=bool)
-        near = np.zeros_like(allowed)
-        apart = np.ones_like(allowed)
+        near = np.zeros((b, c), dtype=bool)  # within R_link of a pick
+        apart = np.ones((b, c), dtype=bool)  # at least 2 d_safe from every pick
+        score = gain.copy()  # gain where allowed, else -1; before the first pick everything is allowed
+        grid_n, grid_e = self.cand_n.reshape(nr, ne), self.cand_e.reshape(nr, ne)
         chosen = []
-        for _ in range(n):
-            best = np.where(allowed, gain, -1.0).argmax(-1)  # ties: lowest candidate index
+        for step in range(n):
+            best = score.argmax(-1)  # ties: lowest candidate index
             chosen.append(best)
             # the sub-points the pick newly serves, and the gains they leave
             team, pt = _gather(self.cover_ptr, self.cover_idx, best)
@@ -118,12 +127,24 @@ class ServiceGrid:
             lit = w[team, pt] > 0
             team, pt = team[lit], pt[lit]
             owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pt)
-            np.subtract.at(gain.reshape(-1), team[owner] * c + cand, w[team, pt][owner])
-            # (B, C) the pick's distances, the float operations of a dense table's ((a - b) ** 2).sum(-1)
-            dist = np.sqrt((self.cand_n - self.cand_n[best][:, None]) ** 2 + (self.cand_e - self.cand_e[best][:, None]) ** 2)
-            near |= dist <= self.link_m
-            apart &= dist >= self.apart_m
-            allowed = near & apart
+            touched = team[owner] * c + cand  # flat (B * C) indices of the gains that change
+            np.subtract.at(gain.reshape(-1), touched, w[team, pt][owner])
+            if b > 1 or step == 0:  # a batch of small maps (the twin), or the first pick: every candidate at once
+                dist = np.sqrt((self.cand_n - self.cand_n[best][:, None]) ** 2 + (self.cand_e - self.cand_e[best][:, None]) ** 2)
+                near |= dist <= self.link_m
+                apart &= dist >= self.apart_m
+                score = np.where(near & apart, gain, -1.0)
+                continue
+            # one map (an agent): only the window around the pick
+            i, j = divmod(int(best[0]), ne)
+            win = (slice(max(0, i - k), i + k + 1), slice(max(0, j - k), j + k + 1))
+            dist = np.sqrt((grid_n[win] - grid_n[i, j]) ** 2 + (grid_e[win] - grid_e[i, j]) ** 2)
+            near_w, apart_w = near.reshape(nr, ne)[win], apart.reshape(nr, ne)[win]  # views
+            near_w |= dist <= self.link_m
+            apart_w &= dist >= self.apart_m
+            score.reshape(nr, ne)[win] = np.where(near_w & apart_w, gain.reshape(nr, ne)[win], -1.0)
+            flat_score, flat_gain = score.reshape(-1), gain.reshape(-1)
+            flat_score[touched] = np.where(near.reshape(-1)[touched] & apart.reshape(-1)[touched], flat_gain[touched], -1.0)
         idx = np.stack(chosen, -1)
         return self.cands[idx], (w * ~unserved).sum(-1) / (self.sub * self.sub)
 

@@ -75,10 +75,11 @@ class AgentFleet:
     nice: int = 0
     procs: dict[int, AgentProc] = field(default_factory=dict)
 
-    def warm_up(self) -> None:
-        """Forked fleets: get the forkserver importing before the first `spawn`."""
+    def warm_up(self, policy: str | Path | None = None, mission: str | Path | None = None) -> None:
+        """Forked fleets: get the forkserver importing (and loading `policy` for `mission`)
+        before the first `spawn`."""
         if self.forked:
-            warm_up()
+            warm_up(policy, mission)
 
     async def spawn(
         self,

@@ -36,6 +36,7 @@ import logging
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -304,14 +305,16 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
                   "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
                   "command it", highlight=False)
+    t_launch = time.monotonic()  # start-up's steps are logged from here (launcher.log)
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE)
-    fleet.warm_up()  # the agents' imports load on the other core meanwhile
+    fleet.warm_up(opts.policy, mission_file)  # the agents' imports and policy load on the other core meanwhile
     # Our own broker: a login per process and an ACL; an external one: its own business.
     access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
     creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
     world_login = load_credentials(creds["world"]) if creds else None
     monitor_login = load_credentials(creds["monitor"]) if creds else None
     broker, up_host, up_port = await _start_broker(opts.broker, access)
+    log.info("start-up: broker up at %.1f s", time.monotonic() - t_launch)
     guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
                                        "(docs/SECURITY.md has the ACL to give it)")
     console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
@@ -374,6 +377,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         script = LauncherEvents(schedule, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
+        log.info("start-up: world started at %.1f s", time.monotonic() - t_launch)
         observer = None
         if opts.lockstep:
             # The world hands the monitor each state as it relays it and each delivery as it
@@ -389,6 +393,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                                      *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
                               swarm_key=key_path, credentials=creds.get(f"agent{i}"),
                               mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
+        log.info("start-up: %d agents forked at %.1f s", n, time.monotonic() - t_launch)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")
             bus_task = None if observer is None else tg.create_task(observer.run(), name="launcher-bus")

@@ -76,6 +76,7 @@ CASES = [  # area_n, area_e, cell_m, cover_r, comm_m, safe_m
     (430.0, 710.0, 50.0, 137.3, 260.0, 11.0),  # neither side a multiple of a cell or of the grid
     (500.0, 300.0, 40.0, 62.5, 180.0, 30.0),
     (500.0, 500.0, 50.0, 100.0, 350.0, 25.0),  # d_safe: candidates exactly 2 d_safe apart (a boundary)
+    (700.0, 600.0, 50.0, 80.0, 157.89473684210526, 20.0),  # 0.95 R_comm = 150 m exactly: candidates on the link boundary
     (400.0, 400.0, 50.0, 75.0, 20.0, 15.0),  # links shorter than the spacing: no allowed candidate after the first
 ]
 
@@ -85,7 +86,7 @@ def test_sparse_grid_places_and_serves_exactly_as_the_dense_one(case: tuple) -> 
     rng = np.random.default_rng(hash(case) % 2**32)
     sparse, dense = ServiceGrid(*case), DenseGrid(*case)
     k = int(np.prod(grid_shape(case[0], case[1], case[2])))
-    for n, b in ((1, 1), (4, 3), (9, 5), (25, 2)):
+    for n, b in ((1, 1), (4, 3), (9, 1), (9, 5), (25, 1), (25, 2), (40, 1)):  # b = 1: the windowed updates
         maps = random_maps(rng, k, b)
         pts, served = sparse.place(maps, n)
         ref_pts, ref_served = dense.place(maps, n)
