@@ -7,7 +7,9 @@ plmarl_sitl/learning/nn/deploy.py, as exported), torch on ONE thread, no
 autograd (inference_mode). Each policy file is called with the inputs of its version
 (docs/POLICY_IO.md): version 1 without the demand map, version 2 with it, and a policy that
 takes the team plan with its plan point too. Methods are timed interleaved, call by call,
-in the same run, so machine load hits them equally; report the median and the 99th percentile.
+in the same run, so machine load hits them equally; report the median and the 99th percentile
+of the wall time, and the median of the thread's CPU time (on a loaded shared machine the
+wall time of a 15 ms plan is mostly waiting for a core).
 
 The team plan (model/service.py, what `deploy/agent/plan.py::AgentPlan` runs beside the
 policy) is timed as two extra rows, interleaved the same way, when any timed policy takes it:
@@ -224,8 +226,10 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
 
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
+    cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
     if pi is not None:
         times[PLAN_DECISION], times[PLAN_MAP] = [], []
+        cpu[PLAN_DECISION], cpu[PLAN_MAP] = [], []
     with torch.inference_mode():
         for m, (tracker, _, _) in mods.items():
             buf, seen = tracker.init_state(held)
@@ -239,9 +243,10 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
             policy(ego, belief, mask, sense, fail, *extra[m])
 
         def timed(label: str, fn) -> None:  # noqa: ANN001
-            t0 = time.perf_counter_ns()
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
             fn()
             times[label].append(time.perf_counter_ns() - t0)
+            cpu[label].append(time.thread_time_ns() - c0)
 
         for i in range(300):  # warm-up (TorchScript's profiling runs)
             for m in mods:
@@ -261,15 +266,18 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
     for m, ts in times.items():
         a = np.asarray(ts) / 1e3
         rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
-                     "calls": len(ts)})
+                     "cpu_median_us": float(np.median(np.asarray(cpu[m]) / 1e3)), "calls": len(ts)})
     if pi is not None:
         med = {r["method"]: r["median_us"] for r in rows}
-        amortised = med[PLAN_DECISION] + med[PLAN_MAP] / pi.decisions_per_map
-        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": pi.decisions_per_map,
-                     "median_us": amortised, "p99_us": None, "calls": 0})
+        med_cpu = {r["method"]: r["cpu_median_us"] for r in rows}
+        per = pi.decisions_per_map
+        amortised, amortised_cpu = (x[PLAN_DECISION] + x[PLAN_MAP] / per for x in (med, med_cpu))
+        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": per,
+                     "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
         for m, (_, p, _) in mods.items():  # the decision including the coordination, for the methods that take the plan
             if takes_plan(p):
-                rows.append({"method": m + WITH_PLAN, "n": n, "median_us": med[m] + amortised, "p99_us": None, "calls": 0})
+                rows.append({"method": m + WITH_PLAN, "n": n, "median_us": med[m] + amortised, "p99_us": None,
+                             "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
     return rows
 
 
@@ -299,19 +307,22 @@ def print_table(res: dict) -> None:
     from rich.table import Table
 
     t = Table(title=f"per-agent decision latency (tracker + policy, TorchScript, 1 thread), {res['machine']}")
-    for c in ("method", "N", "median (us)", "p99 (us)", "weights"):
+    for c in ("method", "N", "median (us)", "p99 (us)", "CPU median (us)", "weights"):
         t.add_column(c, justify="right" if c != "method" else "left")
     for r in res["rows"]:
-        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", "-" if r["p99_us"] is None else f"{r['p99_us']:.1f}", res["weights"].get(r["method"], ""))
+        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", "-" if r["p99_us"] is None else f"{r['p99_us']:.1f}",
+                  f"{r['cpu_median_us']:.1f}", res["weights"].get(r["method"], ""))
     Console().print(t)
     Console().print(f"load average {res['load_avg_start']} at the start, {res['load_avg']} at the end, OPENBLAS_NUM_THREADS={res['openblas_threads']}")
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})
+    by_cpu = {(r["method"], r["n"]): r["cpu_median_us"] for r in res["rows"]}
     for m in sorted({r["method"] for r in res["rows"] if r["method"].endswith(WITH_PLAN)}):
         if (m, ns[0]) in by and (m, ns[-1]) in by and len(ns) > 1:
             Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
-                            f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f}; a new map at N={ns[-1]}: "
-                            f"{by[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms, area {res['area_m']:g} m")
+                            f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f} (CPU {by_cpu[(m, ns[-1])] / by_cpu[(m, ns[0])]:.2f}); "
+                            f"a new map at N={ns[-1]}: {by[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms "
+                            f"(CPU {by_cpu[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m")
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:

@@ -137,6 +137,7 @@ class AgentFleet:
                 )
         ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
         self.procs[uav_id] = ap
+        self.procs = dict(sorted(self.procs.items()))  # by id, whatever order concurrent spawns finish in
         return ap
 
     def kill(self, uav_id: int) -> None:

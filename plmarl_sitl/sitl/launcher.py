@@ -387,12 +387,15 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         else:
             observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                                monitor.on_bus, name="launcher-bus", credentials=monitor_login)
-        for i in range(n):
-            await fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                              extra=["--autopilot", "ardupilot" if real else opts.personality,
-                                     *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
-                              swarm_key=key_path, credentials=creds.get(f"agent{i}"),
-                              mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
+        # All at once: one by one, each fork waited for the forkserver and this loop to be
+        # scheduled in turn (100 agents: 22-34 s on a loaded 2-core machine).
+        await asyncio.gather(*(
+            fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
+                        extra=["--autopilot", "ardupilot" if real else opts.personality,
+                               *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
+                        swarm_key=key_path, credentials=creds.get(f"agent{i}"),
+                        mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
+            for i in range(n)))
         log.info("start-up: %d agents forked at %.1f s", n, time.monotonic() - t_launch)
         async with asyncio.TaskGroup() as tg:
             world_task = tg.create_task(world.run(keep_sockets=True), name="world")

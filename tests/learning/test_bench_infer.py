@@ -95,6 +95,8 @@ def test_area_and_the_decision_including_the_plan(tmp_path: Path) -> None:
     assert res["area_m"] == 3000.0
     with_plan = rows["shipped" + infer.WITH_PLAN]
     assert with_plan["median_us"] == pytest.approx(rows["shipped"]["median_us"] + rows[infer.PLAN_AMORTISED]["median_us"])
+    assert with_plan["cpu_median_us"] == pytest.approx(rows["shipped"]["cpu_median_us"] + rows[infer.PLAN_AMORTISED]["cpu_median_us"])
+    assert 0 < rows[infer.PLAN_MAP]["cpu_median_us"] <= rows[infer.PLAN_MAP]["median_us"] * 1.05  # CPU time never exceeds wall time
 
 
 @pytest.mark.parametrize("bad", ["50", "x", "inf", "-3000"])
