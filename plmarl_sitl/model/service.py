@@ -47,10 +47,10 @@ class ServiceGrid:
     candidate covers only the ~50 sub-points within the coverage radius, so coverage is kept
     sparse both ways (candidate -> sub-points, sub-point -> candidates; int32 indices, built
     with a tile bucket search: each candidate is tested only against the sub-points of the
-    tiles around it). The link and spacing tests are computed for the chosen candidate alone
-    (O(C) per pick). Every distance is computed with the same float operations as a dense
-    table would, so the points are the same to the bit (tests/model/test_service.py checks
-    them against a dense reference)."""
+    tiles around it). The link and spacing tests are computed for the chosen candidate alone,
+    near it (`place`). Every distance is computed with the same float operations as a dense
+    table would, so the points are the same to the bit (tests/model/test_service_sparse.py
+    checks them against a dense reference)."""
 
     def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> None:
         self.cell_m = cell_m
