@@ -8,7 +8,9 @@ autograd (inference_mode). Each policy file is called as a deployed agent calls 
 `PolicyInputs` per decision through `contract.PolicyCall`, which passes the file the inputs
 of its version (docs/POLICY_IO.md): version 1 without the demand map, version 2 with it,
 and a policy that takes the team plan with its plan point too. Methods are timed interleaved, call by call,
-in the same run, so machine load hits them equally; report the median and the 99th percentile.
+in the same run, so machine load hits them equally; report the median and the 99th percentile
+of the wall time, and the median of the thread's CPU time (on a loaded shared machine the
+wall time of a 15 ms plan is mostly waiting for a core).
 
 The team plan (model/service.py, what `deploy/agent/plan.py::AgentPlan` runs beside the
 policy) is timed as two extra rows, interleaved the same way, when any timed policy takes it:
@@ -22,10 +24,15 @@ policy) is timed as two extra rows, interleaved the same way, when any timed pol
 
 Its inputs are a real twin instant: the paper's area with N UAVs on their launch line and N
 clusters of 60 users on a 200 m lattice (as the suite's zero-shot families), the maps of
-t = 0 and of the next map instant alternating. The amortised plan row is plan per decision + plan per map / decisions per map (add it to
-a method's decision). The plan is numpy: run the bench with OPENBLAS_NUM_THREADS=1, as every
-deployed agent runs (deploy/agent/program.py); a multi-threaded BLAS on a loaded machine
-makes a re-placement 10-100x slower. The result records the setting.
+t = 0 and of the next map instant alternating. The amortised plan row is plan per decision
++ plan per map / decisions per map; a row `METHOD + team plan` adds it to the decision of
+each method that takes the plan: the decision's cost including the coordination. `--area`
+sets the side of the square area (the plan grid and the neighbours' positions; the clusters
+stay on their 200 m lattice, the launch line through the centre): `--n 4,100 --area 3000`
+is issue 24's N = 100 over 3 km. The plan is numpy: run the bench with
+OPENBLAS_NUM_THREADS=1, as every deployed agent runs (deploy/agent/program.py); a
+multi-threaded BLAS on a loaded machine makes a re-placement 10-100x slower. The result
+records the setting.
 
 A method is a name looked up as <--policies>/<name>/, or LABEL=DIR for any policy
 directory (to time, say, the shipped and an earlier file set in one run; a DIR that does
@@ -58,6 +65,7 @@ def default_methods() -> str:
 PLAN_DECISION = "team plan / decision"
 PLAN_MAP = "team plan / new map"
 PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
+WITH_PLAN = " + team plan"  # a plan-taking method's decision plus the amortised plan: the cost including the coordination
 PAPER = Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"
 
 
@@ -72,6 +80,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="directory with <method>/predictor.pt, policy.pt (default: the project's policies/, from any directory)")
     p.add_argument("--calls", type=int, default=3000, help="timed decisions per method and N (default: 3000)")
     p.add_argument("--seed", type=seed_arg, default=0, help="seed of the random inputs (default: 0)")
+    p.add_argument("--area", type=area_side, default=None, metavar="M",
+                   help="side of the square area of the team plan's map and of the neighbours' positions, metres "
+                        "(default: the paper mission's, 1000); e.g. --n 4,100 --area 3000 for the cost of N = 100 over 3 km")
 
 
 def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
@@ -114,14 +125,30 @@ def _modules(method: str, d: Path):
     return freeze(fuse_tracker(tracker), TRACKER_ATTRS), freeze(fuse_policy(policy), POLICY_ATTRS), "untrained"  # as exported
 
 
-def lattice_mission(n: int):  # noqa: ANN201 - Mission
-    """The paper's area with N UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
-    from plmarl_sitl.mission import load_mission
+def area_side(text: str) -> float:
+    """--area: a finite side of at least 100 m (a mission's smallest area)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 100.0 <= v < float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a side of at least 100 m")
+    return v
+
+
+def lattice_mission(n: int, area_m: float | None = None):  # noqa: ANN201 - Mission
+    """The paper's area (or a square of side area_m, launch line through its centre) with N
+    UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
+    from plmarl_sitl.mission import Area, load_mission
 
     m = load_mission(PAPER)
     users = dataclasses.replace(m.users, count=n * m.users.cluster_size, layout="lattice", cluster_centers=(),
                                 cluster_spacing_m=200.0)
-    return dataclasses.replace(m, n_uavs=n, users=users, launch=dataclasses.replace(m.launch, spacing_m=25.0))
+    launch = dataclasses.replace(m.launch, spacing_m=25.0)
+    if area_m is not None:
+        m = dataclasses.replace(m, area=Area(area_m, area_m))
+        launch = dataclasses.replace(launch, north_m=area_m / 2, east_m=area_m / 2)
+    return dataclasses.replace(m, n_uavs=n, users=users, launch=launch)
 
 
 @dataclasses.dataclass
@@ -136,13 +163,13 @@ class PlanInputs:
     decisions_per_map: int
 
 
-def plan_inputs(n: int, seed: int) -> PlanInputs:
+def plan_inputs(n: int, seed: int, area_m: float | None = None) -> PlanInputs:
     import torch
 
     from plmarl_sitl.model.demand import map_period
     from plmarl_sitl.twin.env import CoverageEnv
 
-    m = lattice_mission(n)
+    m = lattice_mission(n, area_m)
     env = CoverageEnv(m, 1, seed)
     obs = env.reset()
     first = (obs.ego[0, 0].clone(), obs.nbr_state[0, 0].clone(), obs.nbr_t_rx[0, 0].clone())
@@ -155,7 +182,7 @@ def plan_inputs(n: int, seed: int) -> PlanInputs:
     return PlanInputs(m, *first, wire, period // int(m.timing.decision_every_s))
 
 
-def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # noqa: ANN001
+def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None = None) -> list[dict]:  # noqa: ANN001
     import numpy as np
     import torch
 
@@ -164,16 +191,17 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
     m_nbrs = n - 1
-    held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([1000.0, 1000.0, -100.0]),
+    side = 1000.0 if area_m is None else area_m
+    held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([side, side, -100.0]),
                       torch.randn(m_nbrs, 3, generator=gen)], -1)
     t_rx = torch.zeros(m_nbrs)
-    ego = torch.tensor([500.0, 500.0, -100.0, 1.0, 0.0, 0.0])
+    ego = torch.tensor([side / 2, side / 2, -100.0, 1.0, 0.0, 0.0])
     mask = torch.ones(m_nbrs, dtype=torch.bool)
     sense = torch.rand(SENSING_FEATURES, generator=gen)
     fail = torch.tensor(False)
     policy_calls = {m: PolicyCall(p) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
     with_plan = any(c.form.takes_plan for c in policy_calls.values())
-    pi = plan_inputs(n, seed) if with_plan else None
+    pi = plan_inputs(n, seed, area_m) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
     plan, map_no, target = None, [0], None
@@ -190,8 +218,10 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
 
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
+    cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
     if pi is not None:
         times[PLAN_DECISION], times[PLAN_MAP] = [], []
+        cpu[PLAN_DECISION], cpu[PLAN_MAP] = [], []
     with torch.inference_mode():
         for m, (tracker, _, _) in mods.items():
             buf, seen = tracker.init_state(held)
@@ -205,9 +235,10 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
             policy_calls[m](PolicyInputs(ego, belief, mask, sense, fail, demand, target))  # each file takes its version's inputs
 
         def timed(label: str, fn) -> None:  # noqa: ANN001
-            t0 = time.perf_counter_ns()
+            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
             fn()
             times[label].append(time.perf_counter_ns() - t0)
+            cpu[label].append(time.thread_time_ns() - c0)
 
         for i in range(300):  # warm-up (TorchScript's profiling runs)
             for m in mods:
@@ -227,11 +258,18 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int) -> list[dict]:  # no
     for m, ts in times.items():
         a = np.asarray(ts) / 1e3
         rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
-                     "calls": len(ts)})
+                     "cpu_median_us": float(np.median(np.asarray(cpu[m]) / 1e3)), "calls": len(ts)})
     if pi is not None:
         med = {r["method"]: r["median_us"] for r in rows}
-        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": pi.decisions_per_map,
-                     "median_us": med[PLAN_DECISION] + med[PLAN_MAP] / pi.decisions_per_map, "p99_us": None, "calls": 0})
+        med_cpu = {r["method"]: r["cpu_median_us"] for r in rows}
+        per = pi.decisions_per_map
+        amortised, amortised_cpu = (x[PLAN_DECISION] + x[PLAN_MAP] / per for x in (med, med_cpu))
+        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": per,
+                     "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
+        for m in mods:  # the decision including the coordination, for the methods that take the plan
+            if policy_calls[m].form.takes_plan:
+                rows.append({"method": m + WITH_PLAN, "n": n, "median_us": med[m] + amortised, "p99_us": None,
+                             "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
     return rows
 
 
@@ -248,10 +286,10 @@ def run(args: argparse.Namespace) -> dict:
     gen = torch.Generator().manual_seed(args.seed)
     rows = []
     for n in args.n:
-        rows += _time_n(mods, n, args.calls, gen, args.seed)
+        rows += _time_n(mods, n, args.calls, gen, args.seed, getattr(args, "area", None))
     weights = {m: mods[m][2] for m in mods}
     return {"rows": rows, "weights": weights, "dirs": {m: str(d) for m, (_, d) in methods.items()},
-            "machine": machine_info(), "torch_threads": 1, "calls": args.calls,
+            "machine": machine_info(), "torch_threads": 1, "calls": args.calls, "area_m": getattr(args, "area", None) or 1000.0,
             "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
             "load_avg_start": load_start, "load_avg": [float(x) for x in os.getloadavg()]}
 
@@ -261,14 +299,22 @@ def print_table(res: dict) -> None:
     from rich.table import Table
 
     t = Table(title=f"per-agent decision latency (tracker + policy, TorchScript, 1 thread), {res['machine']}")
-    for c in ("method", "N", "median (us)", "p99 (us)", "weights"):
+    for c in ("method", "N", "median (us)", "p99 (us)", "CPU median (us)", "weights"):
         t.add_column(c, justify="right" if c != "method" else "left")
     for r in res["rows"]:
-        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", "-" if r["p99_us"] is None else f"{r['p99_us']:.1f}", res["weights"].get(r["method"], ""))
+        t.add_row(r["method"], str(r["n"]), f"{r['median_us']:.1f}", "-" if r["p99_us"] is None else f"{r['p99_us']:.1f}",
+                  f"{r['cpu_median_us']:.1f}", res["weights"].get(r["method"], ""))
     Console().print(t)
     Console().print(f"load average {res['load_avg_start']} at the start, {res['load_avg']} at the end, OPENBLAS_NUM_THREADS={res['openblas_threads']}")
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})
+    by_cpu = {(r["method"], r["n"]): r["cpu_median_us"] for r in res["rows"]}
+    for m in sorted({r["method"] for r in res["rows"] if r["method"].endswith(WITH_PLAN)}):
+        if (m, ns[0]) in by and (m, ns[-1]) in by and len(ns) > 1:
+            Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
+                            f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f} (CPU {by_cpu[(m, ns[-1])] / by_cpu[(m, ns[0])]:.2f}); "
+                            f"a new map at N={ns[-1]}: {by[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms "
+                            f"(CPU {by_cpu[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m")
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:

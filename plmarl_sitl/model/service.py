@@ -30,7 +30,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import csr_matrix
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 
@@ -41,7 +40,17 @@ REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serve
 
 
 class ServiceGrid:
-    """The mission's constants of the plan (area, cells, coverage radius, R_comm, d_safe)."""
+    """The mission's constants of the plan (area, cells, coverage radius, R_comm, d_safe).
+
+    Memory and time grow with the area, not its square (issue 24: dense candidates x
+    sub-points and candidates x candidates tables held 1-6 GB per agent at 2-3 km). A
+    candidate covers only the ~50 sub-points within the coverage radius, so coverage is kept
+    sparse both ways (candidate -> sub-points, sub-point -> candidates; int32 indices, built
+    with a tile bucket search: each candidate is tested only against the sub-points of the
+    tiles around it). The link and spacing tests are computed for the chosen candidate alone,
+    near it (`place`). Every distance is computed with the same float operations as a dense
+    table would, so the points are the same to the bit (tests/model/test_service_sparse.py
+    checks them against a dense reference)."""
 
     def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> None:
         self.cell_m = cell_m
@@ -50,51 +59,154 @@ class ServiceGrid:
         n_axis = np.arange(0.0, area_n + 1e-9, GRID_M)
         e_axis = np.arange(0.0, area_e + 1e-9, GRID_M)
         self.cands = np.stack(np.meshgrid(n_axis, e_axis, indexing="ij"), -1).reshape(-1, 2)  # (C, 2)
+        self.cand_shape = (len(n_axis), len(e_axis))  # the candidates' lattice, row-major
+        self.cand_n, self.cand_e = (np.ascontiguousarray(a) for a in self.cands.T)  # columns: ~8x faster distances
         centres = cell_centres(area_n, area_e, cell_m, torch.float64).numpy()  # (K, 2)
         offs = (np.arange(self.sub) + 0.5) / self.sub * cell_m - 0.5 * cell_m
         sub = np.stack(np.meshgrid(offs, offs, indexing="ij"), -1).reshape(-1, 2)  # (sub^2, 2)
         self.subpts = (centres[:, None, :] + sub[None]).reshape(-1, 2)  # (K * sub^2, 2), cell-major
-        d2 = ((self.cands[:, None, :] - self.subpts[None]) ** 2).sum(-1)
         self.r2 = cover_r * cover_r
-        self.cover = (d2 <= self.r2).astype(np.float64)  # (C, S)
-        # A candidate covers ~3 % of the sub-points: the greedy's gains as a sparse product are
-        # 3-5x cheaper (13.9 -> 3.4 ms per new map at N = 20) and still exact (integer sums).
-        self.cover_sparse = csr_matrix(self.cover)
-        cd = np.sqrt(((self.cands[:, None, :] - self.cands[None]) ** 2).sum(-1))
-        self.link_ok = cd <= LINK_FRAC * comm_m
-        self.apart_ok = cd >= 2.0 * safe_m
+        self.link_m = LINK_FRAC * comm_m  # a point within this of an earlier one keeps the plan connected
+        self.apart_m = 2.0 * safe_m
+        # Candidates are exact multiples of GRID_M, so those more than this many steps from a pick
+        # along either axis are farther than R_link and 2 d_safe: a pick changes neither test there.
+        self.window = int(max(self.link_m, self.apart_m) // GRID_M) + 1
+        self.tiles = _Tiles(self.subpts, max(cover_r, GRID_M))
+        # cover: candidate -> the sub-points within the coverage radius; covered_by: the transpose
+        cand, pt = self._cover_pairs()
+        self.cover_ptr, self.cover_idx = _csr(cand, pt, len(self.cands))
+        order = np.argsort(pt, kind="stable")
+        self.covered_by_ptr, self.covered_by_idx = _csr(pt[order], cand[order], len(self.subpts))
+
+    def _cover_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(candidate, sub-point) index pairs within the coverage radius, candidate-major;
+        built a block of candidates at a time so the transient stays a few MB."""
+        cands, pts = [], []
+        for lo in range(0, len(self.cands), 1024):
+            c, p = self.tiles.within(self.cands[lo:lo + 1024], self.r2)
+            cands.append((c + lo).astype(np.int32))
+            pts.append(p.astype(np.int32))
+        return np.concatenate(cands), np.concatenate(pts)
 
     def _weights(self, counts: np.ndarray) -> np.ndarray:
         """(B, K) user counts -> (B, S) users per sub-point, in units of 1 / sub^2 user (integers)."""
         return np.repeat(np.asarray(counts, dtype=np.float64), self.sub * self.sub, axis=-1)
 
     def place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Greedy service points for maps counts (B, K): -> (points (B, n, 2), served (B,) users)."""
+        """Greedy service points for maps counts (B, K): -> (points (B, n, 2), served (B,) users).
+
+        Each pick is the allowed candidate with the largest gain (the weight of the unserved
+        sub-points it covers); ties go to the lowest candidate index, and a pick with no
+        allowed candidate left takes candidate 0 (argmax over all -1). Only what is near a
+        pick changes with it, so only that is updated (issue 24: 100 picks on a 3 km map):
+        the gains, whole numbers kept exactly, lose the weight of the sub-points the pick
+        newly serves at the candidates that cover those; the link and spacing tests change
+        only in the window of candidates within R_link or 2 d_safe of the pick (a batch of
+        maps, the twin's small areas, updates them whole: one vector operation per pick)."""
         w = self._weights(counts)
-        b = w.shape[0]
-        unserved = np.ones_like(w)
-        allowed = np.ones((b, self.cands.shape[0]), dtype=bool)
-        near = np.zeros_like(allowed)
-        apart = np.ones_like(allowed)
+        b, c = w.shape[0], len(self.cands)
+        nr, ne = self.cand_shape
+        k = self.window
+        unserved = np.ones(w.shape, dtype=bool)
+        rows, pts = np.nonzero(w)  # the gains from scratch over the sub-points with users only
+        owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pts)
+        gain = np.bincount(rows[owner] * c + cand, weights=w[rows, pts][owner], minlength=b * c).reshape(b, c)
+        near = np.zeros((b, c), dtype=bool)  # within R_link of a pick
+        apart = np.ones((b, c), dtype=bool)  # at least 2 d_safe from every pick
+        score = gain.copy()  # gain where allowed, else -1; before the first pick everything is allowed
+        grid_n, grid_e = self.cand_n.reshape(nr, ne), self.cand_e.reshape(nr, ne)
         chosen = []
-        for _ in range(n):
-            gain = (self.cover_sparse @ (w * unserved).T).T  # (B, C) exact: integer sums
-            gain = np.where(allowed, gain, -1.0)
-            best = gain.argmax(-1)  # ties: lowest candidate index
+        for step in range(n):
+            best = score.argmax(-1)  # ties: lowest candidate index
             chosen.append(best)
-            unserved = unserved * (1.0 - self.cover[best])
-            near = near | self.link_ok[best]
-            apart = apart & self.apart_ok[best]
-            allowed = near & apart
+            # the sub-points the pick newly serves, and the gains they leave
+            team, pt = _gather(self.cover_ptr, self.cover_idx, best)
+            fresh = unserved[team, pt]
+            team, pt = team[fresh], pt[fresh]
+            unserved[team, pt] = False
+            lit = w[team, pt] > 0
+            team, pt = team[lit], pt[lit]
+            owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pt)
+            touched = team[owner] * c + cand  # flat (B * C) indices of the gains that change
+            np.subtract.at(gain.reshape(-1), touched, w[team, pt][owner])
+            if b > 1 or step == 0:  # a batch of small maps (the twin), or the first pick: every candidate at once
+                dist = np.sqrt((self.cand_n - self.cand_n[best][:, None]) ** 2 + (self.cand_e - self.cand_e[best][:, None]) ** 2)
+                near |= dist <= self.link_m
+                apart &= dist >= self.apart_m
+                score = np.where(near & apart, gain, -1.0)
+                continue
+            # one map (an agent): only the window around the pick
+            i, j = divmod(int(best[0]), ne)
+            win = (slice(max(0, i - k), i + k + 1), slice(max(0, j - k), j + k + 1))
+            dist = np.sqrt((grid_n[win] - grid_n[i, j]) ** 2 + (grid_e[win] - grid_e[i, j]) ** 2)
+            near_w, apart_w = near.reshape(nr, ne)[win], apart.reshape(nr, ne)[win]  # views
+            near_w |= dist <= self.link_m
+            apart_w &= dist >= self.apart_m
+            score.reshape(nr, ne)[win] = np.where(near_w & apart_w, gain.reshape(nr, ne)[win], -1.0)
+            flat_score, flat_gain = score.reshape(-1), gain.reshape(-1)
+            flat_score[touched] = np.where(near.reshape(-1)[touched] & apart.reshape(-1)[touched], flat_gain[touched], -1.0)
         idx = np.stack(chosen, -1)
-        return self.cands[idx], (w * (1.0 - unserved)).sum(-1) / (self.sub * self.sub)
+        return self.cands[idx], (w * ~unserved).sum(-1) / (self.sub * self.sub)
 
     def served(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(B,) users the points (B, n, 2) serve on maps counts (B, K)."""
         w = self._weights(counts)
-        d2 = ((points[:, :, None, :] - self.subpts[None, None]) ** 2).sum(-1)  # (B, n, S)
-        hit = (d2 <= self.r2).any(1)
+        b, n = points.shape[:2]
+        owner, pt = self.tiles.within(np.asarray(points, dtype=np.float64).reshape(-1, 2), self.r2)
+        hit = np.zeros(w.shape, dtype=bool)
+        hit[owner // n, pt] = True
         return (w * hit).sum(-1) / (self.sub * self.sub)
+
+
+class _Tiles:
+    """Points bucketed on square tiles of side >= the search radius: the points within r of a
+    query are among those of the 3 x 3 tiles around it."""
+
+    def __init__(self, pts: np.ndarray, side: float) -> None:
+        self.pts, self.side = pts, side
+        ij = np.floor(pts / side).astype(np.int64)
+        self.shape = (int(ij[:, 0].max()) + 1, int(ij[:, 1].max()) + 1)
+        key = ij[:, 0] * self.shape[1] + ij[:, 1]
+        self.order = np.argsort(key, kind="stable").astype(np.int32)  # points, tile by tile
+        self.start = np.searchsorted(key[self.order], np.arange(self.shape[0] * self.shape[1] + 1))
+
+    def within(self, q: np.ndarray, r2: float) -> tuple[np.ndarray, np.ndarray]:
+        """(query index, point index) pairs with |q - p|^2 <= r2 (the same float operations
+        as ((q[:, None] - p[None]) ** 2).sum(-1) of a dense table)."""
+        ti = np.floor(q / self.side).astype(np.int64)  # (Q, 2)
+        step = np.arange(-1, 2)
+        tn = ti[:, 0, None, None] + step[None, :, None]  # (Q, 3, 1)
+        te = ti[:, 1, None, None] + step[None, None, :]  # (Q, 1, 3)
+        tn, te = np.broadcast_arrays(tn, te)
+        ok = (tn >= 0) & (tn < self.shape[0]) & (te >= 0) & (te < self.shape[1])
+        query = np.broadcast_to(np.arange(len(q))[:, None, None], ok.shape)[ok]
+        tile = (tn * self.shape[1] + te)[ok]
+        owner, slot = _spans(self.start[tile], self.start[tile + 1])
+        query, pt = query[owner], self.order[slot]
+        d = q[query] - self.pts[pt]
+        d2 = d[:, 0] ** 2 + d[:, 1] ** 2  # the float operations of ((q - p) ** 2).sum(-1)
+        keep = d2 <= r2
+        return query[keep], pt[keep]
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row pointers and column indices of (row, col) pairs already grouped by row."""
+    ptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
+    return ptr, cols.astype(np.int32)
+
+
+def _spans(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All positions of several index ranges [starts, ends) at once: (range number, position)."""
+    lens = ends - starts
+    owner = np.repeat(np.arange(len(starts)), lens)
+    return owner, np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens - starts, lens)
+
+
+def _gather(ptr: np.ndarray, idx: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The entries of several CSR rows at once: (position in `rows`, column index) pairs."""
+    owner, pos = _spans(ptr[rows], ptr[rows + 1])
+    return owner, idx[pos]
 
 
 def grid_counts(cells: np.ndarray, grid: ServiceGrid) -> np.ndarray:

@@ -85,10 +85,11 @@ class AgentFleet:
     procs: dict[int, AgentProc] = field(default_factory=dict)
     remote: dict[int, RemoteHost] = field(default_factory=dict)  # UAVs whose agent runs on another host
 
-    def warm_up(self) -> None:
-        """Forked fleets: get the forkserver importing before the first `spawn`."""
+    def warm_up(self, policy: str | Path | None = None, mission: str | Path | None = None) -> None:
+        """Forked fleets: get the forkserver importing (and loading `policy` for `mission`)
+        before the first `spawn`."""
         if self.forked:
-            warm_up()
+            warm_up(policy, mission)
 
     async def spawn(
         self,
@@ -148,6 +149,7 @@ class AgentFleet:
                 )
         ap = AgentProc(uav_id, proc, log_path, trace_path, stats_path)
         self.procs[uav_id] = ap
+        self.procs = dict(sorted(self.procs.items()))  # by id, whatever order concurrent spawns finish in
         return ap
 
     def kill(self, uav_id: int) -> None:

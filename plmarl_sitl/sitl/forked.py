@@ -20,6 +20,7 @@ timed out (30-120 s); watching the launcher itself does not depend on that pipe.
 from __future__ import annotations
 
 import asyncio
+import json
 import multiprocessing
 import os
 import signal
@@ -45,13 +46,27 @@ def context() -> ForkServerContext:
     return _context
 
 
-def warm_up() -> None:
+PRELOAD_ENV = "PLMARL_AGENT_PRELOAD"  # read by forked_child: {"policy": DIR, "mission": FILE} to load before forking
+
+
+def warm_up(policy: str | os.PathLike | None = None, mission: str | os.PathLike | None = None) -> None:
     """Start the forkserver now: it imports torch in its own process, on another core,
-    while the caller starts the broker and the world."""
+    while the caller starts the broker and the world. With `policy` and `mission` it also
+    loads that policy and builds its plan grid, once for every agent it forks
+    (deploy/agent/preload.py). A forkserver already running keeps what it loaded."""
     import multiprocessing.forkserver
 
     context()
-    multiprocessing.forkserver.ensure_running()
+    saved = os.environ.get(PRELOAD_ENV)
+    if policy is not None and mission is not None:
+        os.environ[PRELOAD_ENV] = json.dumps({"policy": str(policy), "mission": str(mission)})
+    try:
+        multiprocessing.forkserver.ensure_running()  # the server inherits the environment now
+    finally:
+        if saved is None:
+            os.environ.pop(PRELOAD_ENV, None)
+        else:
+            os.environ[PRELOAD_ENV] = saved
 
 
 def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int, launcher: int) -> None:

@@ -78,3 +78,34 @@ def test_the_defaults_time_the_shipped_files_from_any_directory(tmp_path: Path) 
     out = json.loads(r.stdout)
     assert out["weights"] == {"pl-marl": "trained", "gru": "trained", "pl-marl-wave1": "trained"}
     assert out["dirs"]["pl-marl-wave1"] == str(ROOT / "policies" / "wave1" / "pl-marl")
+
+
+def test_area_and_the_decision_including_the_plan(tmp_path: Path) -> None:
+    """--area puts the plan's map (and the neighbours) on a square of that side; each method
+    that takes the plan gets a row with its decision plus the amortised plan."""
+    shipped = ROOT / "policies" / "pl-marl"
+    if not (shipped / "card.yaml").is_file():
+        pytest.skip("policies/pl-marl is not in this checkout")
+    pi = infer.plan_inputs(4, 0, 3000.0)
+    assert (pi.mission.area.north_m, pi.mission.area.east_m) == (3000.0, 3000.0)
+    assert pi.mission.launch.north_m == 1500.0 and pi.maps[0][:, 0].min() > 1000.0  # the lattice in the middle
+    args = argparse.Namespace(n=[4], methods=f"shipped={shipped}", policies="policies", calls=12, seed=0, area=3000.0)
+    res = infer.run(args)
+    rows = {r["method"]: r for r in res["rows"]}
+    assert res["area_m"] == 3000.0
+    with_plan = rows["shipped" + infer.WITH_PLAN]
+    assert with_plan["median_us"] == pytest.approx(rows["shipped"]["median_us"] + rows[infer.PLAN_AMORTISED]["median_us"])
+    assert with_plan["cpu_median_us"] == pytest.approx(rows["shipped"]["cpu_median_us"] + rows[infer.PLAN_AMORTISED]["cpu_median_us"])
+    assert 0 < rows[infer.PLAN_MAP]["cpu_median_us"] <= rows[infer.PLAN_MAP]["median_us"] * 1.05  # CPU time never exceeds wall time
+
+
+@pytest.mark.parametrize("bad", ["50", "x", "inf", "-3000"])
+def test_a_bad_area_is_one_line_and_exit_2(bad: str) -> None:
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--n", "4", "--calls", "5",
+                        "--area", bad], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines()[-1].endswith(f"argument --area: {bad!r} is not a side of at least 100 m")
+    assert "Traceback" not in r.stderr

@@ -75,6 +75,8 @@ def test_node_failure_completes_and_coverage_recovers(tmp_path):
     # Recorded artefacts.
     assert (out / "mission.yaml").exists() and (out / "summary.json").exists()
     assert all((out / "tlogs" / f"vehicle{i}.tlog").stat().st_size > 10_000 for i in range(4))
+    # Every agent started with the policy its forkserver loaded (deploy/agent/preload.py).
+    assert all("policy preloaded by the forkserver" in (out / "agents" / f"agent{i}.log").read_text() for i in range(4))
 
 
 def _check_all_flying_and_resynced(out: Path, after_t: float):

@@ -158,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.deploy.agent.config import AgentConfig
     from plmarl_sitl.deploy.agent.core import Agent
     from plmarl_sitl.deploy.agent.inbox import subscriptions
+    from plmarl_sitl.deploy.agent.preload import preloaded
     from plmarl_sitl.deploy.agent.stats import process_start_time
     from plmarl_sitl.deploy.mavlink.connect import connect, parse_url
     from plmarl_sitl.deploy.mavlink.keys import load_mavlink_key
@@ -182,12 +183,15 @@ def run(args: argparse.Namespace) -> int:
                                                   "broker can steer this agent")
     credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     t_imports = time.time() - process_start_time()
-    lp = load_policy(args.policy, mission)
+    # A forked SITL agent may find the policy loaded by its forkserver (deploy/agent/preload.py).
+    lp = preloaded(args.policy, args.mission) if args.n_uavs is None else None
+    how = "preloaded by the forkserver" if lp is not None else "loaded"
+    lp = lp or load_policy(args.policy, mission)
     size_warning = swarm_size_warning(lp.card, mission.n_uavs)
     if size_warning is not None:
         logging.getLogger("plmarl.agent").warning("%s", size_warning)
     logging.getLogger("plmarl.agent").info(
-        "start-up: interpreter + imports %.2f s, policy loaded at %.2f s", t_imports, time.time() - process_start_time()
+        "start-up: interpreter + imports %.2f s, policy %s at %.2f s", t_imports, how, time.time() - process_start_time()
     )
     start = args.start or ("wait" if args.bus == "sitl" else "now")
     if args.lockstep and (args.bus != "sitl" or start != "wait"):

@@ -1,0 +1,46 @@
+"""A policy and its team-plan grid loaded before the agent process exists.
+
+A SITL swarm forks its agents from one forkserver (sitl/forked.py). When that server loads
+the swarm's policy and builds the plan grid (model/service.py) before it forks, every agent
+starts with them in place: 100 agents do not each spend CPU loading the same files while
+the world waits for their vehicles (issue 25: start-up), and the pages are shared
+copy-on-write between the agents instead of held once per agent (their PSS).
+
+An agent uses the preloaded policy only when it names the same policy directory and mission
+file (resolved paths, unchanged since the preload) and no override changes the mission;
+otherwise it loads its own, with the usual checks and errors.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from plmarl_sitl.learning.nn.io import LoadedPolicy, load_policy
+from plmarl_sitl.mission import load_mission
+
+_loaded: dict[tuple, LoadedPolicy] = {}
+
+
+def _key(policy: str | Path, mission: str | Path) -> tuple:
+    files = [Path(policy).resolve() / name for name in ("card.yaml", "predictor.pt", "policy.pt")] + [Path(mission).resolve()]
+    return tuple((str(f), os.stat(f).st_mtime_ns, os.stat(f).st_size) for f in files)
+
+
+def preload(policy: str | Path, mission: str | Path) -> None:
+    """Load `policy` checked against the mission file `mission`, and build its plan grid."""
+    from plmarl_sitl.learning.nn.plan import service_grid
+
+    m = load_mission(mission)
+    lp = load_policy(policy, m)
+    if lp.takes_plan:
+        service_grid(m)  # cached by its constants: the agents' AgentPlan finds it built
+    _loaded[_key(policy, mission)] = lp
+
+
+def preloaded(policy: str | Path, mission: str | Path) -> LoadedPolicy | None:
+    """The policy preloaded for exactly these files, or None."""
+    try:
+        return _loaded.get(_key(policy, mission))
+    except OSError:
+        return None

@@ -1,0 +1,41 @@
+"""A policy preloaded by the agents' forkserver (deploy/agent/preload.py) is used only for
+exactly the files it was loaded from."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import torch
+
+from plmarl_sitl.deploy.agent.preload import preload, preloaded
+from plmarl_sitl.learning.nn.io import load_policy
+from plmarl_sitl.mission import load_mission
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_a_preloaded_policy_is_found_only_for_the_same_unchanged_files(tmp_path: Path) -> None:
+    policy = tmp_path / "pl-marl"
+    shutil.copytree(ROOT / "policies" / "pl-marl", policy)
+    mission = tmp_path / "mission.yaml"
+    shutil.copy(ROOT / "missions" / "paper_urban.yaml", mission)
+    other = tmp_path / "other.yaml"
+    shutil.copy(ROOT / "missions" / "paper_urban.yaml", other)
+    assert preloaded(policy, mission) is None
+    preload(policy, mission)
+    lp = preloaded(policy, mission)
+    assert lp is not None and preloaded(str(policy) + "/", str(mission)) is lp  # the same files, spelt differently
+    assert preloaded(policy, other) is None
+    ref = load_policy(policy, load_mission(mission))
+    held = torch.rand(4, 6) * 100.0
+    outs = []
+    for a in (lp, ref):
+        buf, seen = a.tracker.init_state(held)
+        outs.append(a.tracker(1.0, held, torch.zeros(4), buf, seen)[0])
+    assert torch.equal(outs[0], outs[1])
+    st = mission.stat()
+    os.utime(mission, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # the mission file changed since
+    assert preloaded(policy, mission) is None
+    assert preloaded(tmp_path / "gone", mission) is None
