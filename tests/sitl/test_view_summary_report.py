@@ -10,7 +10,7 @@ import numpy as np
 from rich.console import Console
 
 from plmarl_sitl.sitl.live import SwarmView, UavView, headless_line, render, sparkline
-from plmarl_sitl.sitl.summary import failure_recovery, summarize, timeliness
+from plmarl_sitl.sitl.summary import failure_recovery, summarize, timeliness, transient_label
 
 
 def _view(**over):
@@ -60,16 +60,43 @@ def test_headless_line():
 
 
 def test_failure_recovery_on_a_built_curve():
+    """Coverage at 0.9 drops to 0.6 at t = 100 and climbs back to 0.88 (within the band
+    max(0.02, 5 % of 0.9) = 0.045 of the pre-event 0.9) by t = 109: re-stabilised after 9 s."""
     t = np.arange(0, 200, dtype=float)
     c = np.full_like(t, 0.9)
-    c[100:110] = np.linspace(0.6, 0.8, 10)  # trough 0.6, climbs to a new plateau of 0.8
-    c[110:] = 0.8
+    c[100:110] = np.linspace(0.6, 0.88, 10)
+    c[110:] = 0.88
     r = failure_recovery(t, c, 100.0)
-    assert r["trough"] == 0.6 and math.isclose(r["plateau"], 0.8)
-    assert r["restabilize_s"] == 9.0  # c[109] = 0.8 is the first value that stays in the band
+    assert r["trough"] == 0.6 and math.isclose(r["pre_event"], 0.9) and math.isclose(r["band"], 0.045)
+    assert r["restabilize_s"] == 9.0 and r["end"] == 0.88 and math.isclose(r["plateau"], 0.88)
+    assert transient_label(r).startswith("re-stabilised after 9 s (back within 0.045 of the pre-event 0.900, held >= 10 s")
     never = c.copy()
-    never[-1] = 0.5
+    never[-1] = 0.5  # falls out of the band at the very end: not recovered
     assert failure_recovery(t, never, 100.0)["restabilize_s"] is None
+
+
+def test_a_new_lower_plateau_is_not_called_re_stabilised():
+    """The issue's run: coverage 0.68 -> 0.58 and flat there. The old summary settled on the
+    new plateau and said "re-stabilised after 70 s"; now it says it did not recover."""
+    t = np.arange(0, 200, dtype=float)
+    c = np.where(t < 100, 0.68, 0.58)
+    c[100:105] = 0.5
+    r = failure_recovery(t, c, 100.0)
+    assert r["restabilize_s"] is None and r["settle_s"] == 5.0  # settled, at the lower level
+    assert transient_label(r) == "did not recover (trough 0.500, end 0.580; pre-event 0.680)"
+
+
+def test_recovery_must_hold_for_the_stated_time():
+    """Back within the band only for the last 5 s of the run (< HOLD_S = 10 s): not yet
+    recovered; back for 10 s: recovered. Above the pre-event level counts as recovered."""
+    t = np.arange(0, 200, dtype=float)
+    c = np.where(t < 100, 0.8, 0.6)
+    c[-5:] = 0.79
+    assert failure_recovery(t, c, 100.0)["restabilize_s"] is None
+    c[-11:] = 0.95
+    assert failure_recovery(t, c, 100.0)["restabilize_s"] == 89.0
+    assert failure_recovery(t, c, 100.0, t_end=150.0)["restabilize_s"] is None  # the next failure came first
+    assert "no data before" in transient_label(failure_recovery(t, c, 0.0))
 
 
 def _rows(n=60):
@@ -87,16 +114,29 @@ def test_summarize_and_report_cli(tmp_path):
     events = [{"t": 30.0, "type": "node_failure", "uav": 1}]
     summary = summarize(rows, events, speedup=10.0)
     assert math.isclose(summary["coverage_mean"], 0.8) and summary["coverage_min"] == 0.7 and summary["duration_s"] == 59.0
-    assert summary["node_failures"][0]["trough"] == 0.7 and summary["node_failures"][0]["restabilize_s"] == 0.0
+    fail = summary["node_failures"][0]
+    assert fail["trough"] == 0.7 and fail["restabilize_s"] is None and fail["uav"] == 1
+    assert fail["label"] == "did not recover (trough 0.700, end 0.700; pre-event 0.900)"
     (tmp_path / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\n")
     (tmp_path / "events.jsonl").write_text(json.dumps(events[0]) + "\n")
-    (tmp_path / "summary.json").write_text(json.dumps(summary))
-    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path), "--json"], capture_output=True, text=True, timeout=120)
+    old = {**summary, "node_failures": [{"at_s": 30.0, "trough": 0.7, "plateau": 0.7, "restabilize_s": 0.0}]}
+    (tmp_path / "summary.json").write_text(json.dumps(old))  # a run recorded with the old, dishonest label
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path), "--json", "--html"],
+                       capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["coverage_min"] == 0.7
+    out = json.loads(r.stdout)
+    assert out["coverage_min"] == 0.7 and out["node_failures"][0]["label"].startswith("did not recover")
     for png in ("coverage.png", "aoi.png", "trajectories.png"):
         data = (tmp_path / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
+    lines = (tmp_path / "metrics.csv").read_text().splitlines()
+    assert lines[0].startswith("t,coverage,lambda2,messages,alive,uav0_alive,uav0_north,uav0_east,uav0_alt,uav0_speed,uav0_aoi_max,")
+    assert len(lines) == 61 and lines[31].split(",")[:5] == ["30", "0.7", "3", "4", "2"]
+    assert lines[31].split(",")[5:11] == ["1", "130", "200", "80", "1", "1"]
+    html = (tmp_path / "report.html").read_text()
+    for png in ("coverage.png", "aoi.png", "trajectories.png"):
+        assert f"alt='{png}' src='data:image/png;base64," in html
+    assert "UAV 1 fails" in html and "did not recover (trough 0.700" in html and "<td>coverage mean</td>" in html
 
 
 def test_trajectory_plot_shows_users_links_and_a_legend(tmp_path):
@@ -109,16 +149,27 @@ def test_trajectory_plot_shows_users_links_and_a_legend(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from plmarl_sitl.sitl.report import trajectory_figure
+    from plmarl_sitl.sitl.report_map import trajectory_figure
 
     shutil.copy(Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml", tmp_path / "mission.yaml")
-    fig = trajectory_figure(plt, tmp_path, _rows())
-    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    fig = trajectory_figure(plt, tmp_path, _rows(), [{"t": 30.0, "type": "node_failure", "uav": 1}])
+    ax = fig.axes[0]
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    texts = {t.get_text(): t.xy for t in ax.texts}
+    launch = next(line for line in ax.get_lines() if str(line.get_label()).startswith("launch line"))
+    tracks = {line.get_label(): line for line in ax.get_lines() if str(line.get_label()).startswith("UAV ")}
     plt.close(fig)
-    assert labels == ["users at t = 0", "users at t = 59 s", "U2U link (R_comm and SINR) at t = 59 s", "UAV 0", "UAV 1", "UAV 2",
-                      "UAV at the end"]
+    assert labels == ["users at t = 0", "users at t = 59 s", "user cluster centres (4)", "launch line (4 slots, 40 m apart)",
+                      "U2U links every 20 s (faded)", "U2U link (R_comm and SINR) at t = 59 s", "UAV 0", "UAV 1", "UAV 2",
+                      "UAV at the end (its id beside it)", "lost UAV: where it stopped"]
+    # the launch line of paper_urban: 4 slots 40 m apart, west to east, centred on (500, 470)
+    assert list(launch.get_xdata()) == [410.0, 450.0, 490.0, 530.0] and set(launch.get_ydata()) == {500.0}
+    # UAV 1 was alive up to t = 29 (north 100 + 29 + 50): its track ends there, marked and named
+    assert texts["UAV 1 fails (t = 30 s)"] == (200.0, 179.0) and tracks["UAV 1"].get_ydata()[-1] == 179.0
+    assert "UAV 0 fails" not in " ".join(texts) and texts["0"] == (200.0, 159.0)  # a live UAV: its id at its end
     fig = trajectory_figure(plt, tmp_path / "no-mission", _rows())  # an old run without mission.yaml: tracks only
-    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["UAV 0", "UAV 1", "UAV 2", "UAV at the end"]
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == [
+        "UAV 0", "UAV 1", "UAV 2", "UAV at the end (its id beside it)", "lost UAV: where it stopped"]
     plt.close(fig)
 
 
@@ -135,7 +186,7 @@ def test_trajectory_plot_draws_the_worlds_links_only(tmp_path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from plmarl_sitl.sitl.report import trajectory_figure
+    from plmarl_sitl.sitl.report_map import trajectory_figure
 
     shutil.copy(Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml", tmp_path / "mission.yaml")
     pos = [[500.0, 500.0, -80.0], [500.0, 840.0, -80.0], [500.0, 530.0, -80.0], [900.0, 100.0, -80.0],
@@ -160,7 +211,7 @@ def test_report_replays_the_users_of_the_run():
     import torch
 
     from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.sitl.report import replay_users
+    from plmarl_sitl.sitl.report_map import replay_users
     from plmarl_sitl.twin.env import CoverageEnv
 
     for path in ("missions/paper_urban.yaml", "missions/suite/random_layout.yaml"):
@@ -232,7 +283,7 @@ def test_a_uav_without_a_reported_position_is_recorded_and_plotted_without_one(t
     import matplotlib.pyplot as plt
 
     from plmarl_sitl.sitl.monitor import SwarmMonitor
-    from plmarl_sitl.sitl.report import trajectory_figure
+    from plmarl_sitl.sitl.report_map import trajectory_figure
 
     mon = SwarmMonitor("sitl", tup_s=15, drop_after_missed=2)
     mon.on_metrics({"t": 3, "coverage": 0.2, "lambda2": 0.0, "uav": [
