@@ -89,7 +89,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
                     help="with --mavlink-sign: use DIR/vehicleI.key (64 hex characters, mode 0600) instead of fresh keys")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
-    up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
+    up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too, and the start-up says how the swarm is secured (keys, broker logins)")
     up.set_defaults(func=run_up)
 
     st = ssub.add_parser(

@@ -2,8 +2,10 @@
 
 The launcher (and `plmarl swarm status`) fills a `SwarmView` from the world's metrics
 and the agents' status messages and hands it to `render`; rich.live.Live redraws it.
-Nothing here reads a clock, a socket or a keyboard, so it is tested on a capture console
-and works over SSH (no key input is needed).
+With the mission known, the view carries a map (`live_map`), drawn beside the per-UAV
+table when the terminal is wide enough and below it otherwise. Nothing here reads a
+clock, a socket or a keyboard, so it is tested on a capture console and works over SSH
+(no key input is needed).
 """
 
 from __future__ import annotations
@@ -11,9 +13,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from rich.console import Group
+from rich.console import Console, ConsoleOptions, Group, RenderResult
+from rich.measure import Measurement
 from rich.table import Table
 from rich.text import Text
+
+from plmarl_sitl.sitl.live_map import FRAME, KEY_LINES, MAX_COLS, MIN_COLS, MIN_ROWS, MapView, render_map
 
 SPARK = "▁▂▃▄▅▆▇█"
 
@@ -43,6 +48,7 @@ class SwarmView:
     events_fired: tuple[str, ...] = ()
     speedup: float = 1.0
     uavs: tuple[UavView, ...] = field(default_factory=tuple)
+    map: MapView | None = None
 
 
 def sparkline(values: tuple[float, ...] | list[float], width: int = 40, lo: float = 0.0, hi: float = 1.0) -> str:
@@ -97,7 +103,38 @@ def render(view: SwarmView) -> Group:
             _fmt(u.aoi_max, ".0f"), action, Text(link, style=_link_style(link)),
             style=None if u.alive else "dim",
         )
-    return Group(head, table)
+    return Group(head, table if view.map is None else TableAndMap(table, view.map, head.row_count))
+
+
+class TableAndMap:
+    """The per-UAV table with the map beside it when the console is wide enough for both
+    (the map then takes the width left, up to its largest size), else the map below. The
+    map's height is fitted to the console's, less `reserved` lines above it (the header);
+    stacked below a table that leaves too little room, it is left out with a note."""
+
+    GAP = 3
+
+    def __init__(self, table: Table, view: MapView, reserved: int) -> None:
+        self.table, self.view, self.reserved = table, view, reserved
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        table_w = Measurement.get(console, options, self.table).maximum
+        room = options.max_width - table_w - self.GAP - FRAME
+        rows_left = (options.height or options.max_height) - self.reserved - FRAME - KEY_LINES
+        if room >= MIN_COLS:
+            grid = Table.grid(padding=(0, self.GAP))
+            grid.add_column(no_wrap=True)
+            grid.add_column(no_wrap=True)
+            grid.add_row(self.table, render_map(self.view, min(room, MAX_COLS), rows_left))
+            yield grid
+            return
+        yield self.table
+        rows_left -= self.table.row_count + 1  # the table's rows and its header
+        if rows_left >= MIN_ROWS:
+            yield render_map(self.view, options.max_width - FRAME, rows_left)
+        else:
+            yield Text(f"(map: a terminal {MIN_ROWS - rows_left} lines taller, or {MIN_COLS + FRAME + self.GAP + table_w} "
+                       "columns wide, shows it)", style="dim")
 
 
 def headless_line(view: SwarmView) -> str:

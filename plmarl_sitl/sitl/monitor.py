@@ -16,13 +16,16 @@ import math
 from plmarl_sitl.deploy.mqtt.auth import AuthError
 from plmarl_sitl.deploy.mqtt.schema import Malformed, Topics, decode_json
 from plmarl_sitl.deploy.mqtt.wire import Wire
+from plmarl_sitl.mission import Mission
 from plmarl_sitl.sitl.live import SwarmView, UavView
+from plmarl_sitl.sitl.map_source import MapSource
 
 HISTORY_S = 120  # seconds of coverage kept for the sparkline
 
 
 class SwarmMonitor:
-    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0, wire: Wire | None = None) -> None:
+    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0, wire: Wire | None = None,
+                 mission: Mission | None = None, seed: int | None = None) -> None:
         self.topics = Topics(swarm)
         self.wire = wire or Wire(None)  # signed swarms: only authentic states are shown
         self.swarm = swarm
@@ -38,6 +41,9 @@ class SwarmMonitor:
         self.coverage: collections.deque[float] = collections.deque(maxlen=HISTORY_S)
         self.events: list[str] = []
         self.malformed = 0
+        # With the mission (and its seed) the view carries a map; the users are replayed
+        # only when a view is drawn, so a headless run pays nothing for it.
+        self.map_source = MapSource(mission, mission.seed if seed is None else seed) if mission is not None else None
 
     # ------------------------------------------------------------------ inputs
     def on_bus(self, topic: str, payload: bytes) -> None:
@@ -151,4 +157,5 @@ class SwarmMonitor:
             events_fired=tuple(self.events),
             speedup=self.speedup,
             uavs=tuple(uavs),
+            map=self.map_source.view(m.get("t"), m.get("uav", [])) if self.map_source is not None else None,
         )

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from plmarl_sitl.errors import UserError
+from plmarl_sitl.sitl.links import u2u_links
 from plmarl_sitl.sitl.report_events import lost_at
 
 LINK_EVERY_S = 20  # the faded links: one snapshot every this many mission seconds
@@ -52,28 +53,11 @@ def replay_users_and_clusters(mission, seed: int, seconds: int):  # noqa: ANN001
 
 
 def link_pairs(row: dict, mission) -> tuple[list, list]:  # noqa: ANN001 - Mission
-    """([(pa, pb)] heard both ways, [(pa, pb)] heard one way) at the row's second, exactly
-    as the world had them: `link_mask` (within R_comm AND SINR >= Gamma, with the other
-    live UAVs interfering) on the live UAVs' 3-D positions. A pair heard both ways is an
-    edge of the swarm graph (lambda_2)."""
-    import torch
-
-    from plmarl_sitl.model.graph import link_mask
-
-    live = [u["pos_ned"] for u in row["uavs"] if u.get("alive", True) and u.get("pos_ned") is not None]
-    if len(live) < 2:
-        return [], []
-    pos = torch.tensor(live, dtype=torch.float32)  # the world's dtype (`SitlWorld.positions`)
-    rx, _ = link_mask(pos, torch.ones(len(live), dtype=torch.bool), mission.channel, mission.radii.comm_m)
-    both, one = [], []
-    for a in range(len(live)):
-        for b in range(a + 1, len(live)):
-            ab, ba = bool(rx[a, b]), bool(rx[b, a])
-            if ab and ba:
-                both.append((live[a], live[b]))
-            elif ab or ba:
-                one.append((live[a], live[b]))
-    return both, one
+    """([(pa, pb)] heard both ways, [(pa, pb)] heard one way) at the row's second: the
+    positions of the pairs `links.u2u_links` finds."""
+    pos = {u["id"]: u["pos_ned"] for u in row["uavs"]}
+    both, one = u2u_links(row["uavs"], mission)
+    return [(pos[i], pos[j]) for i, j in both], [(pos[i], pos[j]) for i, j in one]
 
 
 def _draw_links(ax, metrics: list[dict], mission) -> None:  # noqa: ANN001 - matplotlib Axes, Mission

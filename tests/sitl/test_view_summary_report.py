@@ -299,3 +299,67 @@ def test_a_uav_without_a_reported_position_is_recorded_and_plotted_without_one(t
     labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
     plt.close(fig)
     assert "UAV 1" in labels and "U2U link (R_comm and SINR) at t = 4 s" in labels
+
+
+# ---------------------------------------------------------------------- live map
+def _map_view(n: int, lost: int | None = None):
+    """A SwarmView with the map of a real mission (paper_urban at N = 4, scale_20 at N = 20):
+    UAVs on their launch line spread north to south, the users replayed at t = 0."""
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.sitl.monitor import SwarmMonitor
+
+    root = Path(__file__).resolve().parents[2] / "missions"
+    mission = load_mission(root / ("paper_urban.yaml" if n == 4 else "scale_20.yaml"))
+    assert mission.n_uavs == n
+    mon = SwarmMonitor("sitl", 15, 2, mission=mission)
+    uavs = [{"id": i, "alive": i != lost, "pos": [100.0 + 800.0 * i / (n - 1), 100.0 + 800.0 * i / (n - 1), -80.0],
+             "vel": [0.0, 0.0, 0.0], "mode": "OFFBOARD", "armed": True} for i in range(n)]
+    mon.on_metrics({"t": 5, "coverage": 0.5, "lambda2": 1.0, "uav": uavs})
+    return mon.view(), mission
+
+
+def test_live_map_at_n4_beside_the_table():
+    """N = 4 on a wide terminal: the map sits beside the table, with every UAV's id, the lost
+    UAV as a cross, the cluster centres, the users and the key. Neighbours on the diagonal
+    are 377 m apart, beyond R_comm = 350 m: no links."""
+    view, mission = _map_view(4, lost=2)
+    console = Console(record=True, width=140, height=40, color_system=None)
+    console.print(render(view))
+    lines = console.export_text().splitlines()
+    uav_row = next(x for x in lines if x.lstrip().startswith("0  OFFBOARD"))
+    assert "│" in uav_row.split("OFFBOARD")[1]  # the map's frame on the table's first row: side by side
+    text = "\n".join(lines)
+    assert "✗2" in text and "+" in text and "░" in text and "0-9 UAV  ✗ lost  + cluster" in text
+    for uid in ("0", "1", "3"):
+        assert any(uid in x.split("│")[1] for x in lines if x.count("│") >= 2 and "┌" not in x), uid
+    assert len(view.map.clusters) == 4 and view.map.links == ()  # 377 m apart in 3-D: beyond R_comm = 350 m
+    assert max(len(x) for x in lines) <= 140
+
+
+def test_live_map_at_n20_links_and_stacking():
+    """N = 20: two-digit ids, the world's links drawn between linked UAVs; on an 80-column
+    terminal the map goes below the table, and a terminal too short for it gets a note."""
+    from plmarl_sitl.sitl.links import u2u_links
+    from plmarl_sitl.sitl.live_map import MapUav, MapView, render_map
+
+    view, mission = _map_view(20)
+    assert len(view.map.links) > 0 and len(view.map.clusters) == 20 and len(view.map.users) == 1200
+    console = Console(record=True, width=80, height=60, color_system=None)
+    console.print(render(view))
+    text = console.export_text()
+    lines = text.splitlines()
+    top = next(k for k, x in enumerate(lines) if x.startswith("┌"))
+    assert top > next(k for k, x in enumerate(lines) if x.lstrip().startswith("19  OFFBOARD"))  # below the table
+    assert "19" in "".join(lines[top:]) and "9─" in text and max(len(x) for x in lines) <= 80
+    short = Console(record=True, width=80, height=24, color_system=None)
+    short.print(render(view))
+    assert "(map: a terminal" in short.export_text() and "┌" not in short.export_text()
+    # the glyph of a link follows its slope; links come from the world's link_mask
+    flat = MapView(1000, 1000, (MapUav(0, 500, 100), MapUav(1, 500, 900), MapUav(2, 100, 500)), links=((0, 1),))
+    drawn = render_map(flat, 40).plain.splitlines()
+    assert any("0" + "─" * 30 in x for x in drawn) and not any("╱" in x or "╲" in x for x in drawn)
+    vee = (MapUav(0, 900, 100), MapUav(1, 900, 900), MapUav(2, 100, 500))  # 0 north-west, 1 north-east, 2 south
+    slanted = render_map(MapView(1000, 1000, vee, links=((0, 2), (1, 2))), 40).plain
+    assert "╲" in slanted and "╱" in slanted and "─" not in slanted.splitlines()[5]
+    both, _ = u2u_links([{"id": i, "alive": True, "pos_ned": [500.0, 100.0 + 100 * i, -80.0]} for i in range(2)], mission)
+    assert both == [(0, 1)]
