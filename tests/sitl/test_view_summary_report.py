@@ -363,3 +363,71 @@ def test_live_map_at_n20_links_and_stacking():
     assert "╲" in slanted and "╱" in slanted and "─" not in slanted.splitlines()[5]
     both, _ = u2u_links([{"id": i, "alive": True, "pos_ned": [500.0, 100.0 + 100 * i, -80.0]} for i in range(2)], mission)
     assert both == [(0, 1)]
+
+
+# ---------------------------------------------------------------------- report figures
+ALL_EVENTS = [
+    {"t": 20.0, "type": "link_blackout", "duration_s": 10.0},
+    {"t": 25.0, "type": "tup_change", "tup_s": 5},
+    {"t": 30.0, "type": "node_failure", "uav": 1},
+    {"t": 35.0, "type": "broker_outage", "duration_s": 5.0},
+    {"t": 40.0, "type": "broker_outage_end"},
+    {"t": 42.0, "type": "gnss_noise", "std_m": 3.0, "uavs": [0]},
+    {"t": 45.0, "type": "gps_loss", "uavs": [2], "duration_s": 5.0},
+    {"t": 48.0, "type": "motor_failure", "uav": 2},
+    {"t": 48.5, "type": "autopilot", "uav": 2, "mode": "LAND"},
+    {"t": 49.0, "type": "uav_failed", "uav": 2, "cause": "motor_failure"},
+    {"t": 50.0, "type": "agent_failed", "uav": 0, "why": "owed an answer for 10 s"},
+]
+
+
+def test_every_event_type_is_named():
+    from plmarl_sitl.sitl.report_events import event_label, lost_at, markers
+
+    labels = [event_label(e) for e in ALL_EVENTS]
+    assert labels[:4] == ["link blackout (all UAVs, 10 s)", "T_up -> 5 s", "UAV 1 fails", "broker outage (5 s)"]
+    assert labels[5:8] == ["GNSS noise 3.0 m (UAV 0)", "GPS loss (UAV 2, 5 s)", "UAV 2 motor failure"]
+    assert labels[8] == "UAV 2 autopilot: mode LAND" and labels[9] == "UAV 2 lost (motor failure)"
+    assert labels[10] == "UAV 0's agent failed" and labels[4] == "broker outage ends"
+    marks = markers(ALL_EVENTS, 60.0)
+    assert [m.kind for m in marks] == ["link_blackout", "tup_change", "node_failure", "broker_outage", "gnss_noise",
+                                       "gps_loss", "motor_failure", "uav_failed", "agent_failed"]
+    windows = {m.kind: (m.t, m.end) for m in marks if m.end is not None}
+    assert windows == {"link_blackout": (20.0, 30.0), "broker_outage": (35.0, 40.0), "gnss_noise": (42.0, 60.0),
+                       "gps_loss": (45.0, 50.0)}
+    assert lost_at(ALL_EVENTS) == {1: (30.0, "UAV 1 fails"), 2: (49.0, "UAV 2 lost (motor failure)"),
+                                   0: (50.0, "UAV 0's agent failed")}
+
+
+def test_coverage_figure_names_events_twin_and_transient():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from plmarl_sitl.sitl.report_plots import aoi_figure, coverage_figure
+
+    rows = _rows()
+    summary = summarize(rows, [ALL_EVENTS[2]], speedup=10.0)
+    twin = {"coverage": [0.9] * 29 + [0.69] * 40, "label": "twin: same mission, seed 0, policy pl-marl"}
+    fig = coverage_figure(plt, rows, ALL_EVENTS, summary, twin)
+    ax, ax2 = fig.axes
+    legend = [t.get_text() for t in ax.get_legend().get_texts()]
+    texts = [t.get_text() for t in ax.texts]
+    notes = [t.get_text() for t in fig.texts]
+    plt.close(fig)
+    assert legend[0] == "SITL run (mean 0.800)" and legend[1].startswith("twin: same mission, seed 0, policy pl-marl (mean ")
+    assert legend[2] == "recovery band: pre-event level +- band"
+    for name in ("link blackout (all UAVs, 10 s)", "T_up -> 5 s", "UAV 1 fails", "broker outage (5 s)", "GNSS noise 3.0 m (UAV 0)",
+                 "GPS loss (UAV 2, 5 s)", "UAV 2 motor failure", "UAV 2 lost (motor failure)", "UAV 0's agent failed"):
+        assert name in texts, name
+    assert ax2.get_ylabel() == "lambda_2"
+    assert any("UAV 1 at 30 s: did not recover (trough 0.700, end 0.700; pre-event 0.900)" in n for n in notes)
+    fig = aoi_figure(plt, rows, [ALL_EVENTS[2]], horizon_s=30)
+    ax = fig.axes[0]
+    images = ax.get_images()
+    heat = images[-1].get_array()
+    plt.close(fig)
+    assert heat.shape == (3, 60) and heat.mask[1, 30:].all() and not heat.mask[0].any()  # UAV 1 lost from t = 30
+    assert "UAV 1 fails" in [t.get_text() for t in ax.texts] and [t.get_text() for t in ax.get_yticklabels()] == [
+        "UAV 0", "UAV 1", "UAV 2"]
