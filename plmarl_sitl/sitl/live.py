@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass, field
 
 from rich.console import Console, ConsoleOptions, Group, RenderResult
-from rich.measure import Measurement
+from rich.segment import Segment
 from rich.table import Table
 from rich.text import Text
 
@@ -118,18 +118,28 @@ class TableAndMap:
         self.table, self.view, self.reserved = table, view, reserved
 
     def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
-        table_w = Measurement.get(console, options, self.table).maximum
+        # The table is rendered once, to lines, and the map's lines are set beside them: a
+        # grid of the two would measure and render the table again on every redraw.
+        table_lines = console.render_lines(self.table, options, pad=False)
+        table_w = max((Segment.get_line_length(line) for line in table_lines), default=0)
         room = options.max_width - table_w - self.GAP - FRAME
         rows_left = (options.height or options.max_height) - self.reserved - FRAME - KEY_LINES
         if room >= MIN_COLS:
-            grid = Table.grid(padding=(0, self.GAP))
-            grid.add_column(no_wrap=True)
-            grid.add_column(no_wrap=True)
-            grid.add_row(self.table, render_map(self.view, min(room, MAX_COLS), rows_left))
-            yield grid
+            map_text = render_map(self.view, min(room, MAX_COLS), rows_left)
+            map_lines = console.render_lines(map_text, options.update_width(options.max_width - table_w - self.GAP), pad=False)
+            blank = Segment(" " * table_w)
+            for k in range(max(len(table_lines), len(map_lines))):
+                left = table_lines[k] if k < len(table_lines) else [blank]
+                yield from left
+                if k < len(map_lines):
+                    yield Segment(" " * (table_w - Segment.get_line_length(left) + self.GAP))
+                    yield from map_lines[k]
+                yield Segment.line()
             return
-        yield self.table
-        rows_left -= self.table.row_count + 1  # the table's rows and its header
+        for line in table_lines:
+            yield from line
+            yield Segment.line()
+        rows_left -= len(table_lines)
         if rows_left >= MIN_ROWS:
             yield render_map(self.view, options.max_width - FRAME, rows_left)
         else:

@@ -132,10 +132,13 @@ def render_map(view: MapView, max_cols: int = 48, max_rows: int = MAX_ROWS) -> T
             glyph[cell[0]][c0 + k], style[cell[0]][c0 + k] = ch, "bold red" if not u.alive else "bold green"
     out = Text()
     out.append("┌" + "─" * cols + "┐\n", style="dim")
-    for r in range(rows):
+    for r in range(rows):  # one append per run of a style: the view redraws 4 times a second
         out.append("│", style="dim")
-        for c in range(cols):
-            out.append(glyph[r][c], style=style[r][c] or None)
+        start = 0
+        for c in range(1, cols + 1):
+            if c == cols or style[r][c] != style[r][start]:
+                out.append("".join(glyph[r][start:c]), style=style[r][start] or None)
+                start = c
         out.append("│\n", style="dim")
     scale = view.east_m / cols
     out.append("└" + "─" * cols + "┘\n", style="dim")  # the key: two short lines, as narrow as the map

@@ -226,3 +226,20 @@ def _agents_left_their_vehicles(out: Path) -> None:
         log = (out / "agents" / f"agent{i}.log").read_text()
         assert "Traceback" not in log and "vehicle in BRAKE" not in log, log[-1500:]
         assert "stopped: vehicle left to its autopilot" in log, log[-1500:]
+
+
+def test_start_up_says_security_under_v_only_and_records_csv_and_policy(tmp_path):
+    """Without -v the start-up prints no key paths or broker guarantees (launcher.log keeps
+    them), but what is unprotected (--no-mavlink-sign) is always said. The run writes
+    metrics.csv beside metrics.jsonl and records its policy for `plmarl report`'s twin."""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "plmarl_sitl.cli", "swarm", "up", str(ROOT / "missions" / "paper_urban.yaml"), "--lockstep",
+           "--headless", "--duration", "3", "--out", str(out), "--no-mavlink-sign", "--json"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=240, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "MAVLink links are unsigned" in r.stdout and "signed with the swarm key" not in r.stdout
+    assert "login per process" not in r.stdout and "login per process" in (out / "launcher.log").read_text()
+    s = json.loads(r.stdout.strip().splitlines()[-1])
+    assert s["policy"].endswith("pl-marl")
+    csv_lines = (out / "metrics.csv").read_text().splitlines()
+    assert csv_lines[0].startswith("t,coverage,lambda2,messages,alive,uav0_alive,uav0_north") and len(csv_lines) == 1 + len(_rows(out))
