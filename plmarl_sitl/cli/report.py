@@ -59,9 +59,14 @@ def run(args: argparse.Namespace) -> int:
     written = [*pngs, write_metrics_csv(args.run_dir / "metrics.csv", metrics)]
     if args.html:
         from plmarl_sitl.sitl.report_html import write_html
+        from plmarl_sitl.sitl.report_map import run_mission
 
+        mission = run_mission(args.run_dir)
+        head = [f"mission {mission.name}, N = {mission.n_uavs} (the run's mission.yaml)"] if mission is not None else []
+        if twin:
+            head += [f"reference on coverage.png: {twin['label']}"] + ([twin["note"]] if twin["note"] else [])
         written.append(write_html(args.run_dir / "report.html", f"plmarl run {args.run_dir.name}", summary, events, pngs,
-                                  notes + ([twin["label"]] + ([twin["note"]] if twin["note"] else []) if twin else [])))
+                                  head + notes))
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -71,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
 
     console = Console()
     print_summary(summary, console, title=f"run {args.run_dir}")
+    if twin:
+        tc = twin["coverage"][: len(metrics) - 1]  # the twin's C(1..T) beside the run's seconds 1..T
+        console.print(f"reference: {twin['label']}: mean coverage {sum(tc) / max(1, len(tc)):.3f} over t = 1..{len(tc)} "
+                      f"(this run {sum(r['coverage'] for r in metrics[1:len(tc) + 1]) / max(1, len(tc)):.3f})", highlight=False)
     for note in notes:
         console.print(note, highlight=False)
     for p in written:

@@ -431,3 +431,34 @@ def test_coverage_figure_names_events_twin_and_transient():
     assert heat.shape == (3, 60) and heat.mask[1, 30:].all() and not heat.mask[0].any()  # UAV 1 lost from t = 30
     assert "UAV 1 fails" in [t.get_text() for t in ax.texts] and [t.get_text() for t in ax.get_yticklabels()] == [
         "UAV 0", "UAV 1", "UAV 2"]
+
+
+def test_report_draws_the_twins_run_of_the_same_mission_seed_and_policy(tmp_path):
+    """With the run's mission.yaml, seed and policy, `plmarl report` flies the same policy in
+    the twin, labels the line as such, and caches it; a second report reuses the cache."""
+    root = Path(__file__).resolve().parents[2]
+    (tmp_path / "mission.yaml").write_text(f"extends: {root / 'missions' / 'node_failure.yaml'}\nname: short\n"
+                                           "timing: {dt_s: 1, decision_every_s: 3, episode_s: 20}\n"
+                                           "events:\n  - {type: node_failure, at_s: 10, uav: 2}\n")
+    rows = [{"t": float(k), "coverage": 0.5, "lambda2": 1.0, "messages": 0,
+             "uavs": [{"id": i, "alive": not (i == 2 and k >= 10), "pos_ned": [500.0, 410.0 + 40 * i, -60.0],
+                       "vel_ned": [0.0, 0.0, 0.0], "aoi_max": None} for i in range(4)]} for k in range(21)]
+    (tmp_path / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (tmp_path / "events.jsonl").write_text(json.dumps({"t": 10.0, "type": "node_failure", "uav": 2}) + "\n")
+    (tmp_path / "summary.json").write_text(json.dumps({**summarize(rows, [], 10.0), "seed": 3,
+                                                       "policy": str(root / "policies" / "pl-marl")}))
+    cmd = [sys.executable, "-m", "plmarl_sitl.cli", "report", str(tmp_path)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "reference: twin: same mission, seed 3, policy pl-marl: mean coverage" in r.stdout
+    cache = json.loads((tmp_path / "twin_coverage.json").read_text())
+    assert cache["key"]["seed"] == 3 and len(cache["coverage"]) == 20 and all(0 <= c <= 1 for c in cache["coverage"])
+    stamp = (tmp_path / "twin_coverage.json").stat().st_mtime_ns
+    from plmarl_sitl.cli.report import twin_reference
+
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    again = twin_reference(tmp_path, summary, None, [])
+    assert again["coverage"] == cache["coverage"] and (tmp_path / "twin_coverage.json").stat().st_mtime_ns == stamp
+    notes = []
+    assert twin_reference(tmp_path / "elsewhere", summary, None, notes) is None
+    assert notes == ["no twin reference: the run directory has no mission.yaml"]
