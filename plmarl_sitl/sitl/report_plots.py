@@ -129,8 +129,14 @@ def aoi_figure(plt, metrics: list[dict], events: list[dict], horizon_s: float | 
     step = 1 if n <= 24 else math.ceil(n / 24)
     ax.set_yticks(range(0, n, step), [f"UAV {ids[k]}" for k in range(0, n, step)], fontsize=7 if n > 8 else 8)
     for marker in markers(events, float(t[-1])):
-        if marker.kind in EVENT_COLOURS and marker.uav is None:  # swarm-wide events: a thin line
-            ax.axvline(marker.t, color=EVENT_COLOURS[marker.kind], ls=":", lw=1)
+        if marker.uav is not None:  # a UAV's loss is marked on its row below
+            continue
+        # Events of the swarm (blackouts, outages, T_up changes ...): white dashed lines at the
+        # start (and end) that show on every colour of the map, named at the top.
+        for x in (marker.t,) if marker.end is None else (marker.t, marker.end):
+            ax.axvline(x, color="white", ls="--", lw=1.2)
+        ax.annotate(marker.label, (marker.t, -0.5), xytext=(3, -3), textcoords="offset points", fontsize=7, color="white",
+                    va="top", ha="left", bbox={"boxstyle": "square,pad=0.15", "fc": "0.15", "ec": "none", "alpha": 0.7})
     for uid, (tf, label) in lost_at(events).items():
         if uid in row_of:
             ax.plot([tf], [row_of[uid]], marker="X", ms=9, color="tab:red", mec="white", mew=1, ls="none")
