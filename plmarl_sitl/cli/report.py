@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "and clusters, launch line, lost UAVs, links over time) and metrics.csv (one row per second: t, "
         "coverage, lambda2, messages, alive, then uavI_alive/north/east/alt/speed/aoi_max per UAV); "
         "then print the summary. A failure counts as re-stabilised only when coverage comes back within "
-        "max(0.02, 5 %%) of its level over the 10 s before it and stays there >= 10 s.",
+        "max(0.02, 5 %) of its level over the 10 s before it and stays there >= 10 s.",
         epilog="examples:\n  plmarl report runs/2026-11-21T15-00-00\n"
         "  plmarl report runs/failure --html      # also report.html, one self-contained file\n"
         "  plmarl report runs/failure --no-twin   # skip the twin's reference run",

@@ -462,3 +462,10 @@ def test_report_draws_the_twins_run_of_the_same_mission_seed_and_policy(tmp_path
     notes = []
     assert twin_reference(tmp_path / "elsewhere", summary, None, notes) is None
     assert notes == ["no twin reference: the run directory has no mission.yaml"]
+
+
+def test_report_help_states_the_rule_and_its_outputs():
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "report", "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "%%" not in r.stdout
+    for needle in ("max(0.02, 5 %)", "metrics.csv", "--html", "--no-twin", "twin"):
+        assert needle in r.stdout, needle
