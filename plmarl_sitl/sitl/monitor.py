@@ -4,7 +4,8 @@ can overhear on the bus (`tx/+`, `rx/+`).
 From the deliveries it derives, per UAV, the neighbours it currently holds (heard within
 `drop_after_missed` signalling intervals, the twin's N_i rule) and the largest P-AoI
 among them, and the swarm's signalling rate. It turns that into the rows of
-metrics.jsonl and into the live view's `SwarmView`. Used in-process by `plmarl swarm up`
+metrics.jsonl and into the live view's `SwarmView` (with a map when it was given the
+mission: `map_source.MapSource`). Used in-process by `plmarl swarm up`
 and over MQTT by `plmarl swarm status`.
 """
 
