@@ -294,7 +294,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         events_f.write(json.dumps(entry) + "\n")
         events_f.flush()
         if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
-            monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
+            monitor.on_event(entry)
 
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
     pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "

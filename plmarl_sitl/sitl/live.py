@@ -45,7 +45,8 @@ class SwarmView:
     coverage_history: tuple[float, ...] = ()
     lambda2: float = math.nan
     messages_per_min: float = 0.0
-    events_fired: tuple[str, ...] = ()
+    events_fired: tuple[str, ...] = ()  # "node_failure@100": the headless line
+    events_named: tuple[str, ...] = ()  # "UAV 2 fails at 100 s": the view (events_fired when empty)
     speedup: float = 1.0
     uavs: tuple[UavView, ...] = field(default_factory=tuple)
     map: MapView | None = None
@@ -84,7 +85,8 @@ def render(view: SwarmView) -> Group:
     head.add_row("coverage", Text.assemble((f"{view.coverage:5.3f} ", "bold"), (sparkline(view.coverage_history), "cyan")))
     head.add_row("lambda_2", _fmt(view.lambda2, ".2f"))
     head.add_row("signalling", f"{view.messages_per_min:.0f} msg/min")
-    head.add_row("events", ", ".join(view.events_fired[-4:]) if view.events_fired else "none yet")
+    named = view.events_named or view.events_fired
+    head.add_row("events", ", ".join(named[-3:]) if named else "none yet")
 
     # Fits an 80-column SSH terminal: short headers, no outer box, positions in metres,
     # speed in m/s, P-AoI in s, action = the last commanded acceleration (m/s^2, NED).

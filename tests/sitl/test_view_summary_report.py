@@ -469,3 +469,17 @@ def test_report_help_states_the_rule_and_its_outputs():
     assert r.returncode == 0 and "%%" not in r.stdout
     for needle in ("max(0.02, 5 %)", "metrics.csv", "--html", "--no-twin", "twin"):
         assert needle in r.stdout, needle
+
+
+def test_the_view_names_events_and_the_headless_line_keeps_their_type():
+    from plmarl_sitl.sitl.monitor import SwarmMonitor
+
+    mon = SwarmMonitor("sitl", tup_s=15, drop_after_missed=2)
+    mon.on_metrics({"t": 101, "coverage": 0.7, "lambda2": 0.0, "uav": [{"id": 2, "alive": False, "pos": [1.0, 2.0, 0.0]}]})
+    mon.on_event({"t": 100.0, "type": "node_failure", "uav": 2})
+    mon.on_event({"t": 101.0, "type": "link_blackout", "duration_s": 30.0})
+    view = mon.view()
+    console = Console(record=True, width=120)
+    console.print(render(view))
+    assert "UAV 2 fails at 100 s, link blackout (all UAVs, 30 s) at 101 s" in console.export_text()
+    assert "events=node_failure@100,link_blackout@101" in headless_line(view)
