@@ -114,7 +114,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "plmarl_sitl installed, and gets its files (mission, policy, keys, login) through the prefix's "
                     "stdin. A host that falls silent mid-mission is recorded as node failures. Emulated autopilots only")
     up.add_argument("--json", action="store_true", help="print the summary as one JSON object at the end")
-    up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too")
+    up.add_argument("-v", "--verbose", action="store_true", help="agents log their debug lines too, and the start-up says how the swarm is secured (keys, broker logins)")
     up.set_defaults(func=run_up)
 
     st = ssub.add_parser(

@@ -16,6 +16,7 @@ Everything is recorded in the run directory:
 
     mission.yaml      the resolved mission (extends applied, seed filled in)
     metrics.jsonl     one row per mission second: t, coverage, lambda2, messages, uavs
+    metrics.csv       the same, one wide row per second (columns: sitl/report_csv.py)
     events.jsonl      every event as it fired; autopilot faults also what the vehicle then
                       said and did ("autopilot" entries) and when it left the mission ("uav_failed")
     summary.json      coverage mean/min, duration, speedup, events, node-failure recovery
@@ -69,6 +70,7 @@ from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
+from plmarl_sitl.sitl.report_csv import write_metrics_csv
 from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -304,26 +306,31 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
     events: list[dict] = []
     rows: list[dict] = []
-    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key))
+    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key),
+                           mission=None if opts.headless else mission)  # the live view's map
 
     def record_event(entry: dict) -> None:
         events.append(entry)
         events_f.write(json.dumps(entry) + "\n")
         events_f.flush()
         if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
-            monitor.on_event(f"{entry['type']}@{entry['t']:.0f}")
+            monitor.on_event(entry)
 
     autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
     pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
             "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
                   f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
-    console.print(f"messages signed with the swarm key {key_path}" if key is not None else
-                  "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
-                  highlight=False)
-    console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
-                  "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
-                  "command it", highlight=False)
+    # The security set-up is said in full under -v (and always in launcher.log); what is
+    # unprotected is said always.
+    if key is None or opts.verbose:
+        console.print(f"messages signed with the swarm key {key_path}" if key is not None else
+                      "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
+                      highlight=False)
+    if mav_dir is None or opts.verbose:
+        console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
+                      "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
+                      "command it", highlight=False)
     t_launch = time.monotonic()  # start-up's steps are logged from here (launcher.log)
     remote = RemoteHosts(hosts, out / "hosts") if hosts is not None else None
     fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE, remote=remote.placement if remote else {})
@@ -338,8 +345,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                                                    (hosts.launcher.broker_port or 0) if hosts is not None else 0)
     guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
                                        "(docs/SECURITY.md has the ACL to give it)")
-    console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
-    log.info("%s", guarantees)
+    if opts.verbose or access is None:  # an external broker's protection is its own: always said
+        console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
+    log.info("%s; swarm key %s; MAVLink keys %s", guarantees, key_path, mav_dir)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
     # needs it (a lockstep world emulates the outage: `SitlWorld._outage_emulated`).
@@ -468,7 +476,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
     summary["run_dir"] = str(out)
     summary["seed"] = mission.seed
+    summary["policy"] = str(opts.policy)  # what `plmarl report` flies in the twin for its reference line
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_metrics_csv(out / "metrics.csv", rows)
     # Wall-clock figures go to the caller only: summary.json stays identical between
     # lockstep runs of one seed.
     mission_wall = world.summary.mission_wall_s if world is not None else None

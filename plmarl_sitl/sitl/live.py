@@ -2,8 +2,10 @@
 
 The launcher (and `plmarl swarm status`) fills a `SwarmView` from the world's metrics
 and the agents' status messages and hands it to `render`; rich.live.Live redraws it.
-Nothing here reads a clock, a socket or a keyboard, so it is tested on a capture console
-and works over SSH (no key input is needed).
+With the mission known, the view carries a map (`live_map`), drawn beside the per-UAV
+table when the terminal is wide enough and below it otherwise. Nothing here reads a
+clock, a socket or a keyboard, so it is tested on a capture console and works over SSH
+(no key input is needed).
 """
 
 from __future__ import annotations
@@ -11,9 +13,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from rich.console import Group
+from rich.console import Console, ConsoleOptions, Group, RenderResult
+from rich.segment import Segment
 from rich.table import Table
 from rich.text import Text
+
+from plmarl_sitl.sitl.live_map import FRAME, KEY_LINES, MAX_COLS, MIN_COLS, MIN_ROWS, MapView, render_map
 
 SPARK = "▁▂▃▄▅▆▇█"
 
@@ -40,9 +45,11 @@ class SwarmView:
     coverage_history: tuple[float, ...] = ()
     lambda2: float = math.nan
     messages_per_min: float = 0.0
-    events_fired: tuple[str, ...] = ()
+    events_fired: tuple[str, ...] = ()  # "node_failure@100": the headless line
+    events_named: tuple[str, ...] = ()  # "UAV 2 fails at 100 s": the view (events_fired when empty)
     speedup: float = 1.0
     uavs: tuple[UavView, ...] = field(default_factory=tuple)
+    map: MapView | None = None
 
 
 def sparkline(values: tuple[float, ...] | list[float], width: int = 40, lo: float = 0.0, hi: float = 1.0) -> str:
@@ -78,7 +85,8 @@ def render(view: SwarmView) -> Group:
     head.add_row("coverage", Text.assemble((f"{view.coverage:5.3f} ", "bold"), (sparkline(view.coverage_history), "cyan")))
     head.add_row("lambda_2", _fmt(view.lambda2, ".2f"))
     head.add_row("signalling", f"{view.messages_per_min:.0f} msg/min")
-    head.add_row("events", ", ".join(view.events_fired[-4:]) if view.events_fired else "none yet")
+    named = view.events_named or view.events_fired
+    head.add_row("events", ", ".join(named[-3:]) if named else "none yet")
 
     # Fits an 80-column SSH terminal: short headers, no outer box, positions in metres,
     # speed in m/s, P-AoI in s, action = the last commanded acceleration (m/s^2, NED).
@@ -97,7 +105,48 @@ def render(view: SwarmView) -> Group:
             _fmt(u.aoi_max, ".0f"), action, Text(link, style=_link_style(link)),
             style=None if u.alive else "dim",
         )
-    return Group(head, table)
+    return Group(head, table if view.map is None else TableAndMap(table, view.map, head.row_count))
+
+
+class TableAndMap:
+    """The per-UAV table with the map beside it when the console is wide enough for both
+    (the map then takes the width left, up to its largest size), else the map below. The
+    map's height is fitted to the console's, less `reserved` lines above it (the header);
+    stacked below a table that leaves too little room, it is left out with a note."""
+
+    GAP = 3
+
+    def __init__(self, table: Table, view: MapView, reserved: int) -> None:
+        self.table, self.view, self.reserved = table, view, reserved
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> RenderResult:
+        # The table is rendered once, to lines, and the map's lines are set beside them: a
+        # grid of the two would measure and render the table again on every redraw.
+        table_lines = console.render_lines(self.table, options, pad=False)
+        table_w = max((Segment.get_line_length(line) for line in table_lines), default=0)
+        room = options.max_width - table_w - self.GAP - FRAME
+        rows_left = (options.height or options.max_height) - self.reserved - FRAME - KEY_LINES
+        if room >= MIN_COLS:
+            map_text = render_map(self.view, min(room, MAX_COLS), rows_left)
+            map_lines = console.render_lines(map_text, options.update_width(options.max_width - table_w - self.GAP), pad=False)
+            blank = Segment(" " * table_w)
+            for k in range(max(len(table_lines), len(map_lines))):
+                left = table_lines[k] if k < len(table_lines) else [blank]
+                yield from left
+                if k < len(map_lines):
+                    yield Segment(" " * (table_w - Segment.get_line_length(left) + self.GAP))
+                    yield from map_lines[k]
+                yield Segment.line()
+            return
+        for line in table_lines:
+            yield from line
+            yield Segment.line()
+        rows_left -= len(table_lines)
+        if rows_left >= MIN_ROWS:
+            yield render_map(self.view, options.max_width - FRAME, rows_left)
+        else:
+            yield Text(f"(map: a terminal {MIN_ROWS - rows_left} lines taller, or {MIN_COLS + FRAME + self.GAP + table_w} "
+                       "columns wide, shows it)", style="dim")
 
 
 def headless_line(view: SwarmView) -> str:

@@ -4,7 +4,8 @@ can overhear on the bus (`tx/+`, `rx/+`).
 From the deliveries it derives, per UAV, the neighbours it currently holds (heard within
 `drop_after_missed` signalling intervals, the twin's N_i rule) and the largest P-AoI
 among them, and the swarm's signalling rate. It turns that into the rows of
-metrics.jsonl and into the live view's `SwarmView`. Used in-process by `plmarl swarm up`
+metrics.jsonl and into the live view's `SwarmView` (with a map when it was given the
+mission: `map_source.MapSource`). Used in-process by `plmarl swarm up`
 and over MQTT by `plmarl swarm status`.
 """
 
@@ -16,13 +17,17 @@ import math
 from plmarl_sitl.deploy.mqtt.auth import AuthError
 from plmarl_sitl.deploy.mqtt.schema import Malformed, Topics, decode_json
 from plmarl_sitl.deploy.mqtt.wire import Wire
+from plmarl_sitl.mission import Mission
 from plmarl_sitl.sitl.live import SwarmView, UavView
+from plmarl_sitl.sitl.map_source import MapSource
+from plmarl_sitl.sitl.report_events import event_label
 
 HISTORY_S = 120  # seconds of coverage kept for the sparkline
 
 
 class SwarmMonitor:
-    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0, wire: Wire | None = None) -> None:
+    def __init__(self, swarm: str, tup_s: int, drop_after_missed: int, speedup: float = 1.0, wire: Wire | None = None,
+                 mission: Mission | None = None, seed: int | None = None) -> None:
         self.topics = Topics(swarm)
         self.wire = wire or Wire(None)  # signed swarms: only authentic states are shown
         self.swarm = swarm
@@ -37,7 +42,11 @@ class SwarmMonitor:
         self._tx_at_last_row = 0
         self.coverage: collections.deque[float] = collections.deque(maxlen=HISTORY_S)
         self.events: list[str] = []
+        self.event_names: list[str] = []
         self.malformed = 0
+        # With the mission (and its seed) the view carries a map; the users are replayed
+        # only when a view is drawn, so a headless run pays nothing for it.
+        self.map_source = MapSource(mission, mission.seed if seed is None else seed) if mission is not None else None
 
     # ------------------------------------------------------------------ inputs
     def on_bus(self, topic: str, payload: bytes) -> None:
@@ -74,8 +83,15 @@ class SwarmMonitor:
             while self.tx_times and self.tx_times[0] < self.t - 60.0:
                 self.tx_times.popleft()
 
-    def on_event(self, text: str) -> None:
-        self.events.append(text)
+    def on_event(self, event: dict | str) -> None:
+        """An event as it fired: an events.jsonl entry ({"t", "type", ...}: the headless line
+        gets "type@t", the live view its name, "UAV 2 fails at 100 s"), or a text for both."""
+        if isinstance(event, str):
+            self.events.append(event)
+            self.event_names.append(event)
+            return
+        self.events.append(f"{event['type']}@{event['t']:.0f}")
+        self.event_names.append(f"{event_label(event)} at {event['t']:.0f} s")
 
     # ------------------------------------------------------------------ derived
     def neighbours(self, i: int) -> dict[int, float]:
@@ -149,6 +165,8 @@ class SwarmMonitor:
             lambda2=float(m.get("lambda2", math.nan)),
             messages_per_min=self.messages_per_min(),
             events_fired=tuple(self.events),
+            events_named=tuple(self.event_names),
             speedup=self.speedup,
             uavs=tuple(uavs),
+            map=self.map_source.view(m.get("t"), m.get("uav", [])) if self.map_source is not None else None,
         )

@@ -2,12 +2,18 @@
 
 A row is one sim second: {"t", "coverage", "lambda2", "messages", "uavs": [{"id",
 "alive", "pos_ned", "vel_ned", "aoi_max"}, ...]}. For each node failure at t_f (or a UAV
-an autopilot fault took out of the mission, "uav_failed"):
-* trough: the lowest coverage from t_f on;
-* plateau: the mean coverage over the last `plateau_s` seconds of the run (or up to the
-  next failure);
-* restabilize_s: seconds from t_f until coverage enters the band plateau +- `band` and
-  stays in it (None if it never does).
+an autopilot fault took out of the mission, "uav_failed"), over the seconds from t_f to
+the end of the run (or to the next failure):
+* pre_event: the mean coverage over the `PRE_S` seconds before t_f;
+* trough: the lowest coverage from t_f on; end: the last coverage of the window;
+* band: how close to pre_event counts as recovered: max(`BAND_ABS`, `BAND_REL` x pre_event);
+* restabilize_s: seconds from t_f until coverage is back within pre_event - band and stays
+  there for at least `HOLD_S` seconds (None if it never does: "did not recover"). Above
+  the pre-event level counts as recovered too;
+* plateau / settle_s: the mean coverage over the last `PLATEAU_S` seconds of the window,
+  and the seconds until coverage stays within `BAND_ABS` of it (None if it never does):
+  how fast the swarm settled, whether or not at its old level.
+`transient_label` turns a record into the one line the summary and the report print.
 """
 
 from __future__ import annotations
@@ -16,29 +22,58 @@ from collections.abc import Sequence
 
 import numpy as np
 
+PRE_S = 10.0
+BAND_ABS = 0.02
+BAND_REL = 0.05
+HOLD_S = 10.0
 PLATEAU_S = 30.0
-BAND = 0.02
 
 
-def failure_recovery(
-    t: np.ndarray, coverage: np.ndarray, t_fail: float, t_end: float | None = None, *, plateau_s: float = PLATEAU_S, band: float = BAND
-) -> dict:
-    """Trough, plateau and re-stabilisation time after a failure at `t_fail`."""
+def failure_recovery(t: np.ndarray, coverage: np.ndarray, t_fail: float, t_end: float | None = None) -> dict:
+    """Pre-event level, trough, end, and whether (and when) coverage recovered after a
+    failure at `t_fail`; see the module docstring for the definitions."""
     t_end = float(t[-1]) if t_end is None else t_end
     after = (t >= t_fail) & (t <= t_end)
+    before = (t < t_fail) & (t >= t_fail - PRE_S)
+    pre = float(coverage[before].mean()) if before.any() else None
+    rec = {"at_s": t_fail, "until_s": t_end, "pre_event": pre, "trough": None, "end": None, "band": None, "restabilize_s": None,
+           "plateau": None, "settle_s": None}
     if not after.any():
-        return {"at_s": t_fail, "trough": None, "plateau": None, "restabilize_s": None}
+        return rec
     ta, ca = t[after], coverage[after]
-    plateau = float(ca[ta >= ta[-1] - plateau_s].mean())
-    outside = np.abs(ca - plateau) > band
-    if not outside.any():
-        settle = 0.0
-    elif outside[-1]:
-        settle = None
-    else:
-        last_out = int(np.nonzero(outside)[0][-1])
-        settle = float(ta[last_out + 1] - t_fail)
-    return {"at_s": t_fail, "trough": float(ca.min()), "plateau": plateau, "restabilize_s": settle}
+    plateau = float(ca[ta >= ta[-1] - PLATEAU_S].mean())
+    rec |= {"trough": float(ca.min()), "end": float(ca[-1]), "plateau": plateau,
+            "settle_s": _first_stay(ta, np.abs(ca - plateau) <= BAND_ABS, t_fail, 0.0)}
+    if pre is not None:
+        band = max(BAND_ABS, BAND_REL * pre)
+        rec["band"] = band
+        rec["restabilize_s"] = _first_stay(ta, ca >= pre - band, t_fail, HOLD_S)
+    return rec
+
+
+def _first_stay(t: np.ndarray, ok: np.ndarray, t0: float, hold_s: float) -> float | None:
+    """Seconds from t0 to the start of the first run of `ok` that lasts to the end of the
+    window and at least `hold_s` seconds; None if there is none."""
+    if not ok[-1]:
+        return None
+    bad = np.nonzero(~ok)[0]
+    start = 0 if len(bad) == 0 else int(bad[-1]) + 1
+    if t[-1] - t[start] < hold_s:
+        return None
+    return float(t[start] - t0)
+
+
+def transient_label(rec: dict) -> str:
+    """The honest one-liner for a failure record: "re-stabilised" only when coverage came
+    back within the band of its pre-event level and held there."""
+    if rec.get("trough") is None:
+        return "no data after the failure"
+    if rec.get("pre_event") is None:
+        return f"no data before the failure (trough {rec['trough']:.3f}, end {rec['end']:.3f})"
+    if rec["restabilize_s"] is not None:
+        return (f"re-stabilised after {rec['restabilize_s']:.0f} s (back within {rec['band']:.3f} of the pre-event "
+                f"{rec['pre_event']:.3f}, held >= {HOLD_S:.0f} s; trough {rec['trough']:.3f})")
+    return f"did not recover (trough {rec['trough']:.3f}, end {rec['end']:.3f}; pre-event {rec['pre_event']:.3f})"
 
 
 def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> dict:
@@ -47,11 +82,13 @@ def summarize(rows: Sequence[dict], events: Sequence[dict], speedup: float) -> d
         raise ValueError("no metrics recorded")
     t = np.array([r["t"] for r in rows], dtype=float)
     cov = np.array([r["coverage"] for r in rows], dtype=float)
-    fails = sorted(e["t"] for e in events if e.get("type") in ("node_failure", "uav_failed"))
+    fails = sorted((e for e in events if e.get("type") in ("node_failure", "uav_failed")), key=lambda e: e["t"])
     recoveries = []
-    for i, tf in enumerate(fails):
-        t_next = fails[i + 1] if i + 1 < len(fails) else None
-        recoveries.append(failure_recovery(t, cov, tf, t_next))
+    for i, ev in enumerate(fails):
+        t_next = fails[i + 1]["t"] if i + 1 < len(fails) else None
+        rec = {**failure_recovery(t, cov, ev["t"], t_next), "uav": ev.get("uav"), "type": ev["type"]}
+        rec["label"] = transient_label(rec)
+        recoveries.append(rec)
     return {
         "coverage_mean": float(cov.mean()),
         "coverage_min": float(cov.min()),
