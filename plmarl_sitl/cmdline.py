@@ -126,3 +126,10 @@ def progress(disable: bool = False) -> Progress:
         disable=disable,
         transient=False,
     )
+
+
+def table_console() -> Console:
+    """A console for result tables on stdout: the terminal's width on a terminal; piped to a
+    file or another program, wide enough that no column is cut (rich assumes 80 columns
+    there, and printed "covera…" and "tag-ma…")."""
+    return Console() if sys.stdout.isatty() else Console(width=1000)

@@ -257,3 +257,16 @@ def test_agent_names_a_wrong_id_before_loading_anything_heavy(flags, message):
     status, line = r.stdout.strip().splitlines()
     assert status == "2 False", r.stdout + r.stderr
     assert message in line
+
+
+def test_result_tables_keep_full_names_when_piped(capsys):
+    """Issue 26: piped to a file, rich cut the tables to 80 columns ("covera…", "tag-ma…")."""
+    from plmarl_sitl.learning.eval.report import print_tables
+
+    rows = [{"method": m, "tup": 15, "coverage_mean": 0.9, "coverage_ci95": [0.8, 0.95], "coverage_full_mean": 0.85,
+             "lambda2_mean": 3.0, "fraction_of_best_mean": 0.99, "best_reference": "clairvoyant 9/10, greedy 1/10"}
+            for m in ("pl-marl", "tag-mappo", "dead-reckoning", "clairvoyant")]
+    print_tables({"results": rows, "p_values": [{"versus": "tag-mappo", "tup": 15, "p": 0.5}],
+                  "extra": {"from_s": 50, "episodes": 10, "rows": []}})
+    out = capsys.readouterr().out
+    assert "…" not in out and "tag-mappo" in out and "dead-reckoning" in out and "clairvoyant 9/10, greedy 1/10" in out

@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="evaluate trained policies and baselines in the digital twin",
         description="Run deterministic policies on the same episodes for every method and T_up. "
         "Coverage of an episode is the mean C(t) after --from-s seconds (steady state; the "
-        "whole-episode mean is in the saved results); mean and 95%% CI over episodes, lambda_2, "
+        "whole-episode mean is in the saved results); mean and 95% CI over episodes, lambda_2, "
         "and the two-sided Mann-Whitney U p-value of PL-MARL against each other method. "
         "Fractions are of the best reference of each episode (the best of service, greedy and clairvoyant among "
         "the methods run; none is a proven bound) and the table names it.\n\nMethods: " + methods_help() + ". "

@@ -6,7 +6,7 @@ import argparse
 import json
 import math
 
-from plmarl_sitl.cmdline import add_seed, progress, tup_arg
+from plmarl_sitl.cmdline import add_seed, progress, table_console, tup_arg
 from plmarl_sitl.learning.eval.methods import METHOD_HELP, canonical_method
 from plmarl_sitl.learning.eval.stats import mean_ci95
 from plmarl_sitl.mission import load_mission
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "sim",
         help="run episodes of a controller that needs no trained policy (service, greedy, clairvoyant, heuristic) in the digital twin",
         description="Run episodes of a mission in the vectorised digital twin with a non-learned "
-        "controller and report mean coverage C (95%% CI over episodes), lambda_2 and the closest "
+        "controller and report mean coverage C (95% CI over episodes), lambda_2 and the closest "
         "approach of two UAVs. " + "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS) + ". "
         "None of them is a proven bound. ('oracle' is still accepted for greedy, for one release.)",
         epilog="examples:\n  plmarl sim missions/paper_urban.yaml --method service --episodes 20 --seed 1 --json\n"
@@ -73,7 +73,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out))
         return 0
-    from rich.console import Console
     from rich.table import Table
 
     t = Table(title=f"{args.method} on {mission.name}: {args.episodes} episodes, T_up {mission.signalling.tup_s} s, seed {args.seed}")
@@ -83,5 +82,5 @@ def run(args: argparse.Namespace) -> int:
     t.add_row("coverage 95% CI", f"[{lo:.3f}, {hi:.3f}]")
     t.add_row("lambda_2 (mean)", f"{out['lambda2_mean']:.2f}")
     t.add_row("closest approach", f"{out['min_separation_m']:.1f} m (d_safe {mission.radii.safe_m:g} m)")
-    Console().print(t)
+    table_console().print(t)
     return 0

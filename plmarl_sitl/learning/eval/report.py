@@ -224,8 +224,9 @@ def write_outputs(res: dict, mission, loaded: dict, out: Path, results_md: str |
 
 
 def print_tables(res: dict) -> None:
-    from rich.console import Console
     from rich.table import Table
+
+    from plmarl_sitl.cmdline import table_console
 
     rows = _rows_by(res)
     t = Table(title=f"coverage (t > {res['extra']['from_s']} s), deterministic, {res['extra']['episodes']} episodes")
@@ -237,7 +238,7 @@ def print_tables(res: dict) -> None:
         p = f"{pv[(m, tup)]:.2g}" if (m, tup) in pv else "-"
         t.add_row(m, str(tup), f"{r['coverage_mean']:.3f}", f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]",
                   frac, r.get("best_reference", "-"), f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
-    console = Console()
+    console = table_console()
     console.print(t)
     from plmarl_sitl.learning.eval.references import ABOUT
 

@@ -260,8 +260,9 @@ def write_outputs(res: dict, scaling: list[str], out: Path) -> dict[str, str]:
 
 
 def print_summary(res: dict) -> None:
-    from rich.console import Console
     from rich.table import Table
+
+    from plmarl_sitl.cmdline import table_console
 
     t = Table(title=f"held-out suite, coverage t > {res['from_s']} s, {res['episodes']} episodes per cell")
     for c in ("family", "T_up", "method", "coverage", "95% CI", "of best ref.", "best reference", "lambda2", "p PL-MARL vs"):
@@ -271,7 +272,7 @@ def print_summary(res: dict) -> None:
         t.add_row(r["family"], str(r["tup"]), r["method"], f"{r['coverage_mean']:.3f}",
                   f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]", _pct(r), r.get("best_reference", "-"),
                   f"{r['lambda2_mean']:.2f}", p)
-    console = Console()
+    console = table_console()
     console.print(t)
     for b in res.get("references", []):
         wins = ", ".join(f"{k} in {100 * v:.0f}%" for k, v in b["wins"].items() if k.startswith("clairvoyant>"))
