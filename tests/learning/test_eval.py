@@ -71,3 +71,23 @@ def test_eval_missing_policy_is_one_line_error(tmp_path: Path, capsys: pytest.Ca
     assert rc == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "gru" in err and "missing" in err
+
+
+def test_coinciding_lines_are_named_and_failures_told_apart(tmp_path) -> None:
+    """Issue 26: identical curves hid all methods but one; results.md said "failure
+    probability 0.0" when the mission's scripted failure fired."""
+    import numpy as np
+
+    from plmarl_sitl.learning.eval.report import coinciding, failures_text, plot_coverage_vs_tup
+    from plmarl_sitl.mission import load_mission
+
+    ys = {"pl-marl": np.array([0.95, 0.94]), "gru": np.array([0.9505, 0.9401]), "greedy": np.array([0.96, 0.96])}
+    assert coinciding(ys) == [["pl-marl", "gru"], ["greedy"]]
+    rows = [{"method": m, "tup": t, "coverage_mean": float(y[i]), "coverage_ci95": [0.9, 0.99]}
+            for m, y in ys.items() for i, t in enumerate((5, 50))]
+    plot_coverage_vs_tup({"results": rows, "extra": {"rows": [], "from_s": 50, "episodes": 3}}, tmp_path / "c.png")
+    assert (tmp_path / "c.png").stat().st_size > 10_000
+    root = Path(__file__).resolve().parents[2]
+    assert failures_text(load_mission(root / "missions/node_failure.yaml"), 0.0) == \
+        "scripted node failures: UAV 2 at t = 100 s; no random failure"
+    assert "random node failure at t = 100 s with probability 0.2" in failures_text(load_mission(root / "missions/paper_urban.yaml"), 0.2)

@@ -85,6 +85,22 @@ COLOURS = {"pl-marl": "tab:blue", "gru": "tab:orange", "tag-mappo": "tab:green",
 REFERENCE_LINES = ("greedy", "clairvoyant")  # drawn dashed
 
 
+MARKERS = ("o", "s", "^", "D", "v", "P")
+COINCIDE = 0.002  # coverage: lines closer than this everywhere cannot be told apart on the plot
+
+
+def coinciding(ys: dict[str, np.ndarray], tol: float = COINCIDE) -> list[list[str]]:
+    """Methods in groups whose curves are within `tol` of the group's first everywhere."""
+    groups: list[list[str]] = []
+    for m, y in ys.items():
+        g = next((g for g in groups if np.max(np.abs(ys[g[0]] - y)) < tol), None)
+        if g is None:
+            groups.append([m])
+        else:
+            g.append(m)
+    return groups
+
+
 def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     import matplotlib
 
@@ -94,14 +110,23 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     rows = _rows_by(res)
     methods = list(dict.fromkeys(r["method"] for r in res["results"]))
     tups = sorted({r["tup"] for r in res["results"]})
-    fig, ax = plt.subplots(figsize=(5.5, 4))
+    fig, ax = plt.subplots(figsize=(5.5, 4.3))
+    ys = {m: np.array([rows[(m, t)]["coverage_mean"] for t in tups]) for m in methods}
+    groups = coinciding(ys)
+    spread = 0.012 * (max(tups) - min(tups) if len(tups) > 1 else 1.0)  # x offset between coinciding lines
     for m in methods:
-        y = np.array([rows[(m, t)]["coverage_mean"] for t in tups])
         lo = np.array([rows[(m, t)]["coverage_ci95"][0] for t in tups])
         hi = np.array([rows[(m, t)]["coverage_ci95"][1] for t in tups])
         c = COLOURS.get(m)
-        ax.plot(tups, y, marker="o", ms=3, label=m, ls="--" if m in REFERENCE_LINES else "-", color=c)
-        ax.fill_between(tups, lo, hi, alpha=0.2, color=c)
+        group = next(g for g in groups if m in g)
+        k = group.index(m)
+        x = np.array(tups, dtype=float) + (k - (len(group) - 1) / 2) * spread
+        ax.plot(x, ys[m], marker=MARKERS[k % len(MARKERS)], ms=4 if len(group) > 1 else 3, label=m,
+                ls="--" if m in REFERENCE_LINES else "-", color=c, alpha=0.85)
+        ax.fill_between(x, lo, hi, alpha=0.15, color=c)
+    same = [" = ".join(g) for g in groups if len(g) > 1]
+    if same:  # lines drawn on top of each other hide all but one: say so
+        fig.text(0.01, 0.01, f"coincide within {COINCIDE:g} (drawn side by side): " + "; ".join(same), fontsize=7)
     ax.set_xlabel("signalling interval T_up (s)")
     ax.set_ylabel(f"steady-state coverage (t > {res['extra']['from_s']} s)")
     low = min(r["coverage_ci95"][0] for r in res["results"])
@@ -114,7 +139,9 @@ def plot_coverage_vs_tup(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_training_curves(curves: dict[str, list[dict]], greedy: float | None, path: Path) -> None:
+def plot_training_curves(curves: dict[str, list[dict]], path: Path) -> None:
+    """Each policy's training curve. No reference line: the curves are episodes of the training
+    distribution (random scenarios), and a reference from the evaluated mission belongs to another problem."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -128,10 +155,8 @@ def plot_training_curves(curves: dict[str, list[dict]], greedy: float | None, pa
         ys = np.convolve(y, np.ones(k) / k, mode="valid") if len(y) >= k else y
         ax.plot(x[len(x) - len(ys):], ys, label=m, color=COLOURS.get(m))
         ax.plot(x, y, alpha=0.2, color=ax.lines[-1].get_color())
-    if greedy is not None:
-        ax.axhline(greedy, ls="--", color="k", label="greedy reference")
     ax.set_xlabel("training episode")
-    ax.set_ylabel("coverage C (stochastic policy, episode mean)")
+    ax.set_ylabel("coverage C (stochastic policy, training episodes)")
     ax.set_ylim(0, 1)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -150,13 +175,25 @@ def load_curves(loaded: dict) -> dict[str, list[dict]]:
     return curves
 
 
-def results_markdown(res: dict, figs_rel: dict[str, str], command: str) -> str:
+def failures_text(mission, failure_prob: float) -> str:  # noqa: ANN001 - Mission
+    """What failed in these episodes: the mission's scripted node failures, and the random one
+    of the training curriculum (`failure_prob`), told apart."""
+    from plmarl_sitl.model.events import EventSchedule
+
+    scripted = [f"UAV {e.uav} at t = {e.at_s:g} s" for e in EventSchedule.of(mission).events if e.type == "node_failure"]
+    said = f"scripted node failures: {', '.join(scripted)}" if scripted else "no scripted node failure"
+    return said + (f"; and a random node failure at t = 100 s with probability {failure_prob:g} per episode"
+                   if failure_prob > 0 else "; no random failure")
+
+
+def results_markdown(res: dict, figs_rel: dict[str, str], command: str, failures: str | None = None) -> str:
     ex = res["extra"]
+    failures = failures or f"random failure probability {ex['failure_prob']}"
     parts = [
         f"Command: `{command}`",
         "",
         f"Deterministic policies, {ex['episodes']} paired episodes per cell (same twin seeds for every method), "
-        f"failure probability {ex['failure_prob']}. Coverage = mean C(t) for t > {ex['from_s']} s "
+        f"{failures}. Coverage = mean C(t) for t > {ex['from_s']} s "
         "(steady state), mean [95% CI]; in brackets the mean per-episode fraction of the best reference's coverage on the "
         "same episodes (per episode the best of greedy, clairvoyant and service among the methods run; "
         "plmarl_sitl/learning/eval/references.py). No reference is a proven bound.",
@@ -206,14 +243,13 @@ def write_outputs(res: dict, mission, loaded: dict, out: Path, results_md: str |
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(res, indent=1))
     plot_coverage_vs_tup(res, out / "coverage_vs_tup.png")
-    greedy = [r["coverage_mean"] for r in res["results"] if r["method"] == "greedy"]
     curves = load_curves(loaded)
     figs = {"Coverage vs T_up": "coverage_vs_tup.png"}
     if curves:
-        plot_training_curves(curves, float(np.mean(greedy)) if greedy else None, out / "training_curves.png")
+        plot_training_curves(curves, out / "training_curves.png")
         figs["Training curves"] = "training_curves.png"
     command = res["extra"].get("command") or "plmarl " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    (out / "results.md").write_text(results_markdown(res, figs, command))
+    (out / "results.md").write_text(results_markdown(res, figs, command, failures_text(mission, res["extra"]["failure_prob"])))
     if results_md:
         md = Path(results_md)
         try:
