@@ -265,3 +265,4 @@ def test_repeated_sigterm_while_stopping_still_exits_cleanly(policy_dir: Path) -
     run = asyncio.run(main())
     assert run.code == 0, run.err
     assert run.err.count("stopped: vehicle in BRAKE") == 1, run.err
+    assert run.err.count("stopped (SIGTERM: the vehicle to its stop mode) after") == 1, run.err  # the stop reason

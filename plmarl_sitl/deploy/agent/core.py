@@ -87,6 +87,7 @@ class Agent:
         self.stats = LoopStats()
         self.t_proc0 = process_start_time()
         self.stop_event = asyncio.Event()
+        self.stop_reason: str | None = None  # why it stopped (request_stop, a failure), for the log's last line
         self.trace = Trace(cfg.trace_path)
         self.clock = MissionClock(int(cfg.tup_s or m.signalling.tup_s), int(m.timing.decision_every_s),
                                   cfg.settle_min_s, cfg.settle_wall_s, lockstep=cfg.lockstep)
@@ -149,10 +150,15 @@ class Agent:
         self.seq += 1
         self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
 
+    def request_stop(self, why: str) -> None:
+        """Stop (the vehicle to its stop mode); `why` is said in the log's last line."""
+        self.stop_reason = self.stop_reason or why
+        self.stop_event.set()
+
     def release(self) -> None:
         """Stop without commanding the stop mode: the vehicle is left to its autopilot."""
         self.session.leave_to_autopilot = True
-        self.stop_event.set()
+        self.request_stop("SIGUSR1: the vehicle is left to its autopilot")
 
     async def run(self) -> int:
         """Run until `stop_event` is set (signal handler): 0. A failure (the vehicle refuses,
@@ -174,12 +180,16 @@ class Agent:
                 # The helpers only serve `main`: when it ends, so do they.
                 main.add_done_callback(lambda _t: [h.cancel() for h in helpers])
         except BaseExceptionGroup as eg:
-            raise reported(eg) from None
+            failure = reported(eg)
+            self.stop_reason = f"{type(failure).__name__}: {failure}"
+            raise failure from None
         finally:
             await self.session.hold()
             self.session.close()
             self.trace.close()
             self._write_stats()
+            # The last line says why the agent stopped: a signal, a failure, or the flight's end.
+            log.info("stopped (%s) after %d decisions", self.stop_reason or "the flight ended", self.stats.decisions)
         return 0
 
     async def _announce_start_wait(self) -> None:

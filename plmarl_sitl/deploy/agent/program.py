@@ -243,7 +243,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)  # stop (hold the
 async def _fly(agent) -> int:  # noqa: ANN001 - core.Agent, imported lazily
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, agent.stop_event.set)
+        loop.add_signal_handler(sig, agent.request_stop, f"{sig.name}: the vehicle to its stop mode")
     loop.add_signal_handler(signal.SIGUSR1, agent.release)
     return await agent.run()
 
