@@ -14,7 +14,7 @@ from typing import Literal
 
 import yaml
 
-from plmarl_sitl.config import ConfigError, VehicleModel, _require, from_dict, load_vehicle
+from plmarl_sitl.config import ConfigError, VehicleModel, _require, from_dict, load_vehicle, safe_load_yaml
 
 MAX_DEMAND_CELLS = 65535  # the demand message's cell index is a u16 (docs/SIGNALLING.md)
 
@@ -278,7 +278,7 @@ def _read_mission_data(path: Path, seen: tuple[Path, ...] = ()) -> dict:
     if path.resolve() in seen:
         raise ConfigError("extends", "missions extend each other in a cycle", str(path))
     try:
-        data = yaml.safe_load(path.read_text())
+        data = safe_load_yaml(path.read_text())
     except OSError as exc:
         raise ConfigError("", f"cannot read file: {exc.strerror}", str(path)) from exc
     except yaml.YAMLError as exc:

@@ -788,6 +788,10 @@ class SitlWorld:
         autopilots answering so each agent can command its hold mode (`host.close()` later)."""
         if not self.vehicles.started:
             await self.start()
+        # The world's tensors are tiny (N vehicles, a few thousand users): a second torch
+        # thread never pays, and its OpenMP pool spinning after each op cost ~12 % of the
+        # world's CPU (perf, scale_20; docs/RESULTS.md, issue 25).
+        torch.set_num_threads(1)
         t_wall = time.perf_counter()
         self._sim0 = self.now if self.vehicles.owns_clock else None  # external: once they are heard
         self.started_wall = t_wall
