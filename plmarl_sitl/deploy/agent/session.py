@@ -123,6 +123,7 @@ class VehicleSession:
         self.started = False  # start() has begun using the link
         self.personality: Personality | None = None  # once the autopilot is found
         self.origin = torch.zeros(3)  # the vehicle's local NED origin in the mission frame
+        self._origin_np = self.origin.numpy()  # the same, for the per-sample sum
         self.home_local = (0.0, 0.0, 0.0)  # the vehicle's home in its local NED frame
         self.positions: Subscription | None = None  # LOCAL_POSITION_NED, from start-up on
         self.flying = False  # streaming setpoints
@@ -139,7 +140,7 @@ class VehicleSession:
         torch calls on a 6-vector cost more than the rest of the answer); the float32 sum
         is the same IEEE addition torch would do, bit for bit."""
         state = np.array((m.x, m.y, m.z, m.vx, m.vy, m.vz), dtype=np.float32)
-        state[:3] += self.origin.numpy()
+        state[:3] += self._origin_np
         return torch.from_numpy(state)
 
     def height_above_home(self) -> float:
@@ -261,6 +262,7 @@ class VehicleSession:
         self.home_local = tuple(float(v) for v in local)  # type: ignore[assignment]
         self.origin = torch.tensor(local_frame_origin(o.lat_deg, o.lon_deg, o.alt_m, (lat, lon, alt), self.home_local),
                                    dtype=torch.float32)
+        self._origin_np = self.origin.numpy()
 
     async def _wait_position(self) -> None:
         bound = self.cfg.bounds.position_s
