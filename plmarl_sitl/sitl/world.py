@@ -718,9 +718,14 @@ class SitlWorld:
             left = b.wait_left(owing, wall)
             if self._tick_due is not None:
                 left = min(left, 0.5 * b.straggler_s)
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(left):
-                    await wake.wait()
+            # Waiting only for answers: wake once the last of them is in, not at each one.
+            self.host.fleet.awaited = set(owing) if self._tick_due is None else None
+            try:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(left):
+                        await wake.wait()
+            finally:
+                self.host.fleet.awaited = None
 
     def _instant_closed(self, alive: list[bool], wall: float) -> bool:
         """The tick's second has no instant open: none is due, or every member's state for it
