@@ -795,7 +795,9 @@ class SitlWorld:
             await self.start()
         # The world's tensors are tiny (N vehicles, a few thousand users): a second torch
         # thread never pays, and its OpenMP pool spinning after each op cost ~12 % of the
-        # world's CPU (perf, scale_20; docs/RESULTS.md, issue 25).
+        # world's CPU (perf, scale_20; docs/RESULTS.md, issue 25). Restored after the run,
+        # for a caller that goes on in this process (tests, `plmarl world` as a library).
+        threads = torch.get_num_threads()
         torch.set_num_threads(1)
         t_wall = time.perf_counter()
         self._sim0 = self.now if self.vehicles.owns_clock else None  # external: once they are heard
@@ -810,6 +812,7 @@ class SitlWorld:
                 await self._flush(1.0)
                 bus.cancel()
         finally:
+            torch.set_num_threads(threads)
             if not keep_sockets:
                 self.vehicles.close()
             self.summary.wall_s = time.perf_counter() - t_wall
