@@ -1,4 +1,4 @@
-"""MAVLink 2 codec: the only place (with nothing else) that imports pymavlink.
+"""MAVLink 2 codec: with its fast path (`pymavlink_fastpath`), the only place that imports pymavlink.
 
 Why a wrapper: UDP carries whole frames per datagram, but pymavlink's parser is a byte
 stream parser that keeps a partial frame waiting for more bytes. Over UDP a partial frame
