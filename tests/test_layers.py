@@ -34,8 +34,9 @@ LIBRARY_TYPES = {
     "_SubParsersAction",  # argparse: the type of add_subparsers()
     "_C",  # torch._C.Graph: the frozen TorchScript graph nn/fused.py inspects
 }
-# aiomqtt's internals are read in exactly one module, which checks its version first.
-LIBRARY_FAST_PATH = "plmarl_sitl.deploy.mqtt.aiomqtt_fastpath"
+# aiomqtt's and pymavlink's internals are each read in exactly one module, which checks
+# the library's version first.
+LIBRARY_FAST_PATHS = {"plmarl_sitl.deploy.mqtt.aiomqtt_fastpath", "plmarl_sitl.deploy.mavlink.pymavlink_fastpath"}
 
 
 def module_name(path: Path) -> str:
@@ -130,7 +131,7 @@ def test_no_module_reads_another_objects_underscore_attributes() -> None:
         for node in ast.walk(tree):
             if not (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")):
                 continue
-            if node.attr in PUBLIC_UNDERSCORE or node.attr in LIBRARY_TYPES or mod == LIBRARY_FAST_PATH:
+            if node.attr in PUBLIC_UNDERSCORE or node.attr in LIBRARY_TYPES or mod in LIBRARY_FAST_PATHS:
                 continue
             owner = node.value
             if isinstance(owner, ast.Name) and owner.id in {"self", "cls"}:

@@ -732,9 +732,14 @@ class SitlWorld:
             left = b.wait_left(owing, wall)
             if self._tick_due is not None:
                 left = min(left, 0.5 * b.straggler_s)
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(left):
-                    await wake.wait()
+            # Waiting only for answers: wake once the last of them is in, not at each one.
+            self.host.fleet.awaited = set(owing) if self._tick_due is None else None
+            try:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(left):
+                        await wake.wait()
+            finally:
+                self.host.fleet.awaited = None
 
     def _instant_closed(self, alive: list[bool], wall: float) -> bool:
         """The tick's second has no instant open: none is due, or every member's state for it
@@ -806,6 +811,12 @@ class SitlWorld:
         autopilots answering so each agent can command its hold mode (`host.close()` later)."""
         if not self.vehicles.started:
             await self.start()
+        # The world's tensors are tiny (N vehicles, a few thousand users): a second torch
+        # thread never pays, and its OpenMP pool spinning after each op cost ~12 % of the
+        # world's CPU (perf, scale_20; docs/RESULTS.md, issue 25). Restored after the run,
+        # for a caller that goes on in this process (tests, `plmarl world` as a library).
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
         t_wall = time.perf_counter()
         self._sim0 = self.now if self.vehicles.owns_clock else None  # external: once they are heard
         self.started_wall = t_wall
@@ -819,6 +830,7 @@ class SitlWorld:
                 await self._flush(1.0)
                 bus.cancel()
         finally:
+            torch.set_num_threads(threads)
             if not keep_sockets:
                 self.vehicles.close()
             self.summary.wall_s = time.perf_counter() - t_wall

@@ -175,3 +175,22 @@ def test_run_reporting_leaves_a_bug_its_traceback() -> None:
     with pytest.raises(ExceptionGroup):
         run_reporting("prog", body)
     assert run_reporting("prog", lambda: None) == 0
+
+
+def test_a_handled_subscription_gets_each_message_as_it_is_parsed() -> None:
+    """`handle_with`: a lockstep agent answers each LOCAL_POSITION_NED in the link's receive
+    callback; nothing is queued meanwhile, and queueing resumes once the handler is removed."""
+    from plmarl_sitl.deploy.mavlink.client import VehicleLink
+    from plmarl_sitl.deploy.mavlink.codec import Codec
+
+    link = VehicleLink("127.0.0.1", 9, sysid=255)
+    vehicle = Codec(1, 1)
+    sub = link.subscribe("LOCAL_POSITION_NED")
+    got: list[int] = []
+    sub.handle_with(lambda m: got.append(m.time_boot_ms))
+    two = b"".join(vehicle.encode(vehicle.mav.local_position_ned_encode(ms, 0, 0, -5, 0, 0, 0)) for ms in (100, 200))
+    link.feed_datagram(two)
+    assert got == [100, 200] and not sub.queued
+    sub.handle_with(None)
+    link.feed_datagram(vehicle.encode(vehicle.mav.local_position_ned_encode(300, 0, 0, -5, 0, 0, 0)))
+    assert got == [100, 200] and [m.time_boot_ms for m in sub.queued] == [300]

@@ -139,3 +139,44 @@ def test_free_flight_shortcut_is_bit_identical_to_the_event_solver(alt, v, a, dt
     finally:
         vehicle._FREE_FLIGHT_MAX_BATCH = saved
     assert torch.equal(shortcut[0], solver[0]) and torch.equal(shortcut[1], solver[1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    alt=st.one_of(st.just(0.0), st.just(LIM.alt_max), st.floats(0.0, LIM.alt_max)),
+    v=st.one_of(st.just((0.0, 0.0, 0.0)), vec),
+    a=st.one_of(st.just((0.0, 0.0, 0.0)), vec),
+    speed_frac=st.sampled_from([0.0, 0.5, 0.999, 1.0 - 1e-12, 1.0]),
+    dt=st.sampled_from([0.02, 0.1, 1.0]),
+)
+def test_numpy_free_flight_is_bit_identical_to_the_torch_path(alt, v, a, speed_frac, dt):
+    """The emulator's fleet steps through the numpy copy of the free-flight shortcut; with
+    autograd on the same call takes the torch path: both must give the same bits, on the
+    ground, at the ceiling, at and near V_max (where the numpy path must step aside)."""
+    n = 20
+    gen = torch.Generator().manual_seed(int(alt * 1000 + dt * 10) % 2**31)
+    pos = torch.rand(n, 3, generator=gen, dtype=f64) * 100.0
+    pos[:, 2] = -torch.rand(n, generator=gen, dtype=f64) * LIM.alt_max
+    pos[0, 2] = -alt
+    vel = (torch.rand(n, 3, generator=gen, dtype=f64) - 0.5) * 4.0
+    vel[0] = torch.tensor(v, dtype=f64)
+    direction = torch.tensor([0.6, 0.8, 0.0], dtype=f64)
+    vel[1] = direction * LIM.max_speed * speed_frac
+    acc = (torch.rand(n, 3, generator=gen, dtype=f64) - 0.5) * 2.0
+    acc[0] = torch.tensor(a, dtype=f64)
+    acc[2] = direction * LIM.max_accel * speed_frac
+    fast = step_point_mass(pos, vel, acc, dt, LIM)
+    slow = step_point_mass(pos.clone().requires_grad_(), vel, acc, dt, LIM)
+    assert torch.equal(fast[0], slow[0].detach()) and torch.equal(fast[1], slow[1].detach())
+
+
+def test_numpy_free_flight_serves_a_cruising_fleet():
+    """The case it is for: 20 vehicles cruising mid-band take the numpy path."""
+    import plmarl_sitl.model.vehicle as vehicle
+
+    pos = torch.zeros(20, 3, dtype=f64)
+    pos[:, 2] = -60.0
+    vel = torch.full((20, 3), 1.0, dtype=f64)
+    vel[:, 2] = 0.0
+    acc = torch.full((20, 3), 0.5, dtype=f64)
+    assert vehicle._free_flight_numpy(pos, vel, acc, 0.02, LIM) is not None

@@ -24,6 +24,7 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any, Protocol
 
+import numpy as np
 import torch
 
 from plmarl_sitl.deploy.agent.clock import MissionClock
@@ -45,6 +46,7 @@ TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 # Lockstep: the world may hold the clock (and so the telemetry) while it waits out a
 # straggling agent; the vehicle is lost only if silent much longer than that bound.
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 120.0
+FLY_CHECK_S = 0.1  # wall: a lockstep agent checks this often for a failure, a lost link or silence
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
 SYSTEM_TIME_ID = 2  # MAVLINK_MSG_ID_SYSTEM_TIME
@@ -121,6 +123,7 @@ class VehicleSession:
         self.started = False  # start() has begun using the link
         self.personality: Personality | None = None  # once the autopilot is found
         self.origin = torch.zeros(3)  # the vehicle's local NED origin in the mission frame
+        self._origin_np = self.origin.numpy()  # the same, for the per-sample sum
         self.home_local = (0.0, 0.0, 0.0)  # the vehicle's home in its local NED frame
         self.positions: Subscription | None = None  # LOCAL_POSITION_NED, from start-up on
         self.flying = False  # streaming setpoints
@@ -131,9 +134,14 @@ class VehicleSession:
         self._reengage_task: asyncio.Task | None = None
 
     def mission_state(self, m: Any) -> torch.Tensor:
-        """[p, v] in the mission frame from a LOCAL_POSITION_NED."""
-        local = torch.tensor([m.x, m.y, m.z, m.vx, m.vy, m.vz], dtype=torch.float32)
-        return torch.cat([local[:3] + self.origin, local[3:]])
+        """[p, v] in the mission frame from a LOCAL_POSITION_NED (float32).
+
+        Once per telemetry sample: built in numpy and handed over without a copy (three
+        torch calls on a 6-vector cost more than the rest of the answer); the float32 sum
+        is the same IEEE addition torch would do, bit for bit."""
+        state = np.array((m.x, m.y, m.z, m.vx, m.vy, m.vz), dtype=np.float32)
+        state[:3] += self._origin_np
+        return torch.from_numpy(state)
 
     def height_above_home(self) -> float:
         """Metres above home, from the latest telemetry (the local frame: no geodesy)."""
@@ -254,6 +262,7 @@ class VehicleSession:
         self.home_local = tuple(float(v) for v in local)  # type: ignore[assignment]
         self.origin = torch.tensor(local_frame_origin(o.lat_deg, o.lon_deg, o.alt_m, (lat, lon, alt), self.home_local),
                                    dtype=torch.float32)
+        self._origin_np = self.origin.numpy()
 
     async def _wait_position(self) -> None:
         bound = self.cfg.bounds.position_s
@@ -380,12 +389,54 @@ class VehicleSession:
     async def fly(self, stop: asyncio.Event) -> None:
         """Serve telemetry until `stop` is set (VehicleLost if the vehicle goes silent or its
         link breaks)."""
+        if self.cfg.lockstep:
+            await self._fly_each_sample(stop)
+            return
         while not stop.is_set():
             try:
                 await self._telemetry()
             except VehicleTimeout as exc:
                 raise VehicleLost(exc) from exc
             self._check_mode()
+
+    async def _fly_each_sample(self, stop: asyncio.Event) -> None:
+        """Lockstep: every sample is answered, so each is handled as the link parses it
+        (`Subscription.handle_with`) instead of waking this task through a future and a
+        timeout per sample (issue 25: that round trip was a fixed cost of every answer).
+        The world waits for each answer before it sends the next sample, so there is never
+        a backlog to skip, and what the agent does is the same. This task only watches for
+        silence, a broken link and a failure of the handler, every FLY_CHECK_S."""
+        positions = self.positions
+        assert positions is not None
+        failed: list[BaseException] = []
+        last = time.perf_counter()
+
+        def on_position(m: Any) -> None:
+            nonlocal last
+            if failed:
+                return
+            last = time.perf_counter()
+            try:
+                self.on_telemetry(m)
+                self._check_mode()
+            except Exception as exc:  # noqa: BLE001 - raised by the task below, as the loop did
+                failed.append(exc)
+
+        if positions.queued:
+            on_position(await positions.newest(0.0))
+        positions.handle_with(on_position)
+        try:
+            while not stop.is_set():
+                if failed:
+                    raise failed[0]
+                if positions.ended is not None:
+                    raise positions.ended
+                silent = time.perf_counter() - last
+                if silent > LOCKSTEP_TELEMETRY_TIMEOUT_S:
+                    raise VehicleLost(VehicleTimeout(self.link.sysid, "LOCAL_POSITION_NED", LOCKSTEP_TELEMETRY_TIMEOUT_S))
+                await asyncio.sleep(FLY_CHECK_S)
+        finally:
+            positions.handle_with(None)
 
     def _check_mode(self) -> None:
         """If the autopilot left the offboard mode on its own (a setpoint-loss failsafe

@@ -79,10 +79,23 @@ class Subscription:
         self.queued: deque[Message] = deque()
         self.ended: LinkLost | None = None
         self._waiter: asyncio.Future[None] | None = None  # set while `next` waits
+        self._handler: Callable[[Message], None] | None = None  # `handle_with`
+
+    def handle_with(self, handler: Callable[[Message], None] | None) -> None:
+        """Hand each matching message to `handler` as the link parses it, in the link's
+        receive callback, instead of queueing it (None: queue again). For a loop that must
+        answer every message at once (a lockstep agent): no task switch and no timer per
+        message. `handler` must not block, and what it raises is the link's (log it, keep
+        it): catch inside."""
+        self._handler = handler
 
     def offer(self, m: Message) -> None:
-        """Queue `m` if it matches (the link calls this for every parsed `mtype` message)."""
+        """Queue `m` if it matches (the link calls this for every parsed `mtype` message),
+        or hand it to the handler (`handle_with`)."""
         if self.pred is not None and not self.pred(m):
+            return
+        if self._handler is not None:
+            self._handler(m)
             return
         if len(self.queued) >= self.MAX_QUEUED:
             self.queued.popleft()

@@ -93,8 +93,7 @@ def _setpoint(v: Vehicle, msg: Message, addr: Addr) -> None:
             return
         v.accept_setpoint(kind, (float(vec[0]), float(vec[1]), float(vec[2])), mask)
         if msg.time_boot_ms > 0:  # a lockstep agent stamps the telemetry it answers (sitl.lockstep)
-            v.fleet.answered_ms[v.index] = msg.time_boot_ms
-            v.fleet.answers.set()
+            v.fleet.answered(v.index, msg.time_boot_ms)
         return
     v.drop("bad_value", f"type_mask 0x{mask:04x} ignores everything")
 
