@@ -26,7 +26,7 @@ from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
-ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic", "service")
+ALL_METHODS = ("pl-marl", "gru", "tag-mappo", "dead-reckoning", "oracle", "heuristic", "service", "service-fixed")
 
 
 @dataclass
@@ -57,6 +57,10 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         return lambda env: ServiceController(env.mission)
+    if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        return lambda env: ServiceController(env.mission, replan=False)
     if method == "dead-reckoning":
         pol = loaded["pl-marl"].policy
         buffer_len = int(loaded["pl-marl"].card["io"]["buffer_len"])

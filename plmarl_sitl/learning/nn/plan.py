@@ -12,8 +12,11 @@ import torch
 
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.demand import map_period
+from plmarl_sitl.model.events import EventSchedule
+from plmarl_sitl.model.gossip import Gossip, suspects
+from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line
-from plmarl_sitl.model.vehicle import goto_accel
+from plmarl_sitl.model.vehicle import Limits, goto_accel
 
 
 def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int) -> np.ndarray:
@@ -37,21 +40,50 @@ def service_grid(mission) -> ServiceGrid:  # noqa: ANN001 - Mission
                  float(mission.radii.comm_m), float(mission.radii.safe_m))
 
 
-class ServiceTargets:
-    """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres."""
+class SignallingInstants:
+    """The mission's signalling instants (T_up changes included), as the twin's signalling."""
 
     def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
+        self.schedule = EventSchedule.of(mission)
+
+    def is_instant(self, t: int) -> bool:
+        return t % self.schedule.instant_tup(t) == 0
+
+    def last(self, t: int) -> int:
+        """The newest signalling instant not after second t."""
+        while t > 0 and not self.is_instant(t):
+            t -= 1
+        return max(t, 0)
+
+
+class ServiceTargets:
+    """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres.
+
+    With the twin's `Gossip` (`update(..., gossip=obs.gossip)`) the plan also re-plans at
+    failures (model/gossip.py, `TeamPlans.replan`): each agent declares a dropped neighbour
+    failed when its prediction of it (its tracker's belief if given, else the plan-aware
+    prediction) is still within R_comm, and each copy re-plans whenever its agent's
+    knowledge (failed set, epoch) differs from the one its plan was made for."""
+
+    def __init__(self, mission, replan: bool = True) -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
         self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.grid = service_grid(mission)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
         self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
-        self.tau = float(mission.timing.decision_every_s)
+        self.tau = int(mission.timing.decision_every_s)
+        self.comm_m = float(mission.radii.comm_m)
+        self.channel = mission.channel
+        self.replans = replan
+        self.instants = SignallingInstants(mission)
+        limits = Limits.band(vm)
+        self.start_alt = min(max(vm.takeoff_alt_m, limits.alt_min), limits.alt_max)
+        self.motion_args = (limits, float(self.alt), float(self.start_alt), self.tau)
         self.reset()
 
     @classmethod
-    def of(cls, mission) -> ServiceTargets:  # noqa: ANN001 - Mission
-        return cls(mission)
+    def of(cls, mission, replan: bool = True) -> ServiceTargets:  # noqa: ANN001 - Mission
+        return cls(mission, replan)
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to the plan point `target` (..., 2) at the altitude of the largest coverage radius
@@ -63,10 +95,16 @@ class ServiceTargets:
         self.plans: TeamPlans | None = None
         self.map_t = -1
         self.last: torch.Tensor | None = None  # the targets of the last update
+        self.was: torch.Tensor | None = None  # (B, N, N) N_i at the last update
+        self.replans_done = 0  # copies re-planned (for reports)
 
     def update(self, t: int, ego: torch.Tensor, nbr_state: torch.Tensor, nbr_t_rx: torch.Tensor,
-               demand: torch.Tensor) -> torch.Tensor:
-        """Call at every decision: ego (B, N, 6), nbr_state (B, N, N, 6), nbr_t_rx (B, N, N), demand (B, K, 3)."""
+               demand: torch.Tensor, *, mask: torch.Tensor | None = None, alive: torch.Tensor | None = None,
+               gossip: Gossip | None = None, belief: torch.Tensor | None = None) -> torch.Tensor:
+        """Call at every decision: ego (B, N, 6), nbr_state (B, N, N, 6), nbr_t_rx (B, N, N), demand (B, K, 3).
+        Re-planning at failures needs mask (B, N, N) N_i, alive (B, N) and the twin's gossip;
+        belief (B, N, N, 6), the agents' tracker beliefs, replaces the plan-aware prediction
+        in the failure test."""
         counts = np.stack([grid_counts(d, self.grid) for d in demand.double().numpy()])
         b, n = ego.shape[:2]
         if self.plans is None:
@@ -75,12 +113,43 @@ class ServiceTargets:
             heard = (nbr_t_rx == float(t)).numpy()
             launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i) for i in range(n)])
                                for e in range(b)])
-            self.plans = TeamPlans(self.grid, n)
-            self.plans.start(launch, counts)
+            motion = PlanMotion(*self.motion_args, self.instants.is_instant) if self.replans else None
+            self.plans = TeamPlans(self.grid, n, motion)
+            self.plans.start(launch, counts, t)
             self.map_t = t - t % self.period
-        elif t - t % self.period != self.map_t:
-            self.map_t = t - t % self.period
-            self.plans.on_map(counts)
-        self.last = torch.from_numpy(self.plans.targets(np.arange(n))).to(ego.dtype)
+        else:
+            if self.plans.motion is not None:
+                self.plans.motion.advance(t, self.plans.all_targets())
+            if t - t % self.period != self.map_t:
+                self.map_t = t - t % self.period
+                self.plans.on_map(counts, self.map_t)
+        if self.replans and gossip is not None and mask is not None and alive is not None:
+            self.on_failures(t, ego, mask, alive, gossip, belief)
+        own = self.plans.targets(np.arange(n))
+        if self.last is not None:  # an agent its own copy counts as failed keeps its point
+            own = np.where(np.isnan(own), self.last.double().numpy(), own)
+        self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
+
+    def on_failures(self, t: int, ego: torch.Tensor, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip,
+                    belief: torch.Tensor | None) -> None:
+        """Declare the neighbours dropped since the last decision that are predicted in range,
+        then re-plan every copy whose agent's knowledge changed."""
+        plans = self.plans
+        assert plans is not None and plans.motion is not None
+        was = self.was if self.was is not None else torch.zeros_like(mask)
+        dropped = was & ~mask & alive.unsqueeze(-1)
+        self.was = mask.clone()
+        if bool(dropped.any()):
+            at = self.instants.last(t)  # the instant that dropped them
+            pred = belief[..., :3].double() if belief is not None else plans.motion.at(at)[..., :3]
+            sus = suspects(dropped, pred, torch.arange(mask.shape[-1]), ego[..., :3].double(), self.channel, self.comm_m)
+            gossip.declare(sus, torch.where(sus.any(-1), torch.full_like(gossip.epoch, at), torch.zeros_like(gossip.epoch)))
+        known = gossip.failed.numpy()
+        epoch = gossip.epoch.numpy()
+        live = alive.numpy()
+        stale = live & ((known != plans.failed).any(-1) | (epoch != plans.epoch))
+        for e, a in zip(*np.nonzero(stale), strict=True):
+            plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]))
+            self.replans_done += 1
 
