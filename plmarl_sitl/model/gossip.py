@@ -92,4 +92,26 @@ class Gossip:
         self.failed, self.epoch = merge(self.failed, self.epoch, heard_failed, heard_epoch)
 
 
-__all__ = ["MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]
+class Knowledge:
+    """One deployed agent's knowledge, with the second each piece arrived at: its state
+    message for instant k carries what the twin's does, everything learnt before k (the
+    twin's agents send at the instant what they knew before it), and its decision at k
+    uses everything learnt up to k. Failed sets are bitmasks (wire format)."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[float, int, int]] = []  # (second learnt, failed mask, epoch), non-empty only
+
+    def learn(self, t: float, failed: int, epoch: int) -> None:
+        if failed or epoch:
+            self.parts.append((t, failed, epoch))
+
+    def view(self, before: float) -> tuple[int, int]:
+        """(failed mask, epoch) of everything learnt before second `before`."""
+        failed, epoch = 0, 0
+        for t, f, e in self.parts:
+            if t < before:
+                failed, epoch = failed | f, max(epoch, e)
+        return failed, epoch
+
+
+__all__ = ["Knowledge", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]

@@ -51,7 +51,7 @@ class Decision:
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
-        self.plan = AgentPlan(mission, me) if lp.takes_plan else None  # the team plan's point (model/service.py)
+        self.plan = AgentPlan(mission, me, table.knowledge) if lp.takes_plan else None  # the team plan's point (model/service.py)
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
@@ -167,7 +167,7 @@ class Decision:
                 if self.plan is None:
                     a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
                 else:
-                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got)
+                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask, self.belief)
                     a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1], self.target)
             else:
                 fail = torch.tensor(self.table.lost)

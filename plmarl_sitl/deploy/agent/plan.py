@@ -13,6 +13,13 @@ without them gives several agents the same point for the whole mission (seen in 
 load 20: three of four UAVs on one cluster), so states of the first instant that arrive
 later, while the plan still follows its first map, are added and the plan restarted from
 that map: the plan the twin, which hears them at once, started with.
+
+Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
+decision, a neighbour that left N_i since the last one and that the agent's beliefs put
+clearly within hearing is declared failed at the newest signalling instant (the epoch);
+the knowledge the table merged from received states and these declarations, as of the
+decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
+The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
 """
 
 from __future__ import annotations
@@ -20,16 +27,21 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import heard_launch, service_grid
+from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.gossip import Knowledge, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
 
 
 class AgentPlan:
-    def __init__(self, mission: Mission, me: int) -> None:
+    def __init__(self, mission: Mission, me: int, knowledge: Knowledge | None = None) -> None:
         self.me, self.n = me, mission.n_uavs
         self.grid = service_grid(mission)
-        self.plans = TeamPlans(self.grid, self.n)
+        self.instants = SignallingInstants(mission)
+        self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
+        self.knowledge = knowledge if knowledge is not None else Knowledge()  # the neighbour table's
+        self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
+        self.was: torch.Tensor | None = None  # N_i at the last decision
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)
         self.heard_xy: dict[int, np.ndarray] = {}  # identity -> position in its state of that instant (me included)
@@ -39,9 +51,11 @@ class AgentPlan:
         self.point: torch.Tensor | None = None  # this agent's point, recomputed only when the plan changes
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
-               demand: tuple[float, torch.Tensor] | None) -> torch.Tensor | None:
+               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None,
+               belief: torch.Tensor | None = None) -> torch.Tensor | None:
         """At a decision at second k: (2,) float32 north, east of this agent's point, or None
-        before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table."""
+        before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table; mask (n,) its
+        N_i and belief (n, 6) the tracker's beliefs, for failures (without: no failure re-plans)."""
         if self.first_k is None:
             self.first_k = k
             self.heard_xy[self.me] = ego[:2].double().numpy()
@@ -53,19 +67,48 @@ class AgentPlan:
         # a decision on the map the plan follows needs only the lookup below.
         new_map = not self.started or t_map != self.map_t
         counts = grid_counts(cells.double().numpy(), self.grid)[None] if new_map else None
+        changed = True
         if not self.started:
-            self.plans.start(self.launch[None, None], counts)
+            self.plans.start(self.launch[None, None], counts, k)
             self.started, self.first_counts = True, counts
-        elif new_map:
-            self.plans.on_map(counts)
-            self.first_counts = None  # the plan has moved on: too late to restart it
-        elif late and self.first_counts is not None:
-            self.plans.start(self.launch[None, None], self.first_counts)
-        else:  # the plan did not change since the last decision
-            return self.point
+        else:
+            self.plans.motion.advance(k, self.plans.all_targets())
+            if new_map:
+                self.plans.on_map(counts, round(t_map))
+                self.first_counts = None  # the plan has moved on: too late to restart it
+            elif late and self.first_counts is not None:
+                self.plans.start(self.launch[None, None], self.first_counts, self.first_k)
+                self.plans.motion.advance(k, self.plans.all_targets())
+            else:
+                changed = False
         self.map_t = t_map
-        self.point = torch.from_numpy(self.plans.targets(np.array([self.me]))[0, 0]).to(torch.float32)
+        if mask is not None and belief is not None:
+            changed |= self.on_failures(k, ego, mask, belief)
+        if changed:
+            own = self.plans.targets(np.array([self.me]))[0, 0]
+            if not np.isnan(own).any():  # a copy that counts this agent as failed: it keeps its point
+                self.point = torch.from_numpy(own).to(torch.float32)
         return self.point
+
+    def on_failures(self, k: int, ego: torch.Tensor, mask: torch.Tensor, belief: torch.Tensor) -> bool:
+        """Declare the dropped neighbours predicted in clear hearing; re-plan if what this
+        agent knows changed. True if the plan changed."""
+        was = self.was if self.was is not None else torch.zeros_like(mask)
+        dropped = was & ~mask
+        self.was = mask.clone()
+        if bool(dropped.any()):
+            at = self.instants.last(k)
+            sus = suspects(dropped[None, None], belief[None, None, :, :3].double(), torch.tensor([self.me]),
+                           ego[None, None, :3].double(), self.channel, self.comm_m)[0, 0]
+            ids = np.flatnonzero(sus.numpy())
+            if len(ids):
+                self.knowledge.learn(k, sum(1 << int(j) for j in ids), at)
+        failed_mask, epoch = self.knowledge.view(before=k + 1)
+        failed = np.array([bool(failed_mask >> j & 1) for j in range(self.n)])
+        if (failed == self.plans.failed[0, 0]).all() and epoch == self.plans.epoch[0, 0]:
+            return False
+        self.plans.replan(0, 0, failed, epoch)
+        return True
 
     def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
         """Add the neighbours whose state of the first instant is now held and refit the launch

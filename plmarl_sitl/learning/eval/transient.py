@@ -8,6 +8,8 @@ Definitions (T = episode length, all per episode, then summarised over episodes)
 * trough: min C over t in [t_f, T];
 * post-failure coverage: mean C over [t_f, T], also as a fraction of the Oracle's mean
   over the same seconds of the same episode;
+* from TARGET_S after the failure: mean C over [t_f + TARGET_S, T] as a fraction of the
+  Oracle's over the same seconds (issue 24: ">= 0.95 of the Oracle from 30 s after");
 * the Oracle's post-failure level L: mean of the Oracle's C over the second half of the
   post-failure time, t in [t_f + (T - t_f) / 2, T] (after its own re-planning transient);
 * reach time: the smallest s >= 0 such that the mean C over the WINDOW_S seconds
@@ -68,6 +70,9 @@ def failure_transient(trace: np.ndarray, oracle_trace: np.ndarray, fail_s: int) 
     settle = settle_times(trace, level, fail_s)
     trough, trough_ci = mean_ci95(post.min(1))
     frac, frac_ci = mean_ci95(post.mean(1) / np.maximum(oracle_post.mean(1), 1e-9))
+    # Issue 24's criterion: the level held from TARGET_S after the failure, against the Oracle's.
+    late, late_o = trace[:, fail_s - 1 + TARGET_S :], oracle_trace[:, fail_s - 1 + TARGET_S :]
+    after, after_ci = mean_ci95(late.mean(1) / np.maximum(late_o.mean(1), 1e-9)) if late.shape[1] else (float("nan"), (float("nan"),) * 2)
     return {
         "failure_at_s": fail_s,
         "pre_failure_mean": float(trace[:, max(fail_s - 1 - PRE_S, 0) : fail_s - 1].mean()),
@@ -77,6 +82,8 @@ def failure_transient(trace: np.ndarray, oracle_trace: np.ndarray, fail_s: int) 
         "post_failure_fraction_of_oracle_mean": frac,
         "post_failure_fraction_of_oracle_ci95": list(frac_ci),
         "oracle_post_level_mean": float(level.mean()),
+        "after_target_fraction_of_oracle_mean": after,
+        "after_target_fraction_of_oracle_ci95": list(after_ci),
         # Medians over all episodes, "never" counted as +inf (None when most never get there).
         "reach_s_median": _median_with_never(reach),
         "reach_within_target_share": float(np.mean(reach <= TARGET_S)),

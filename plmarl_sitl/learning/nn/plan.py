@@ -56,6 +56,16 @@ class SignallingInstants:
         return max(t, 0)
 
 
+def motion_of(mission, instants: SignallingInstants) -> PlanMotion:  # noqa: ANN001 - Mission
+    """The plan-aware prediction of the mission's team: its vehicle's limits, the plan's
+    altitude, the twin's take-off altitude, decisions every tau."""
+    vm = mission.vehicle_model()
+    limits = Limits.band(vm)
+    alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+    start_alt = min(max(vm.takeoff_alt_m, limits.alt_min), limits.alt_max)
+    return PlanMotion(limits, float(alt), float(start_alt), int(mission.timing.decision_every_s), instants.is_instant)
+
+
 class ServiceTargets:
     """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres.
 
@@ -76,9 +86,7 @@ class ServiceTargets:
         self.channel = mission.channel
         self.replans = replan
         self.instants = SignallingInstants(mission)
-        limits = Limits.band(vm)
-        self.start_alt = min(max(vm.takeoff_alt_m, limits.alt_min), limits.alt_max)
-        self.motion_args = (limits, float(self.alt), float(self.start_alt), self.tau)
+        self.mission = mission
         self.reset()
 
     @classmethod
@@ -113,7 +121,7 @@ class ServiceTargets:
             heard = (nbr_t_rx == float(t)).numpy()
             launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i) for i in range(n)])
                                for e in range(b)])
-            motion = PlanMotion(*self.motion_args, self.instants.is_instant) if self.replans else None
+            motion = motion_of(self.mission, self.instants) if self.replans else None
             self.plans = TeamPlans(self.grid, n, motion)
             self.plans.start(launch, counts, t)
             self.map_t = t - t % self.period
