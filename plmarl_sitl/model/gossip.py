@@ -16,9 +16,14 @@ delivery, and agents that heard the same things hold the same knowledge (the re-
 `model/service.py::TeamPlans.replan` is a function of it and of common knowledge only).
 
 A failure is declared by a neighbour from missed signalling instants: the neighbour table
-drops j after `drop_after_missed` misses in a row; j is *suspected failed* only when it is
-still predicted within R_comm at that instant (`suspects`): a neighbour that flew out of
-range is predicted out of range and is not declared. The twin holds every agent's
+drops j after `drop_after_missed` misses in a row; at each decision while j stays out of
+N_i, j is *suspected failed* when it is still predicted in clear hearing (`suspects`): a
+neighbour that flew out of range is predicted out of range and is not declared. And only
+when the plan that predicts j is the plan j flew (`may_predict`: j's last message carried
+the receiver's knowledge), and by a receiver that still hears someone (an agent alone
+cannot tell a dead neighbour from its own isolation). Two UAVs failing at once are learnt a few instants
+apart in different agents, and while knowledge spreads, copies fly interim plans; a copy
+that predicts j by its own interim plan while j flies another once declared a live j failed. The twin holds every agent's
 knowledge in one `Gossip`; the deployed agent holds its own (`deploy/agent/plan.py`).
 """
 
@@ -36,8 +41,8 @@ MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte ma
 # within this fraction of R_comm, with a predicted SINR this far above the threshold. The
 # U2U links fail inside R_comm under interference (two UAVs on one cluster jam a third at
 # 300 m), and a prediction is some metres off in transit; a false declaration is for good.
-SUSPECT_RANGE_FRAC = 0.85
-SUSPECT_MARGIN_DB = 3.0
+SUSPECT_RANGE_FRAC = 0.8
+SUSPECT_MARGIN_DB = 6.0
 
 
 def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
@@ -56,6 +61,19 @@ def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tenso
     near = (d * d).sum(-1) <= (SUSPECT_RANGE_FRAC * comm_m) ** 2
     clear = sinr_a >= db_to_lin(channel.sinr_threshold_db + SUSPECT_MARGIN_DB)
     return dropped & near & clear
+
+
+def may_predict(heard_failed: torch.Tensor, heard_epoch: torch.Tensor, failed: torch.Tensor,
+                epoch: torch.Tensor, newest_instant: int) -> torch.Tensor:
+    """(..., M) bool: the receiver's plan-aware prediction of each neighbour is the plan the
+    neighbour flew at the instants it missed (the newest `newest_instant`): its last message
+    (knowledge heard_failed (..., M, N), heard_epoch (..., M)) carried the receiver's own
+    knowledge (failed (..., N), epoch (...)); or knowledge the receiver has since extended
+    by a re-plan at an epoch not before those instants (the prediction up to the epoch is
+    still the plan both knew)."""
+    same = (heard_failed == failed.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
+    older = (heard_failed <= failed.unsqueeze(-2)).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
+    return same | (older & (epoch >= newest_instant).unsqueeze(-1))
 
 
 def merge(failed: torch.Tensor, epoch: torch.Tensor, other_failed: torch.Tensor,
@@ -78,6 +96,9 @@ class Gossip:
         self.failed = torch.zeros(batch, n, n, dtype=torch.bool, device=device)
         self.epoch = torch.zeros(batch, n, dtype=torch.int64, device=device)
         self.sent = (self.failed.clone(), self.epoch.clone())
+        # [i, j]: the knowledge j's last message to i carried
+        self.heard_failed = torch.zeros(batch, n, n, n, dtype=torch.bool, device=device)
+        self.heard_epoch = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
 
     def declare(self, failed: torch.Tensor, epoch: torch.Tensor) -> None:
         """Agents' own findings: failed (B, N, N) [i, j] i declares j failed at its epoch (B, N)."""
@@ -87,6 +108,8 @@ class Gossip:
         """A signalling instant: got (B, N, N) bool [i, j], i received j's state message now.
         Everyone sends the knowledge it held before the instant (the broadcast is simultaneous)."""
         self.sent = (self.failed.clone(), self.epoch.clone())
+        self.heard_failed = torch.where(got.unsqueeze(-1), self.failed.unsqueeze(-3), self.heard_failed)
+        self.heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), self.heard_epoch)
         heard_failed = (got.unsqueeze(-1) & self.failed.unsqueeze(-3)).any(-2)  # [i, k]: some j heard by i knows k
         heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), torch.zeros_like(self.epoch).unsqueeze(-2)).amax(-1)
         self.failed, self.epoch = merge(self.failed, self.epoch, heard_failed, heard_epoch)
@@ -100,8 +123,11 @@ class Knowledge:
 
     def __init__(self) -> None:
         self.parts: list[tuple[float, int, int]] = []  # (second learnt, failed mask, epoch), non-empty only
+        self.heard: dict[int, tuple[int, int]] = {}  # sender -> the knowledge its last message carried
 
-    def learn(self, t: float, failed: int, epoch: int) -> None:
+    def learn(self, t: float, failed: int, epoch: int, sender: int | None = None) -> None:
+        if sender is not None:
+            self.heard[sender] = (failed, epoch)
         if failed or epoch:
             self.parts.append((t, failed, epoch))
 
@@ -114,4 +140,4 @@ class Knowledge:
         return failed, epoch
 
 
-__all__ = ["Knowledge", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]
+__all__ = ["Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]

@@ -67,6 +67,29 @@ class PlanMotion:
             if self.is_instant(self.t):
                 self.kept[self.t] = self.state.clone()
 
+    def replay(self, b: int, a: int, since: int, targets: np.ndarray) -> None:
+        """Copy (b, a) re-planned for an epoch `since` in the past: its nominal from then on
+        is re-flown to the present with its new targets (n, 2), as if every identity had
+        switched at the epoch. So every copy that re-planned for that epoch, whenever it
+        learnt of it, predicts the same; the kept instants since are rewritten."""
+        assert self.state is not None
+        if since >= self.t:
+            return
+        state = self.at(since)[b, a].clone()
+        goal = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float64))
+        goal = torch.where(torch.isnan(goal), state[:, :2], goal)
+        goal = torch.cat([goal, torch.full_like(goal[..., :1], -self.plan_alt)], -1)
+        lim = self.limits
+        accel = None
+        for s in range(since, self.t):
+            if s % self.tau == 0 or accel is None:
+                accel = goto_accel(state[:, :3], state[:, 3:], goal, lim.max_speed, lim.max_accel, time_const=float(self.tau))
+            p, v = step_point_mass(state[:, :3], state[:, 3:], accel, 1.0, lim)
+            state = torch.cat([p, v], -1)
+            if s + 1 in self.kept:
+                self.kept[s + 1][b, a] = state
+        self.state[b, a] = state
+
     def at(self, t: int) -> torch.Tensor:
         """(B, A, n, 6) the nominal state at signalling instant t (the nearest kept one
         not after t; the current state if t is later than every kept one)."""

@@ -199,7 +199,8 @@ class TeamPlans:
     def replan(self, b: int, a: int, failed: np.ndarray, epoch: int) -> None:
         """Copy (b, a) learnt the failed set failed (n,) with epoch: re-place one point per
         survivor on the map in force at the epoch and assign them by least travel from the
-        survivors' plan-aware predicted positions at the epoch; then the maps taken since."""
+        survivors' plan-aware predicted positions at the epoch; then the maps taken since.
+        The prediction is re-flown from the epoch (`PlanMotion.replay`)."""
         assert self.motion is not None and self.points is not None and self.slot is not None
         alive = np.flatnonzero(~failed)
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
@@ -214,6 +215,7 @@ class TeamPlans:
                 new, served = self.grid.place(later[b : b + 1], len(alive))
                 if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, : len(alive)])[0] + REPLAN_MARGIN:
                     self._move_to(b, [a], new[0])
+        self.motion.replay(b, a, epoch, self.all_targets()[b, a])
 
     def targets(self, idents: np.ndarray) -> np.ndarray:
         """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy

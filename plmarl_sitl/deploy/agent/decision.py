@@ -167,7 +167,7 @@ class Decision:
                 if self.plan is None:
                     a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1])
                 else:
-                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask, self.belief)
+                    self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask)
                     a = self.policy(ego, self.belief, mask, sense, fail, None if got is None else got[1], self.target)
             else:
                 fail = torch.tensor(self.table.lost)

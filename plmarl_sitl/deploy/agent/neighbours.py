@@ -37,7 +37,7 @@ class NeighbourTable:
         False if it is not newer than what we hold."""
         if j == self.me or not 0 <= j < self.n or t_s < float(self.t_rx[j]):
             return False
-        self.knowledge.learn(t_s, failed, epoch_s)
+        self.knowledge.learn(t_s, failed, epoch_s, j)
         self.state[j] = torch.tensor(state, dtype=torch.float32)
         self.t_rx[j] = t_s
         self.ever[j] = True

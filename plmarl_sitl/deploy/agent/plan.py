@@ -15,8 +15,10 @@ later, while the plan still follows its first map, are added and the plan restar
 that map: the plan the twin, which hears them at once, started with.
 
 Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
-decision, a neighbour that left N_i since the last one and that the agent's beliefs put
-clearly within hearing is declared failed at the newest signalling instant (the epoch);
+decision, a neighbour out of N_i that the plan-aware prediction put in clear hearing at
+the instants it missed, and whose
+last message carried this agent's knowledge, is declared failed at the newest signalling
+instant (the epoch);
 the knowledge the table merged from received states and these declarations, as of the
 decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
 The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
@@ -27,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
+from plmarl_sitl.learning.nn.plan import SignallingInstants, motion_of, service_grid
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.gossip import Knowledge, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
@@ -39,9 +41,9 @@ class AgentPlan:
         self.grid = service_grid(mission)
         self.instants = SignallingInstants(mission)
         self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
+        self.drop_after = int(mission.signalling.drop_after_missed)
         self.knowledge = knowledge if knowledge is not None else Knowledge()  # the neighbour table's
         self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
-        self.was: torch.Tensor | None = None  # N_i at the last decision
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)
         self.heard_xy: dict[int, np.ndarray] = {}  # identity -> position in its state of that instant (me included)
@@ -51,11 +53,10 @@ class AgentPlan:
         self.point: torch.Tensor | None = None  # this agent's point, recomputed only when the plan changes
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
-               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None,
-               belief: torch.Tensor | None = None) -> torch.Tensor | None:
+               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None) -> torch.Tensor | None:
         """At a decision at second k: (2,) float32 north, east of this agent's point, or None
         before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table; mask (n,) its
-        N_i and belief (n, 6) the tracker's beliefs, for failures (without: no failure re-plans)."""
+        N_i, for failures (without: no failure re-plans)."""
         if self.first_k is None:
             self.first_k = k
             self.heard_xy[self.me] = ego[:2].double().numpy()
@@ -82,45 +83,40 @@ class AgentPlan:
             else:
                 changed = False
         self.map_t = t_map
-        if mask is not None and belief is not None:
-            changed |= self.on_failures(k, ego, mask, belief)
+        if mask is not None:
+            changed |= self.on_failures(k, mask, t_rx)
         if changed:
             own = self.plans.targets(np.array([self.me]))[0, 0]
             if not np.isnan(own).any():  # a copy that counts this agent as failed: it keeps its point
                 self.point = torch.from_numpy(own).to(torch.float32)
         return self.point
 
-    def on_failures(self, k: int, ego: torch.Tensor, mask: torch.Tensor, belief: torch.Tensor) -> bool:
-        """Declare the dropped neighbours predicted in clear hearing; re-plan if what this
-        agent knows changed. True if the plan changed."""
-        was = self.was if self.was is not None else torch.zeros_like(mask)
-        dropped = was & ~mask
-        self.was = mask.clone()
-        if bool(dropped.any()):
-            at = self.instants.last(k)
-            sus = suspects(dropped[None, None], belief[None, None, :, :3].double(), torch.tensor([self.me]),
-                           ego[None, None, :3].double(), self.channel, self.comm_m)[0, 0]
-            ids = np.flatnonzero(sus.numpy())
-            if len(ids):
-                self.knowledge.learn(k, sum(1 << int(j) for j in ids), at)
+    def on_failures(self, k: int, mask: torch.Tensor, t_rx: torch.Tensor) -> bool:
+        """Declare the neighbours out of N_i predicted in clear hearing whose last message
+        carried this agent's knowledge (model/gossip.py); re-plan if what this agent knows
+        changed. True if the plan changed."""
         failed_mask, epoch = self.knowledge.view(before=k + 1)
+        newest = self.instants.last(k)
+
+        def may_predict(j: int) -> bool:  # model.gossip.may_predict, on bitmasks
+            heard_failed, heard_epoch = self.knowledge.heard.get(j, (0, 0))
+            same = (heard_failed, heard_epoch) == (failed_mask, epoch)
+            return same or (heard_failed & ~failed_mask == 0 and heard_epoch < epoch and epoch >= newest)
+
+        silent = [j for j in range(self.n) if j != self.me and not bool(mask[j]) and float(t_rx[j]) >= 0
+                  and not failed_mask >> j & 1 and may_predict(j)] if bool(mask.any()) else []
+        if silent:
+            sus = torch.zeros(1, 1, self.n, dtype=torch.bool)
+            sus[0, 0, silent] = True
+            for at in self.instants.recent(k, self.drop_after):
+                pred = self.plans.motion.at(at)[..., :3]
+                sus = suspects(sus, pred, torch.tensor([self.me]), pred[:, :, self.me], self.channel, self.comm_m)
+            ids = np.flatnonzero(sus[0, 0].numpy())
+            if len(ids):
+                self.knowledge.learn(k, sum(1 << int(j) for j in ids), self.instants.last(k))
+                failed_mask, epoch = self.knowledge.view(before=k + 1)
         failed = np.array([bool(failed_mask >> j & 1) for j in range(self.n)])
         if (failed == self.plans.failed[0, 0]).all() and epoch == self.plans.epoch[0, 0]:
             return False
         self.plans.replan(0, 0, failed, epoch)
         return True
-
-    def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
-        """Add the neighbours whose state of the first instant is now held and refit the launch
-        line; True if a state arrived after the first decision (the line changed)."""
-        # One vector comparison: a per-slot float() of the table costs ~2 us a neighbour, every decision.
-        new = [j for j in np.flatnonzero(t_rx.numpy() == float(self.first_k)).tolist() if j not in self.heard_xy]
-        for j in new:
-            self.heard_xy[j] = held[j, :2].double().numpy()
-        if self.launch is not None and not new:
-            return False
-        heard = np.array([j in self.heard_xy and j != self.me for j in range(self.n)])
-        xy = np.stack([self.heard_xy.get(j, np.zeros(2)) for j in range(self.n)])
-        late = self.launch is not None
-        self.launch = heard_launch(self.heard_xy[self.me], xy, heard, self.me)
-        return late

@@ -44,7 +44,7 @@ class LearnedController:
         if self.plan is None:
             return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand)
         target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
-                                  alive=obs.alive, gossip=obs.gossip, belief=belief)
+                                  alive=obs.alive, gossip=obs.gossip)
         return self.policy(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
 
 

@@ -13,7 +13,7 @@ import torch
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
-from plmarl_sitl.model.gossip import Gossip, suspects
+from plmarl_sitl.model.gossip import Gossip, may_predict, suspects
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line
 from plmarl_sitl.model.vehicle import Limits, goto_accel
@@ -55,6 +55,13 @@ class SignallingInstants:
             t -= 1
         return max(t, 0)
 
+    def recent(self, t: int, k: int) -> list[int]:
+        """The newest k signalling instants not after second t (fewer near t = 0)."""
+        out = [self.last(t)]
+        while len(out) < k and out[-1] > 0:
+            out.append(self.last(out[-1] - 1))
+        return out
+
 
 def motion_of(mission, instants: SignallingInstants) -> PlanMotion:  # noqa: ANN001 - Mission
     """The plan-aware prediction of the mission's team: its vehicle's limits, the plan's
@@ -70,10 +77,11 @@ class ServiceTargets:
     """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres.
 
     With the twin's `Gossip` (`update(..., gossip=obs.gossip)`) the plan also re-plans at
-    failures (model/gossip.py, `TeamPlans.replan`): each agent declares a dropped neighbour
-    failed when its prediction of it (its tracker's belief if given, else the plan-aware
-    prediction) is still within R_comm, and each copy re-plans whenever its agent's
-    knowledge (failed set, epoch) differs from the one its plan was made for."""
+    failures (model/gossip.py, `TeamPlans.replan`): each agent declares failed a neighbour
+    out of N_i that the plan-aware prediction puts in clear hearing at the instants it
+    missed and whose last message carried the agent's own knowledge, and each copy re-plans
+    whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
+    made for."""
 
     def __init__(self, mission, replan: bool = True) -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
@@ -84,6 +92,7 @@ class ServiceTargets:
         self.tau = int(mission.timing.decision_every_s)
         self.comm_m = float(mission.radii.comm_m)
         self.channel = mission.channel
+        self.drop_after = int(mission.signalling.drop_after_missed)
         self.replans = replan
         self.instants = SignallingInstants(mission)
         self.mission = mission
@@ -103,16 +112,13 @@ class ServiceTargets:
         self.plans: TeamPlans | None = None
         self.map_t = -1
         self.last: torch.Tensor | None = None  # the targets of the last update
-        self.was: torch.Tensor | None = None  # (B, N, N) N_i at the last update
         self.replans_done = 0  # copies re-planned (for reports)
 
     def update(self, t: int, ego: torch.Tensor, nbr_state: torch.Tensor, nbr_t_rx: torch.Tensor,
                demand: torch.Tensor, *, mask: torch.Tensor | None = None, alive: torch.Tensor | None = None,
-               gossip: Gossip | None = None, belief: torch.Tensor | None = None) -> torch.Tensor:
+               gossip: Gossip | None = None) -> torch.Tensor:
         """Call at every decision: ego (B, N, 6), nbr_state (B, N, N, 6), nbr_t_rx (B, N, N), demand (B, K, 3).
-        Re-planning at failures needs mask (B, N, N) N_i, alive (B, N) and the twin's gossip;
-        belief (B, N, N, 6), the agents' tracker beliefs, replaces the plan-aware prediction
-        in the failure test."""
+        Re-planning at failures needs mask (B, N, N) N_i, alive (B, N) and the twin's gossip."""
         counts = np.stack([grid_counts(d, self.grid) for d in demand.double().numpy()])
         b, n = ego.shape[:2]
         if self.plans is None:
@@ -132,27 +138,34 @@ class ServiceTargets:
                 self.map_t = t - t % self.period
                 self.plans.on_map(counts, self.map_t)
         if self.replans and gossip is not None and mask is not None and alive is not None:
-            self.on_failures(t, ego, mask, alive, gossip, belief)
+            self.on_failures(t, mask, alive, gossip, nbr_t_rx)
         own = self.plans.targets(np.arange(n))
         if self.last is not None:  # an agent its own copy counts as failed keeps its point
             own = np.where(np.isnan(own), self.last.double().numpy(), own)
         self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
 
-    def on_failures(self, t: int, ego: torch.Tensor, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip,
-                    belief: torch.Tensor | None) -> None:
-        """Declare the neighbours dropped since the last decision that are predicted in range,
-        then re-plan every copy whose agent's knowledge changed."""
+    def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor) -> None:
+        """Declare the neighbours out of N_i that are predicted in clear hearing and whose last
+        message carried this agent's knowledge; then re-plan every copy whose agent's
+        knowledge changed."""
         plans = self.plans
         assert plans is not None and plans.motion is not None
-        was = self.was if self.was is not None else torch.zeros_like(mask)
-        dropped = was & ~mask & alive.unsqueeze(-1)
-        self.was = mask.clone()
-        if bool(dropped.any()):
-            at = self.instants.last(t)  # the instant that dropped them
-            pred = belief[..., :3].double() if belief is not None else plans.motion.at(at)[..., :3]
-            sus = suspects(dropped, pred, torch.arange(mask.shape[-1]), ego[..., :3].double(), self.channel, self.comm_m)
-            gossip.declare(sus, torch.where(sus.any(-1), torch.full_like(gossip.epoch, at), torch.zeros_like(gossip.epoch)))
+        n = mask.shape[-1]
+        silent = ~mask & (t_rx >= 0) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
+        silent &= mask.any(-1, keepdim=True)  # someone is still heard
+        silent &= may_predict(gossip.heard_failed, gossip.heard_epoch, gossip.failed, gossip.epoch, self.instants.last(t))
+        if bool(silent.any()):
+            # Silent at the instants it missed, at each of which the plan-aware prediction
+            # says it should have been heard (the tracker's beliefs, 30 s after the last
+            # state, declared live teammates failed: docs/RESULTS.md, issue 24).
+            sus = silent
+            for at in self.instants.recent(t, self.drop_after):
+                pred = plans.motion.at(at)[..., :3]
+                own = pred[:, torch.arange(n), torch.arange(n)]  # (B, N, 3): each agent's own nominal then
+                sus = suspects(sus, pred, torch.arange(n), own, self.channel, self.comm_m)
+            at = torch.full_like(gossip.epoch, self.instants.last(t))
+            gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
         known = gossip.failed.numpy()
         epoch = gossip.epoch.numpy()
         live = alive.numpy()
@@ -160,4 +173,3 @@ class ServiceTargets:
         for e, a in zip(*np.nonzero(stale), strict=True):
             plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]))
             self.replans_done += 1
-
