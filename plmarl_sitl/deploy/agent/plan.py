@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import SignallingInstants, motion_of, service_grid
+from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.gossip import Knowledge, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
@@ -120,3 +120,18 @@ class AgentPlan:
             return False
         self.plans.replan(0, 0, failed, epoch)
         return True
+
+    def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
+        """Add the neighbours whose state of the first instant is now held and refit the launch
+        line; True if a state arrived after the first decision (the line changed)."""
+        # One vector comparison: a per-slot float() of the table costs ~2 us a neighbour, every decision.
+        new = [j for j in np.flatnonzero(t_rx.numpy() == float(self.first_k)).tolist() if j not in self.heard_xy]
+        for j in new:
+            self.heard_xy[j] = held[j, :2].double().numpy()
+        if self.launch is not None and not new:
+            return False
+        heard = np.array([j in self.heard_xy and j != self.me for j in range(self.n)])
+        xy = np.stack([self.heard_xy.get(j, np.zeros(2)) for j in range(self.n)])
+        late = self.launch is not None
+        self.launch = heard_launch(self.heard_xy[self.me], xy, heard, self.me)
+        return late
