@@ -33,7 +33,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
-from plmarl_sitl.model.plan_motion import PlanMotion
+from plmarl_sitl.model.plan_motion import ROUND_M, PlanMotion
 
 GRID_M = 25.0  # candidate service points: the Oracle's grid; also the spacing of a cell's sub-points
 LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
@@ -196,11 +196,12 @@ class TeamPlans:
             self.slot[b, a, live] = moved[self.slot[b, a, live]]
             self.points[b, a, :k] = new
 
-    def replan(self, b: int, a: int, failed: np.ndarray, epoch: int) -> None:
+    def replan(self, b: int, a: int, failed: np.ndarray, epoch: int, sources: np.ndarray | None = None) -> None:
         """Copy (b, a) learnt the failed set failed (n,) with epoch: re-place one point per
         survivor on the map in force at the epoch and assign them by least travel from the
         survivors' plan-aware predicted positions at the epoch; then the maps taken since.
-        The prediction is re-flown from the epoch (`PlanMotion.replay`)."""
+        The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources` (n, 2)
+        replaces the predicted positions (the constant-velocity ablation)."""
         assert self.motion is not None and self.points is not None and self.slot is not None
         alive = np.flatnonzero(~failed)
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
@@ -208,7 +209,8 @@ class TeamPlans:
         self.points[b, a] = np.nan
         self.points[b, a, : len(alive)] = pts
         self.slot[b, a] = -1
-        self.slot[b, a, alive] = assign(self.motion.sources(b, a, epoch, alive), pts)
+        src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
+        self.slot[b, a, alive] = assign(src, pts)
         self.failed[b, a], self.epoch[b, a] = failed, epoch
         for s, later in self.maps:
             if s > epoch:

@@ -54,9 +54,9 @@ class ServiceController:
     With `replan` (the default) the plan is re-solved at failures from the gossiped
     knowledge (model/gossip.py); without, it is today's plan fixed at t = 0 and new maps."""
 
-    def __init__(self, mission, replan: bool = True) -> None:  # noqa: ANN001 - Mission
+    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         self.mission = mission
-        self.targets = ServiceTargets.of(mission, replan)
+        self.targets = ServiceTargets.of(mission, replan, sources)
 
     def reset(self) -> None:
         self.targets.reset()

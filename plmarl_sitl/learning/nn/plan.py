@@ -83,7 +83,7 @@ class ServiceTargets:
     whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
     made for."""
 
-    def __init__(self, mission, replan: bool = True) -> None:  # noqa: ANN001 - Mission
+    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
         self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.grid = service_grid(mission)
@@ -94,13 +94,16 @@ class ServiceTargets:
         self.channel = mission.channel
         self.drop_after = int(mission.signalling.drop_after_missed)
         self.replans = replan
+        # Where a re-plan assigns from: "plan", the plan-aware prediction (common knowledge);
+        # "cv", the ablation: each agent's own held states dead-reckoned at constant velocity.
+        self.sources = sources
         self.instants = SignallingInstants(mission)
         self.mission = mission
         self.reset()
 
     @classmethod
-    def of(cls, mission, replan: bool = True) -> ServiceTargets:  # noqa: ANN001 - Mission
-        return cls(mission, replan)
+    def of(cls, mission, replan: bool = True, sources: str = "plan") -> ServiceTargets:  # noqa: ANN001 - Mission
+        return cls(mission, replan, sources)
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to the plan point `target` (..., 2) at the altitude of the largest coverage radius
@@ -138,14 +141,15 @@ class ServiceTargets:
                 self.map_t = t - t % self.period
                 self.plans.on_map(counts, self.map_t)
         if self.replans and gossip is not None and mask is not None and alive is not None:
-            self.on_failures(t, mask, alive, gossip, nbr_t_rx)
+            self.on_failures(t, mask, alive, gossip, nbr_t_rx, ego, nbr_state)
         own = self.plans.targets(np.arange(n))
         if self.last is not None:  # an agent its own copy counts as failed keeps its point
             own = np.where(np.isnan(own), self.last.double().numpy(), own)
         self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
 
-    def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor) -> None:
+    def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor,
+                    ego: torch.Tensor, held: torch.Tensor) -> None:
         """Declare the neighbours out of N_i that are predicted in clear hearing and whose last
         message carried this agent's knowledge; then re-plan every copy whose agent's
         knowledge changed."""
@@ -171,5 +175,10 @@ class ServiceTargets:
         live = alive.numpy()
         stale = live & ((known != plans.failed).any(-1) | (epoch != plans.epoch))
         for e, a in zip(*np.nonzero(stale), strict=True):
-            plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]))
+            src = None
+            if self.sources == "cv":  # p + v (epoch - t_rx) from the held states; itself: back from now
+                at = float(epoch[e, a])
+                src = (held[e, a, :, :2] + held[e, a, :, 3:5] * (at - t_rx[e, a]).unsqueeze(-1)).double().numpy()
+                src[a] = (ego[e, a, :2] + ego[e, a, 3:5] * (at - t)).double().numpy()
+            plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]), src)
             self.replans_done += 1
