@@ -21,6 +21,11 @@ computed from those alone is the same in every agent, without any further messag
    users (hysteresis), matched to the old points with the least total shift, so each
    identity keeps the nearest successor of its point (`TeamPlan.on_map`).
 
+5. At a failure (issue 24): the failed set and plan epoch every survivor learns by gossip
+   (model/gossip.py) re-place one point per survivor on the map of the epoch and assign
+   them from the survivors' plan-aware predicted positions then (model/plan_motion.py), so
+   survivors that know the same reach the same plan without a leader (`TeamPlans.replan`).
+
 An agent's target is the point of its own identity. It is an input of the policy (its
 offset), computed by this module in the twin's controllers and in the deployed agent.
 """

@@ -130,7 +130,9 @@ class ServiceTargets:
             heard = (nbr_t_rx == float(t)).numpy()
             launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i) for i in range(n)])
                                for e in range(b)])
-            motion = motion_of(self.mission, self.instants) if self.replans else None
+            # The plan-aware prediction only where failures can be learnt (the twin's gossip given):
+            # training's plan teacher calls without and does not pay for it.
+            motion = motion_of(self.mission, self.instants) if self.replans and gossip is not None else None
             self.plans = TeamPlans(self.grid, n, motion)
             self.plans.start(launch, counts, t)
             self.map_t = t - t % self.period
@@ -140,7 +142,7 @@ class ServiceTargets:
             if t - t % self.period != self.map_t:
                 self.map_t = t - t % self.period
                 self.plans.on_map(counts, self.map_t)
-        if self.replans and gossip is not None and mask is not None and alive is not None:
+        if self.plans.motion is not None and gossip is not None and mask is not None and alive is not None:
             self.on_failures(t, mask, alive, gossip, nbr_t_rx, ego, nbr_state)
         own = self.plans.targets(np.arange(n))
         if self.last is not None:  # an agent its own copy counts as failed keeps its point
