@@ -94,3 +94,30 @@ def test_no_failure_is_declared_where_none_happened() -> None:
         env, ctl, _ = run(path, replan=True, batch=3)
         assert not env.gossip.failed.any(), path
         assert ctl.targets.replans_done == 0, path
+
+
+def test_a_re_plan_depends_on_what_is_known_not_on_the_order_it_was_learnt() -> None:
+    """Two copies of a 4-UAV plan: one learns UAV 1's failure at instant 60, flies that
+    interim plan to second 90, then learns UAV 2's (same epoch) too; the other learns both
+    at second 90 only. Both end with the same points, slots and predicted positions (the
+    prediction is re-flown from the epoch)."""
+    from plmarl_sitl.model.plan_motion import PlanMotion
+    from plmarl_sitl.model.service import ServiceGrid, TeamPlans
+    from plmarl_sitl.model.vehicle import Limits
+
+    grid = ServiceGrid(1000.0, 1000.0, 100.0, 100.0, 350.0, 20.0)
+    counts = np.zeros(100)
+    for cell in (33, 35, 55, 53):
+        counts[cell] = 60
+    plans = TeamPlans(grid, 4, PlanMotion(Limits(20.0, 5.0, 30.0, 150.0), 100.0, 30.0, 3, lambda t: t % 15 == 0))
+    line = np.stack([np.full(4, 500.0), 440.0 + 40.0 * np.arange(4)], -1)
+    plans.start(np.stack([line, line])[None], counts[None])
+    plans.motion.advance(60, plans.all_targets())
+    plans.replan(0, 0, np.array([False, True, False, False]), 60)  # copy 0 learns of UAV 1 at 60
+    plans.motion.advance(90, plans.all_targets())
+    both = np.array([False, True, True, False])
+    plans.replan(0, 0, both, 60)
+    plans.replan(0, 1, both, 60)  # copy 1 learns both at 90
+    assert np.array_equal(plans.slot[0, 0], plans.slot[0, 1]) and plans.slot[0, 0, 1] == plans.slot[0, 0, 2] == -1
+    assert np.array_equal(np.nan_to_num(plans.points[0, 0]), np.nan_to_num(plans.points[0, 1]))
+    assert torch.allclose(plans.motion.state[0, 0, [0, 3]], plans.motion.state[0, 1, [0, 3]])
