@@ -122,19 +122,20 @@ class Knowledge:
     uses everything learnt up to k. Failed sets are bitmasks (wire format)."""
 
     def __init__(self) -> None:
-        self.parts: list[tuple[float, int, int]] = []  # (second learnt, failed mask, epoch), non-empty only
+        self.parts: dict[float, tuple[int, int]] = {}  # second learnt -> (failed mask, epoch) merged, non-empty only
         self.heard: dict[int, tuple[int, int]] = {}  # sender -> the knowledge its last message carried
 
     def learn(self, t: float, failed: int, epoch: int, sender: int | None = None) -> None:
         if sender is not None:
             self.heard[sender] = (failed, epoch)
-        if failed or epoch:
-            self.parts.append((t, failed, epoch))
+        if failed or epoch:  # one entry per second: at most one per signalling instant and decision
+            f, e = self.parts.get(t, (0, 0))
+            self.parts[t] = (f | failed, max(e, epoch))
 
     def view(self, before: float) -> tuple[int, int]:
         """(failed mask, epoch) of everything learnt before second `before`."""
         failed, epoch = 0, 0
-        for t, f, e in self.parts:
+        for t, (f, e) in self.parts.items():
             if t < before:
                 failed, epoch = failed | f, max(epoch, e)
         return failed, epoch
