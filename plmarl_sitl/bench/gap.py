@@ -27,6 +27,7 @@ from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.errors import run_reporting
 from plmarl_sitl.mission import Mission, load_mission
+from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.network.broker import free_udp_ports, local_broker
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -68,7 +69,9 @@ async def sitl_coverage(
         # 30 s at 10x, shorter than the agents' start-up on a loaded 2-core machine).
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
                                       episode_s=mission.timing.episode_s, swarm_key=key, lockstep=lockstep,
-                                      start_timeout_s=START_WALL_S * speedup))
+                                      start_timeout_s=START_WALL_S * speedup,
+                                      # the mission's events, as the twin applies them (its failures: issue 24)
+                                      events=EventSchedule.of(mission)))
         try:
             await world.start()
             for i in range(n):

@@ -26,7 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="run the held-out evaluation suite (scenario families the policies never saw)",
         description="Run deterministic policies and baselines on named scenario families (defined in the project's "
         "missions/suite/suite.yaml: each a list of mission YAMLs): random connected layouts, moved clusters, launch "
-        "elsewhere, RPGM mobility, zero-shot N = 8/12/20, node failure at t = 100 s, and the paper map as a "
+        "elsewhere, RPGM mobility, zero-shot N = 8/12/20, node failure at t = 100 s, failures that need a re-plan "
+        "(2 of 6 UAVs, in transit, splitting the swarm, diffuse clusters; method service-fixed is the plan follower "
+        "without re-plans), and the paper map as a "
         "reference. Each family's episodes are spread over its missions; every method sees the same episodes.\n\n"
         "Seeds: every twin here is seeded from the evaluation range (>= 1_000_000_000: batch k of mission v of "
         "run --seed S uses 1_000_000_000 + 10000 S + 100 v + k). Training refuses twin seeds in that range "

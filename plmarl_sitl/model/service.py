@@ -21,6 +21,11 @@ computed from those alone is the same in every agent, without any further messag
    users (hysteresis), matched to the old points with the least total shift, so each
    identity keeps the nearest successor of its point (`TeamPlan.on_map`).
 
+5. At a failure (issue 24): the failed set and plan epoch every survivor learns by gossip
+   (model/gossip.py) re-place one point per survivor on the map of the epoch and assign
+   them from the survivors' plan-aware predicted positions then (model/plan_motion.py), so
+   survivors that know the same reach the same plan without a leader (`TeamPlans.replan`).
+
 An agent's target is the point of its own identity. It is an input of the policy (its
 offset), computed by this module in the twin's controllers and in the deployed agent.
 """
@@ -32,6 +37,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 
 from plmarl_sitl.model.demand import cell_centres, grid_shape
+from plmarl_sitl.model.plan_motion import ROUND_M, PlanMotion
 
 GRID_M = 25.0  # candidate service points: the greedy reference's grid; also the spacing of a cell's sub-points
 LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
@@ -246,33 +252,103 @@ def assign(sources: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 class TeamPlans:
     """Copies of the team plan for B teams x A agents (the twin: A = N; a deployed agent: B = A = 1).
-    Everything in a plan is common knowledge (the maps and the launch line), so the agents of
-    a team compute the same points, and the same slots unless their launch fits differ."""
+    Everything in a plan is common knowledge (the maps, the launch line, the failed set and
+    epoch of `model/gossip.py`, and the plan-aware prediction of `model/plan_motion.py`),
+    so the agents of a team compute the same points and slots unless what they heard differs.
 
-    def __init__(self, grid: ServiceGrid, n: int) -> None:
+    A copy's points are (n, 2) rows, the first n_alive of them used (NaN after): after a
+    failure re-plan a copy holds fewer points than identities. slot[j] is identity j's row,
+    -1 for an identity the copy knows to have failed."""
+
+    def __init__(self, grid: ServiceGrid, n: int, motion: PlanMotion | None = None) -> None:
         self.grid, self.n = grid, n
-        self.points: np.ndarray | None = None  # (B, n, 2) the plan's points
-        self.slot: np.ndarray | None = None  # (B, A, n) point index of each identity, per agent's copy
+        self.motion = motion  # the plan-aware prediction; None: no failure re-plans
+        self.points: np.ndarray | None = None  # (B, A, n, 2) each copy's points
+        self.slot: np.ndarray | None = None  # (B, A, n) row of each identity, per agent's copy
+        self.failed: np.ndarray | None = None  # (B, A, n) bool: the failed set the copy was re-planned for
+        self.epoch: np.ndarray | None = None  # (B, A) the epoch of that re-plan (0: none)
+        self.maps: list[tuple[int, np.ndarray]] = []  # (second, counts (B, K)) of every map the plan took
 
-    def start(self, launch: np.ndarray, counts: np.ndarray) -> None:
+    def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
-        self.points = self.grid.place(counts, self.n)[0]
-        self.slot = np.stack([np.stack([assign(la, pts) for la in team]) for team, pts in zip(launch, self.points, strict=True)])
+        pts = self.grid.place(counts, self.n)[0]  # (B, n, 2)
+        b, a = launch.shape[:2]
+        self.points = np.repeat(pts[:, None], a, 1)
+        self.slot = np.stack([np.stack([assign(la, p) for la in team]) for team, p in zip(launch, pts, strict=True)])
+        self.failed = np.zeros((b, a, self.n), dtype=bool)
+        self.epoch = np.zeros((b, a), dtype=np.int64)
+        self.maps = [(t, counts)]
+        if self.motion is not None:
+            self.motion.start(launch, t)
 
-    def on_map(self, counts: np.ndarray) -> None:
-        """A new map (B, K): re-place; a team keeps its plan unless the new one serves more users."""
+    def _groups(self, b: int) -> list[list[int]]:
+        """The copies of team b with identical plans (usually one group: all of them)."""
+        groups: dict[bytes, list[int]] = {}
+        for a in range(self.slot.shape[1]):
+            key = self.slot[b, a].tobytes() + np.nan_to_num(self.points[b, a], nan=-1.0).tobytes()
+            groups.setdefault(key, []).append(a)
+        return list(groups.values())
+
+    def on_map(self, counts: np.ndarray, t: int | None = None) -> None:
+        """A new map (B, K): re-place; a copy keeps its plan unless the new one serves more users."""
         assert self.points is not None and self.slot is not None
-        new, served = self.grid.place(counts, self.n)
-        old = self.grid.served(counts, self.points)
-        for b in np.nonzero(served > old + REPLAN_MARGIN)[0]:
-            moved = assign(self.points[b], new[b])  # old point k -> new point moved[k]
-            self.points[b], self.slot[b] = new[b], moved[self.slot[b]]
+        if t is not None:
+            self.maps.append((t, counts))
+        todo = [(b, g) for b in range(len(counts)) for g in self._groups(b)]
+        for k in sorted({int((self.slot[b, g[0]] >= 0).sum()) for b, g in todo}):
+            part = [(b, g) for b, g in todo if int((self.slot[b, g[0]] >= 0).sum()) == k]
+            rows = np.array([b for b, _ in part])
+            new, served = self.grid.place(counts[rows], k)
+            old = self.grid.served(counts[rows], np.stack([self.points[b, g[0], :k] for b, g in part]))
+            for (b, g), pts, gain, keep in zip(part, new, served, old, strict=True):
+                if gain > keep + REPLAN_MARGIN:
+                    self._move_to(b, g, pts)
+
+    def _move_to(self, b: int, copies: list[int], new: np.ndarray) -> None:
+        """Copies of team b take the points new (k, 2): each identity the successor of its point."""
+        k = len(new)
+        moved = assign(self.points[b, copies[0], :k], new)  # old row r -> new row moved[r]
+        for a in copies:
+            live = self.slot[b, a] >= 0
+            self.slot[b, a, live] = moved[self.slot[b, a, live]]
+            self.points[b, a, :k] = new
+
+    def replan(self, b: int, a: int, failed: np.ndarray, epoch: int, sources: np.ndarray | None = None) -> None:
+        """Copy (b, a) learnt the failed set failed (n,) with epoch: re-place one point per
+        survivor on the map in force at the epoch and assign them by least travel from the
+        survivors' plan-aware predicted positions at the epoch; then the maps taken since.
+        The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources` (n, 2)
+        replaces the predicted positions (the constant-velocity ablation)."""
+        assert self.motion is not None and self.points is not None and self.slot is not None
+        alive = np.flatnonzero(~failed)
+        counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
+        pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
+        self.points[b, a] = np.nan
+        self.points[b, a, : len(alive)] = pts
+        self.slot[b, a] = -1
+        src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
+        self.slot[b, a, alive] = assign(src, pts)
+        self.failed[b, a], self.epoch[b, a] = failed, epoch
+        for s, later in self.maps:
+            if s > epoch:
+                new, served = self.grid.place(later[b : b + 1], len(alive))
+                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, : len(alive)])[0] + REPLAN_MARGIN:
+                    self._move_to(b, [a], new[0])
+        self.motion.replay(b, a, epoch, self.all_targets()[b, a])
 
     def targets(self, idents: np.ndarray) -> np.ndarray:
-        """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy."""
+        """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy
+        (an identity its own copy counts as failed: NaN)."""
         assert self.points is not None and self.slot is not None
         own = np.take_along_axis(self.slot, np.asarray(idents).reshape(1, -1, 1), -1)[..., 0]  # (B, A)
-        return np.take_along_axis(self.points, own[..., None].repeat(2, -1), 1)
+        pts = np.take_along_axis(self.points, np.maximum(own, 0)[..., None, None].repeat(2, -1), 2)[:, :, 0]
+        return np.where((own >= 0)[..., None], pts, np.nan)
+
+    def all_targets(self) -> np.ndarray:
+        """(B, A, n, 2): every identity's point in every copy (a failed one: NaN)."""
+        assert self.points is not None and self.slot is not None
+        pts = np.take_along_axis(self.points, np.maximum(self.slot, 0)[..., None].repeat(2, -1), 2)
+        return np.where((self.slot >= 0)[..., None], pts, np.nan)
 
 
 __all__ = ["GRID_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line"]

@@ -23,6 +23,7 @@ from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.coverage import SENSING_FEATURES, covered_users, sensing_features
 from plmarl_sitl.model.demand import cell_centres, demand_cells, demand_map
 from plmarl_sitl.model.events import EventSchedule, failure_times
+from plmarl_sitl.model.gossip import Gossip
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.reward import RewardTerms, combine, reward_terms
 from plmarl_sitl.model.signalling import Holdings, is_signalling_instant, signalling_update
@@ -44,6 +45,10 @@ class Observation:
     sense: torch.Tensor  # (B, N, SENSING_FEATURES) local user sensing
     fail_flag: torch.Tensor  # (B, N) bool: agent i has dropped a neighbour (raw; learners' f: silent_in_range)
     demand: torch.Tensor  # (B, K, 3) the published user-density map: [cell centre n, e, count]
+    # Every agent's knowledge of failures (failed set, plan epoch), merged from the states it
+    # received (model/gossip.py). The env's own object: a controller adds its agents'
+    # declarations to it, and the next signalling instant sends them with the states.
+    gossip: Gossip | None = None
 
 
 @dataclass(frozen=True)
@@ -135,6 +140,7 @@ class CoverageEnv:
         self.events = EventSchedule.of(m)
         self.fail_at = failure_times(self.events, b, self.gen, self.failure_prob, self.failure_at_s).to(self.device)
         self.holdings = Holdings.empty((b,), n, self.dtype, self.device)
+        self.gossip = Gossip(b, n, self.device)
         self.t = 0
         self._apply_failures()
         self.run_signalling()
@@ -164,6 +170,7 @@ class CoverageEnv:
             rx = rx & ~(mask.unsqueeze(-1) | mask.unsqueeze(-2))
         sent = torch.cat([self._gnss(self.pos), self.vel], -1)
         self.holdings = signalling_update(self.holdings, float(t), rx, sent, m.signalling.drop_after_missed)
+        self.gossip.receive(rx & ~torch.eye(self.n, dtype=torch.bool, device=self.device))  # each state brings its sender's knowledge
 
     def _selected(self, uavs: tuple[int, ...]) -> torch.Tensor:
         """(N,) bool mask of the listed UAVs."""
@@ -262,6 +269,7 @@ class CoverageEnv:
             sense=sense,
             fail_flag=h.lost & self.alive,
             demand=self.published_demand(),
+            gossip=self.gossip,
         )
 
     def global_state(self) -> torch.Tensor:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from plmarl_sitl.deploy.agent.clock import MissionClock
@@ -19,7 +20,7 @@ from plmarl_sitl.deploy.agent.inbox import Inbox
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.demand import encode_demand
-from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_sense, encode_state
+from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_sense, encode_state, failed_mask
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
@@ -70,7 +71,10 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 continue  # a failed node's agent is gone
             h = env.holdings
             got = [j for j in range(n) if float(h.t_rx[0, i, j]) == t and j != i]
-            msgs = [encode_state(StateMsg(j, 1, t, t * 1000, tuple(h.state[0, i, j].tolist()))) for j in got]
+            failed, epoch = env.gossip.sent  # what each sender knew before this instant: its message carries it
+            msgs = [encode_state(StateMsg(j, 1, t, t * 1000, tuple(h.state[0, i, j].tolist()),
+                                          failed_mask(np.flatnonzero(failed[0, j].numpy())), int(epoch[0, j])))
+                    for j in got]
             if msgs:
                 inbox.on_message(topics.rx(i), b"".join(msgs))
             d = users - state[i, :2]
@@ -105,6 +109,10 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 assert ctl.perceive.plan is not None and ctl.perceive.plan.last is not None
                 assert torch.equal(dec.target, ctl.perceive.plan.last[0, i]), (t, i, dec.target, ctl.perceive.plan.last[0, i])
                 seen["plan"] = seen.get("plan", 0) + 1
+                # the failure re-plan (model/gossip.py): the same knowledge and the same copy of the plan
+                assert np.array_equal(dec.plan.plans.failed[0, 0], ctl.perceive.plan.plans.failed[0, i]), (t, i)
+                assert np.array_equal(dec.plan.plans.slot[0, 0], ctl.perceive.plan.plans.slot[0, i]), (t, i)
+                seen["replanned"] = seen.get("replanned", 0) + int(dec.plan.plans.failed[0, 0].any())
             assert torch.allclose(torch.tensor(dec.accel), accel[0, i], atol=1e-4), (t, i, dec.accel, accel[0, i])
             assert inbox.rx.malformed == 0
             seen["decisions"] += 1
@@ -116,7 +124,7 @@ def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy_di
     """Input version 2: a node fails at t = 10 s on the launch line (its neighbours still
     believe it in range: f = 1) or at t = 70 s; every decision matches the twin's, with
     f raised in some and not in others."""
-    total = {"decisions": 0, "f": 0, "plan": 0}
+    total = {"decisions": 0, "f": 0, "plan": 0, "replanned": 0}
     for seed, fail_at in ((0, 10.0), (1, 70.0)):
         seen = replay(v2_policy_dir, seed, fail_at)
         for k in total:
@@ -124,6 +132,7 @@ def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy_di
     assert total["decisions"] > 180
     assert total["plan"] == total["decisions"]  # the fixture's policy takes the team plan
     assert 0 < total["f"] < total["decisions"], total
+    assert total["replanned"] > 0, total  # decisions made on a plan re-solved after the failure
 
 
 def test_flag_booked_late_still_equals_the_twins(v2_policy_dir: Path) -> None:

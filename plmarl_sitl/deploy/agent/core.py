@@ -146,7 +146,8 @@ class Agent:
     def publish_state(self, k: int) -> None:
         """This agent's state (the latest telemetry) for signalling instant k, to tx/<id>."""
         state = tuple(float(x) for x in self.decision.ego.tolist())
-        msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state)  # type: ignore[arg-type]
+        failed, epoch = self.decision.table.knowledge.view(before=k)  # what it knew before the instant (model/gossip.py)
+        msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state, failed, epoch)  # type: ignore[arg-type]
         self.seq += 1
         self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
 

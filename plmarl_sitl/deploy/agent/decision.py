@@ -54,7 +54,7 @@ class Decision:
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
-        self.plan = AgentPlan(mission, me) if self.form.takes_plan else None  # the team plan's point (model/service.py)
+        self.plan = AgentPlan(mission, me, table.knowledge) if self.form.takes_plan else None  # the team plan's point (model/service.py)
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
@@ -202,7 +202,7 @@ class Decision:
                 demand = got[1]
             self.used_demand_t = None if got is None else got[0]
             if self.plan is not None:
-                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got)
+                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:

@@ -13,6 +13,15 @@ without them gives several agents the same point for the whole mission (seen in 
 load 20: three of four UAVs on one cluster), so states of the first instant that arrive
 later, while the plan still follows its first map, are added and the plan restarted from
 that map: the plan the twin, which hears them at once, started with.
+
+Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
+decision, a neighbour out of N_i that the plan-aware prediction put in clear hearing at
+the instants it missed, and whose
+last message carried this agent's knowledge, is declared failed at the newest signalling
+instant (the epoch);
+the knowledge the table merged from received states and these declarations, as of the
+decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
+The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
 """
 
 from __future__ import annotations
@@ -20,16 +29,21 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import heard_launch, service_grid
+from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.gossip import Knowledge, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
 
 
 class AgentPlan:
-    def __init__(self, mission: Mission, me: int) -> None:
+    def __init__(self, mission: Mission, me: int, knowledge: Knowledge | None = None) -> None:
         self.me, self.n = me, mission.n_uavs
         self.grid = service_grid(mission)
-        self.plans = TeamPlans(self.grid, self.n)
+        self.instants = SignallingInstants(mission)
+        self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
+        self.drop_after = int(mission.signalling.drop_after_missed)
+        self.knowledge = knowledge if knowledge is not None else Knowledge()  # the neighbour table's
+        self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)
         self.heard_xy: dict[int, np.ndarray] = {}  # identity -> position in its state of that instant (me included)
@@ -39,9 +53,10 @@ class AgentPlan:
         self.point: torch.Tensor | None = None  # this agent's point, recomputed only when the plan changes
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
-               demand: tuple[float, torch.Tensor] | None) -> torch.Tensor | None:
+               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None) -> torch.Tensor | None:
         """At a decision at second k: (2,) float32 north, east of this agent's point, or None
-        before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table."""
+        before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table; mask (n,) its
+        N_i, for failures (without: no failure re-plans)."""
         if self.first_k is None:
             self.first_k = k
             self.heard_xy[self.me] = ego[:2].double().numpy()
@@ -53,19 +68,58 @@ class AgentPlan:
         # a decision on the map the plan follows needs only the lookup below.
         new_map = not self.started or t_map != self.map_t
         counts = grid_counts(cells.double().numpy(), self.grid)[None] if new_map else None
+        changed = True
         if not self.started:
-            self.plans.start(self.launch[None, None], counts)
+            self.plans.start(self.launch[None, None], counts, k)
             self.started, self.first_counts = True, counts
-        elif new_map:
-            self.plans.on_map(counts)
-            self.first_counts = None  # the plan has moved on: too late to restart it
-        elif late and self.first_counts is not None:
-            self.plans.start(self.launch[None, None], self.first_counts)
-        else:  # the plan did not change since the last decision
-            return self.point
+        else:
+            self.plans.motion.advance(k, self.plans.all_targets())
+            if new_map:
+                self.plans.on_map(counts, round(t_map))
+                self.first_counts = None  # the plan has moved on: too late to restart it
+            elif late and self.first_counts is not None:
+                self.plans.start(self.launch[None, None], self.first_counts, self.first_k)
+                self.plans.motion.advance(k, self.plans.all_targets())
+            else:
+                changed = False
         self.map_t = t_map
-        self.point = torch.from_numpy(self.plans.targets(np.array([self.me]))[0, 0]).to(torch.float32)
+        if mask is not None:
+            changed |= self.on_failures(k, mask, t_rx)
+        if changed:
+            own = self.plans.targets(np.array([self.me]))[0, 0]
+            if not np.isnan(own).any():  # a copy that counts this agent as failed: it keeps its point
+                self.point = torch.from_numpy(own).to(torch.float32)
         return self.point
+
+    def on_failures(self, k: int, mask: torch.Tensor, t_rx: torch.Tensor) -> bool:
+        """Declare the neighbours out of N_i predicted in clear hearing whose last message
+        carried this agent's knowledge (model/gossip.py); re-plan if what this agent knows
+        changed. True if the plan changed."""
+        failed_mask, epoch = self.knowledge.view(before=k + 1)
+        newest = self.instants.last(k)
+
+        def may_predict(j: int) -> bool:  # model.gossip.may_predict, on bitmasks
+            heard_failed, heard_epoch = self.knowledge.heard.get(j, (0, 0))
+            same = (heard_failed, heard_epoch) == (failed_mask, epoch)
+            return same or (heard_failed & ~failed_mask == 0 and heard_epoch < epoch and epoch >= newest)
+
+        silent = [j for j in range(self.n) if j != self.me and not bool(mask[j]) and float(t_rx[j]) >= 0
+                  and not failed_mask >> j & 1 and may_predict(j)] if bool(mask.any()) else []
+        if silent:
+            sus = torch.zeros(1, 1, self.n, dtype=torch.bool)
+            sus[0, 0, silent] = True
+            for at in self.instants.recent(k, self.drop_after):
+                pred = self.plans.motion.at(at)[..., :3]
+                sus = suspects(sus, pred, torch.tensor([self.me]), pred[:, :, self.me], self.channel, self.comm_m)
+            ids = np.flatnonzero(sus[0, 0].numpy())
+            if len(ids):
+                self.knowledge.learn(k, sum(1 << int(j) for j in ids), self.instants.last(k))
+                failed_mask, epoch = self.knowledge.view(before=k + 1)
+        failed = np.array([bool(failed_mask >> j & 1) for j in range(self.n)])
+        if (failed == self.plans.failed[0, 0]).all() and epoch == self.plans.epoch[0, 0]:
+            return False
+        self.plans.replan(0, 0, failed, epoch)
+        return True
 
     def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
         """Add the neighbours whose state of the first instant is now held and refit the launch

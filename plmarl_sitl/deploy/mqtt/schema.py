@@ -1,7 +1,9 @@
-"""The signalling wire format (schema version 2): compact binary state and sensing messages.
+"""The signalling wire format (schema version 3): compact binary state and sensing messages.
 
 docs/SIGNALLING.md is the contract. All integers little-endian. A state message is the
-sparse signalling update of Algorithm 1 (38 bytes); a sensing message lists the users a
+sparse signalling update of Algorithm 1: kind 'S' (38 bytes, schema 1-2) or, since schema
+version 3, kind 'G' (74 bytes: the same fields, then the sender's knowledge of failures,
+model/gossip.py: its plan epoch and failed-set bitmask); a sensing message lists the users a
 vehicle's payload sensor sees. Decoders never raise anything but `Malformed`, whose
 `reason` feeds the receive counters.
 
@@ -20,10 +22,15 @@ from dataclasses import dataclass, field
 # The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12) and
 # signed messages (issue 14: version byte / "v" 2 and an authentication trailer, `auth.py`,
 # `wire.py`); the messages of version 1 are unchanged and keep their version byte, VERSION.
-SCHEMA_VERSION = 2
+# 3 adds the state message with gossip, kind 'G' (issue 24): a new kind, not a changed one,
+# so a receiver of schema 2 counts it as malformed_kind and one of schema 3 still reads 'S'
+# (as knowing no failure). Agents of schema 3 send 'G'.
+SCHEMA_VERSION = 3
 VERSION = 1
 SIGNED_VERSION = 2
 KIND_STATE = ord("S")
+KIND_GOSSIP_STATE = ord("G")
+FAILED_MASK_BYTES = 32  # the failed set: bit j of byte j // 8 = identity j (ids 0..255)
 KIND_SENSE = ord("U")
 MAX_ABS_POS_M = 1.0e6
 MAX_ABS_VEL_MPS = 1.0e3
@@ -42,9 +49,12 @@ WINDOW_SLACK_S = 5.0
 
 # version, kind, sender, session, seq, t_ms, p_n, p_e, p_d, v_n, v_e, v_d
 _STATE = struct.Struct("<BBHHIi6f")
+# then (kind 'G'): epoch_s (u32), failed mask (32 bytes)
+_GOSSIP = struct.Struct(f"<I{FAILED_MASK_BYTES}s")
 # version, kind, receiver, t_ms, count; then count x (north, east) float32
 _SENSE_HEAD = struct.Struct("<BBHiH")
-STATE_SIZE = _STATE.size
+STATE_SIZE = _STATE.size + _GOSSIP.size  # what a schema-3 agent sends (kind 'G')
+STATE_SIZES = {KIND_STATE: _STATE.size, KIND_GOSSIP_STATE: STATE_SIZE}
 
 
 class Malformed(ValueError):
@@ -62,14 +72,29 @@ class StateMsg:
     seq: int
     t_ms: int  # mission time of the signalling instant (ms)
     state: tuple[float, float, float, float, float, float]  # mission frame NED [p, v]
+    failed: int = 0  # the sender's known failed set, bit j = identity j (a kind 'S' message: none)
+    epoch_s: int = 0  # the sender's plan epoch: the mission second of its newest failure re-plan
 
     @property
     def t_s(self) -> float:
         return self.t_ms / 1000.0
 
+    def failed_ids(self) -> list[int]:
+        return [j for j in range(8 * FAILED_MASK_BYTES) if self.failed >> j & 1]
+
+
+def failed_mask(ids: object) -> int:
+    """The bitmask of identities `ids` (an iterable of ints 0..255)."""
+    out = 0
+    for j in ids:  # type: ignore[attr-defined]
+        out |= 1 << int(j)
+    return out
+
 
 def encode_state(m: StateMsg) -> bytes:
-    return _STATE.pack(VERSION, KIND_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
+    """A kind 'G' state message (schema version 3): the state and the sender's knowledge."""
+    head = _STATE.pack(VERSION, KIND_GOSSIP_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
+    return head + _GOSSIP.pack(m.epoch_s & 0xFFFFFFFF, m.failed.to_bytes(FAILED_MASK_BYTES, "little"))
 
 
 def _head(payload: bytes, kind: int, size: int) -> None:
@@ -84,29 +109,40 @@ def _head(payload: bytes, kind: int, size: int) -> None:
 
 
 def decode_state(payload: bytes) -> StateMsg:
-    _head(payload, KIND_STATE, _STATE.size)
-    if len(payload) != _STATE.size:
+    """A state message of kind 'G' or (schema 1-2) 'S', which carries no knowledge."""
+    kind = payload[1] if len(payload) >= 2 and payload[1] in STATE_SIZES else KIND_STATE
+    _head(payload, kind, STATE_SIZES[kind])
+    if len(payload) != STATE_SIZES[kind]:
         raise Malformed("length")
-    _, _, sender, session, seq, t_ms, *s = _STATE.unpack(payload)
+    _, _, sender, session, seq, t_ms, *s = _STATE.unpack_from(payload)
+    failed, epoch_s = 0, 0
+    if kind == KIND_GOSSIP_STATE:
+        epoch_s, mask = _GOSSIP.unpack_from(payload, _STATE.size)
+        failed = int.from_bytes(mask, "little")
     if not all(math.isfinite(x) for x in s):
         raise Malformed("not_finite")
     if any(abs(x) > MAX_ABS_POS_M for x in s[:3]) or any(abs(x) > MAX_ABS_VEL_MPS for x in s[3:]):
         raise Malformed("out_of_range")
-    return StateMsg(sender, session, seq, t_ms, tuple(s))  # type: ignore[arg-type]
+    return StateMsg(sender, session, seq, t_ms, tuple(s), failed, epoch_s)  # type: ignore[arg-type]
 
 
-def split_states(payload: bytes, size: int = STATE_SIZE) -> list[bytes]:
+def split_states(payload: bytes, trailer: int = 0) -> list[bytes]:
     """The state messages of an rx payload: one, or several back to back (the SITL link
-    emulator delivers an instant's updates to a receiver in one message), each `size`
-    bytes (a signed one is longer: `wire.Wire.state_size`). Raises Malformed("length")
-    when the payload is not whole messages; each part is then decoded (and counted if
-    malformed) on its own."""
-    n = len(payload)
-    if n <= size:
-        return [payload]
-    if n % size:
-        raise Malformed("length")
-    return [payload[i : i + size] for i in range(0, n, size)]
+    emulator delivers an instant's updates to a receiver in one message), each as long as
+    its kind says (byte 1: 'S' or 'G'; a signed one `trailer` bytes longer). Raises
+    Malformed("length") when the payload is not whole messages; each part is then decoded
+    (and counted if malformed) on its own."""
+    parts, i, n = [], 0, len(payload)
+    while i < n:
+        kind = payload[i + 1] if i + 1 < n else -1
+        size = STATE_SIZES.get(kind, 0) + trailer
+        if i == 0 and (size == trailer or size >= n):
+            return [payload]  # one message (or not a state): its decoder says what is wrong
+        if size == trailer or i + size > n:
+            raise Malformed("length")
+        parts.append(payload[i : i + size])
+        i += size
+    return parts
 
 
 def peek_sender(payload: bytes) -> int:

@@ -62,7 +62,7 @@ class Wire:
         return self._seal(STATE, encode_state(m))
 
     def split_states(self, payload: bytes) -> list[bytes]:
-        return split_states(payload, self.state_size)
+        return split_states(payload, self.state_size - STATE_SIZE)
 
     def read_state(self, part: bytes) -> StateMsg:
         return decode_state(self._open(STATE, part))

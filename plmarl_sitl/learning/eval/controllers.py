@@ -33,16 +33,19 @@ class LearnedController:
 
 class ServiceController:
     """Not learnt: every agent flies to its point of the team plan (model/service.py) at the
-    altitude of the largest coverage radius. What implicit coordination alone achieves."""
+    altitude of the largest coverage radius. What implicit coordination alone achieves.
+    With `replan` (the default) the plan is re-solved at failures from the gossiped
+    knowledge (model/gossip.py); without, it is today's plan fixed at t = 0 and new maps."""
 
-    def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
+    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         self.mission = mission
-        self.targets = ServiceTargets.of(mission)
+        self.targets = ServiceTargets.of(mission, replan, sources)
 
     def reset(self) -> None:
         self.targets.reset()
 
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
-        xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+        xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
+                                 alive=obs.alive, gossip=obs.gossip)
         return self.targets.accel(obs.ego, xy)

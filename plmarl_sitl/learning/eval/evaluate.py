@@ -63,6 +63,10 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         return lambda env: ServiceController(env.mission)
+    if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        return lambda env: ServiceController(env.mission, replan=False)
     if method == "dead-reckoning":
         pol = loaded["pl-marl"].policy
         buffer_len = int(loaded["pl-marl"].card["io"]["buffer_len"])

@@ -47,6 +47,9 @@ class Family:
     missions: tuple[str, ...]  # paths relative to the suite file
     tup: tuple[int, ...] = ()  # pinned T_up values; empty: the run's --tup
     failure_prob: float = field(default=0.0, metadata={"min": 0.0, "max": 1.0})
+    # The second the family's missions fail their UAVs at (their `failures`), for the
+    # failure transient; a family with failure_prob > 0 fails one at FAILURE_AT_S.
+    failure_at_s: float | None = None
 
     def __post_init__(self) -> None:
         if not self.missions:
@@ -202,8 +205,9 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
                 p_values.append({"family": family.name, "tup": tup, "method": "pl-marl", "versus": method, "p": p})
             rows.append(row)
             horizon = r.trace.shape[1]
-            if family.spec.failure_prob > 0 and best is not None and FAILURE_AT_S < horizon:
-                t = failure_transient(r.trace, best.trace, int(FAILURE_AT_S))
+            fail_s = family.spec.failure_at_s or (FAILURE_AT_S if family.spec.failure_prob > 0 else None)
+            if fail_s is not None and best is not None and fail_s < horizon:
+                t = failure_transient(r.trace, best.trace, int(fail_s))
                 transients.append({"family": family.name, "tup": tup, "method": method, **t})
     traces = {f"{m}@{t}": [round(float(x), 4) for x in r.trace.mean(0)] for (m, t), r in runs.items()}
     return {"rows": rows, "p_values": p_values, "transients": transients, "references": references,

@@ -73,13 +73,14 @@ def transient_table_md(res: dict) -> str:
         return "never" if v is None else f"{v:.0f}"
 
     lines = ["| family | T_up (s) | method | pre-failure | trough [95% CI] | post-failure (of best reference) | reference level "
-             "| reach s (median) | reached by 30 s | plateau s (median) | settled by 30 s | never settled |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| from 30 s (of best reference) | reach s (median) | reached by 30 s | plateau s (median) | settled by 30 s | never settled |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for t in res["transients"]:
         lines.append(
             f"| {t['family']} | {t['tup']} | {t['method']} | {t['pre_failure_mean']:.3f} | {t['trough_mean']:.3f} "
             f"[{t['trough_ci95'][0]:.3f}, {t['trough_ci95'][1]:.3f}] | {t['post_failure_mean']:.3f} "
             f"({100 * t['post_failure_fraction_of_reference_mean']:.0f}%) | {t['reference_post_level_mean']:.3f} "
+            f"| {100 * t.get('after_target_fraction_of_reference_mean', float('nan')):.1f}% "
             f"| {med(t['reach_s_median'])} | {100 * t['reach_within_target_share']:.0f}% | {med(t['plateau_s_median'])} "
             f"| {100 * t['plateau_within_target_share']:.0f}% | {t['plateau_never']} |"
         )

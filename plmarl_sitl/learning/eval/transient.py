@@ -9,6 +9,8 @@ Definitions (T = episode length, all per episode, then summarised over episodes)
 * trough: min C over t in [t_f, T];
 * post-failure coverage: mean C over [t_f, T], also as a fraction of the reference's mean
   over the same seconds of the same episode;
+* from TARGET_S after the failure: mean C over [t_f + TARGET_S, T] as a fraction of the
+  reference's over the same seconds (issue 24: ">= 0.95 of the reference from 30 s after");
 * the reference's post-failure level L: mean of the reference's C over the second half of the
   post-failure time, t in [t_f + (T - t_f) / 2, T] (after its own re-planning transient);
 * reach time: the smallest s >= 0 such that the mean C over the WINDOW_S seconds
@@ -70,6 +72,9 @@ def failure_transient(trace: np.ndarray, reference_trace: np.ndarray, fail_s: in
     settle = settle_times(trace, level, fail_s)
     trough, trough_ci = mean_ci95(post.min(1))
     frac, frac_ci = mean_ci95(post.mean(1) / np.maximum(reference_post.mean(1), 1e-9))
+    # Issue 24's criterion: the level held from TARGET_S after the failure, against the reference's.
+    late, late_r = trace[:, fail_s - 1 + TARGET_S :], reference_trace[:, fail_s - 1 + TARGET_S :]
+    after, after_ci = mean_ci95(late.mean(1) / np.maximum(late_r.mean(1), 1e-9)) if late.shape[1] else (float("nan"), (float("nan"),) * 2)
     return {
         "failure_at_s": fail_s,
         "pre_failure_mean": float(trace[:, max(fail_s - 1 - PRE_S, 0) : fail_s - 1].mean()),
@@ -79,6 +84,8 @@ def failure_transient(trace: np.ndarray, reference_trace: np.ndarray, fail_s: in
         "post_failure_fraction_of_reference_mean": frac,
         "post_failure_fraction_of_reference_ci95": list(frac_ci),
         "reference_post_level_mean": float(level.mean()),
+        "after_target_fraction_of_reference_mean": after,
+        "after_target_fraction_of_reference_ci95": list(after_ci),
         # Medians over all episodes, "never" counted as +inf (None when most never get there).
         "reach_s_median": _median_with_never(reach),
         "reach_within_target_share": float(np.mean(reach <= TARGET_S)),

@@ -51,5 +51,6 @@ class Perception:
         if self.form.takes_demand:
             demand = obs.demand.unsqueeze(1).expand(-1, obs.ego.shape[1], -1, -1)  # one map per environment
         if self.plan is not None:
-            target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand)
+            target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
+                                      alive=obs.alive, gossip=obs.gossip)
         return PolicyInputs(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)

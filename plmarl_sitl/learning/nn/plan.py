@@ -12,8 +12,11 @@ import torch
 
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.demand import map_period
+from plmarl_sitl.model.events import EventSchedule
+from plmarl_sitl.model.gossip import Gossip, may_predict, suspects
+from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line
-from plmarl_sitl.model.vehicle import goto_accel
+from plmarl_sitl.model.vehicle import Limits, goto_accel
 
 
 def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int) -> np.ndarray:
@@ -37,21 +40,70 @@ def service_grid(mission) -> ServiceGrid:  # noqa: ANN001 - Mission
                  float(mission.radii.comm_m), float(mission.radii.safe_m))
 
 
-class ServiceTargets:
-    """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres."""
+class SignallingInstants:
+    """The mission's signalling instants (T_up changes included), as the twin's signalling."""
 
     def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
+        self.schedule = EventSchedule.of(mission)
+
+    def is_instant(self, t: int) -> bool:
+        return t % self.schedule.instant_tup(t) == 0
+
+    def last(self, t: int) -> int:
+        """The newest signalling instant not after second t."""
+        while t > 0 and not self.is_instant(t):
+            t -= 1
+        return max(t, 0)
+
+    def recent(self, t: int, k: int) -> list[int]:
+        """The newest k signalling instants not after second t (fewer near t = 0)."""
+        out = [self.last(t)]
+        while len(out) < k and out[-1] > 0:
+            out.append(self.last(out[-1] - 1))
+        return out
+
+
+def motion_of(mission, instants: SignallingInstants) -> PlanMotion:  # noqa: ANN001 - Mission
+    """The plan-aware prediction of the mission's team: its vehicle's limits, the plan's
+    altitude, the twin's take-off altitude, decisions every tau."""
+    vm = mission.vehicle_model()
+    limits = Limits.band(vm)
+    alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+    start_alt = min(max(vm.takeoff_alt_m, limits.alt_min), limits.alt_max)
+    return PlanMotion(limits, float(alt), float(start_alt), int(mission.timing.decision_every_s), instants.is_instant)
+
+
+class ServiceTargets:
+    """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres.
+
+    With the twin's `Gossip` (`update(..., gossip=obs.gossip)`) the plan also re-plans at
+    failures (model/gossip.py, `TeamPlans.replan`): each agent declares failed a neighbour
+    out of N_i that the plan-aware prediction puts in clear hearing at the instants it
+    missed and whose last message carried the agent's own knowledge, and each copy re-plans
+    whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
+    made for."""
+
+    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
         self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.grid = service_grid(mission)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
         self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
-        self.tau = float(mission.timing.decision_every_s)
+        self.tau = int(mission.timing.decision_every_s)
+        self.comm_m = float(mission.radii.comm_m)
+        self.channel = mission.channel
+        self.drop_after = int(mission.signalling.drop_after_missed)
+        self.replans = replan
+        # Where a re-plan assigns from: "plan", the plan-aware prediction (common knowledge);
+        # "cv", the ablation: each agent's own held states dead-reckoned at constant velocity.
+        self.sources = sources
+        self.instants = SignallingInstants(mission)
+        self.mission = mission
         self.reset()
 
     @classmethod
-    def of(cls, mission) -> ServiceTargets:  # noqa: ANN001 - Mission
-        return cls(mission)
+    def of(cls, mission, replan: bool = True, sources: str = "plan") -> ServiceTargets:  # noqa: ANN001 - Mission
+        return cls(mission, replan, sources)
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to the plan point `target` (..., 2) at the altitude of the largest coverage radius
@@ -63,10 +115,13 @@ class ServiceTargets:
         self.plans: TeamPlans | None = None
         self.map_t = -1
         self.last: torch.Tensor | None = None  # the targets of the last update
+        self.replans_done = 0  # copies re-planned (for reports)
 
     def update(self, t: int, ego: torch.Tensor, nbr_state: torch.Tensor, nbr_t_rx: torch.Tensor,
-               demand: torch.Tensor) -> torch.Tensor:
-        """Call at every decision: ego (B, N, 6), nbr_state (B, N, N, 6), nbr_t_rx (B, N, N), demand (B, K, 3)."""
+               demand: torch.Tensor, *, mask: torch.Tensor | None = None, alive: torch.Tensor | None = None,
+               gossip: Gossip | None = None) -> torch.Tensor:
+        """Call at every decision: ego (B, N, 6), nbr_state (B, N, N, 6), nbr_t_rx (B, N, N), demand (B, K, 3).
+        Re-planning at failures needs mask (B, N, N) N_i, alive (B, N) and the twin's gossip."""
         counts = np.stack([grid_counts(d, self.grid) for d in demand.double().numpy()])
         b, n = ego.shape[:2]
         if self.plans is None:
@@ -75,12 +130,57 @@ class ServiceTargets:
             heard = (nbr_t_rx == float(t)).numpy()
             launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i) for i in range(n)])
                                for e in range(b)])
-            self.plans = TeamPlans(self.grid, n)
-            self.plans.start(launch, counts)
+            # The plan-aware prediction only where failures can be learnt (the twin's gossip given):
+            # training's plan teacher calls without and does not pay for it.
+            motion = motion_of(self.mission, self.instants) if self.replans and gossip is not None else None
+            self.plans = TeamPlans(self.grid, n, motion)
+            self.plans.start(launch, counts, t)
             self.map_t = t - t % self.period
-        elif t - t % self.period != self.map_t:
-            self.map_t = t - t % self.period
-            self.plans.on_map(counts)
-        self.last = torch.from_numpy(self.plans.targets(np.arange(n))).to(ego.dtype)
+        else:
+            if self.plans.motion is not None:
+                self.plans.motion.advance(t, self.plans.all_targets())
+            if t - t % self.period != self.map_t:
+                self.map_t = t - t % self.period
+                self.plans.on_map(counts, self.map_t)
+        if self.plans.motion is not None and gossip is not None and mask is not None and alive is not None:
+            self.on_failures(t, mask, alive, gossip, nbr_t_rx, ego, nbr_state)
+        own = self.plans.targets(np.arange(n))
+        if self.last is not None:  # an agent its own copy counts as failed keeps its point
+            own = np.where(np.isnan(own), self.last.double().numpy(), own)
+        self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
 
+    def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor,
+                    ego: torch.Tensor, held: torch.Tensor) -> None:
+        """Declare the neighbours out of N_i that are predicted in clear hearing and whose last
+        message carried this agent's knowledge; then re-plan every copy whose agent's
+        knowledge changed."""
+        plans = self.plans
+        assert plans is not None and plans.motion is not None
+        n = mask.shape[-1]
+        silent = ~mask & (t_rx >= 0) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
+        silent &= mask.any(-1, keepdim=True)  # someone is still heard
+        silent &= may_predict(gossip.heard_failed, gossip.heard_epoch, gossip.failed, gossip.epoch, self.instants.last(t))
+        if bool(silent.any()):
+            # Silent at the instants it missed, at each of which the plan-aware prediction
+            # says it should have been heard (the tracker's beliefs, 30 s after the last
+            # state, declared live teammates failed: docs/RESULTS.md, issue 24).
+            sus = silent
+            for at in self.instants.recent(t, self.drop_after):
+                pred = plans.motion.at(at)[..., :3]
+                own = pred[:, torch.arange(n), torch.arange(n)]  # (B, N, 3): each agent's own nominal then
+                sus = suspects(sus, pred, torch.arange(n), own, self.channel, self.comm_m)
+            at = torch.full_like(gossip.epoch, self.instants.last(t))
+            gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
+        known = gossip.failed.numpy()
+        epoch = gossip.epoch.numpy()
+        live = alive.numpy()
+        stale = live & ((known != plans.failed).any(-1) | (epoch != plans.epoch))
+        for e, a in zip(*np.nonzero(stale), strict=True):
+            src = None
+            if self.sources == "cv":  # p + v (epoch - t_rx) from the held states; itself: back from now
+                at = float(epoch[e, a])
+                src = (held[e, a, :, :2] + held[e, a, :, 3:5] * (at - t_rx[e, a]).unsqueeze(-1)).double().numpy()
+                src[a] = (ego[e, a, :2] + ego[e, a, 3:5] * (at - t)).double().numpy()
+            plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]), src)
+            self.replans_done += 1

@@ -1,0 +1,144 @@
+"""What a survivor knows about failures, and how it spreads: the failed set and the plan epoch.
+
+Why: a node failure is seen only by the failed UAV's neighbours (they miss its updates);
+survivors out of its range would keep flying the old plan, and a plan re-solved from
+different knowledge in different agents is no plan at all. So every signed state message
+carries the sender's knowledge (docs/SIGNALLING.md, schema version 3):
+
+* `failed`: the identities the sender knows to have failed (a bitmask, swarm <= 250);
+* `epoch`: the mission second of the newest failure re-plan it knows (0: none), the
+  signalling instant at which the failure was declared, not the second it was learnt.
+
+A receiver merges what it hears: failed sets by union, epochs by max. Both merges are
+commutative, associative and idempotent, so knowledge reaches every survivor the
+signalling graph connects, within one hop per signalling instant, whatever the order of
+delivery, and agents that heard the same things hold the same knowledge (the re-plan in
+`model/service.py::TeamPlans.replan` is a function of it and of common knowledge only).
+
+A failure is declared by a neighbour from missed signalling instants: the neighbour table
+drops j after `drop_after_missed` misses in a row; at each decision while j stays out of
+N_i, j is *suspected failed* when it is still predicted in clear hearing (`suspects`): a
+neighbour that flew out of range is predicted out of range and is not declared. And only
+when the plan that predicts j is the plan j flew (`may_predict`: j's last message carried
+the receiver's knowledge), and by a receiver that still hears someone (an agent alone
+cannot tell a dead neighbour from its own isolation). Two UAVs failing at once are learnt a few instants
+apart in different agents, and while knowledge spreads, copies fly interim plans; a copy
+that predicts j by its own interim plan while j flies another once declared a live j failed. The twin holds every agent's
+knowledge in one `Gossip`; the deployed agent holds its own (`deploy/agent/plan.py`).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from plmarl_sitl.mission import Channel
+from plmarl_sitl.model.channel import db_to_lin, u2u_sinr
+
+MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte mask: ids 0..255)
+
+
+# A silent neighbour is declared failed only where it should clearly be heard: predicted
+# within this fraction of R_comm, with a predicted SINR this far above the threshold. The
+# U2U links fail inside R_comm under interference (two UAVs on one cluster jam a third at
+# 300 m), and a prediction is some metres off in transit; a false declaration is for good.
+SUSPECT_RANGE_FRAC = 0.8
+SUSPECT_MARGIN_DB = 6.0
+
+
+def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
+             channel: Channel, comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: receiver a's dropped neighbours (dropped (..., A, M)) that it should
+    hear: at the positions it predicts for the team (predicted_pos (..., A, M, 3), its own
+    row replaced by own_pos (..., A, 3); me (A,) its identity) the shared channel model gives
+    the link j -> a a clear margin (`SUSPECT_RANGE_FRAC`, `SUSPECT_MARGIN_DB`)."""
+    m = predicted_pos.shape[-2]
+    own_row = torch.nn.functional.one_hot(me, m).bool().unsqueeze(-1)  # (A, M, 1)
+    pos = torch.where(own_row, own_pos.unsqueeze(-2), predicted_pos)
+    sinr = u2u_sinr(pos, torch.ones(pos.shape[:-1], dtype=torch.bool, device=pos.device), channel)  # [.., a, i, j]
+    rows = me.view(*([1] * (pos.dim() - 3)), -1, 1, 1).expand(*pos.shape[:-3], -1, 1, m)
+    sinr_a = torch.take_along_dim(sinr, rows, -2)[..., 0, :]  # (..., A, M): link j -> a
+    d = pos - own_pos.unsqueeze(-2)
+    near = (d * d).sum(-1) <= (SUSPECT_RANGE_FRAC * comm_m) ** 2
+    clear = sinr_a >= db_to_lin(channel.sinr_threshold_db + SUSPECT_MARGIN_DB)
+    return dropped & near & clear
+
+
+def may_predict(heard_failed: torch.Tensor, heard_epoch: torch.Tensor, failed: torch.Tensor,
+                epoch: torch.Tensor, newest_instant: int) -> torch.Tensor:
+    """(..., M) bool: the receiver's plan-aware prediction of each neighbour is the plan the
+    neighbour flew at the instants it missed (the newest `newest_instant`): its last message
+    (knowledge heard_failed (..., M, N), heard_epoch (..., M)) carried the receiver's own
+    knowledge (failed (..., N), epoch (...)); or knowledge the receiver has since extended
+    by a re-plan at an epoch not before those instants (the prediction up to the epoch is
+    still the plan both knew)."""
+    same = (heard_failed == failed.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
+    older = (heard_failed <= failed.unsqueeze(-2)).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
+    return same | (older & (epoch >= newest_instant).unsqueeze(-1))
+
+
+def merge(failed: torch.Tensor, epoch: torch.Tensor, other_failed: torch.Tensor,
+          other_epoch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Knowledge merge: (union of the failed sets, max of the epochs)."""
+    return failed | other_failed, torch.maximum(epoch, other_epoch)
+
+
+class Gossip:
+    """Every twin agent's knowledge, (B, N, N) failed [i, j] (i knows j failed) and (B, N)
+    epoch, exchanged at the signalling instants with the states.
+
+    A controller adds its agents' own declarations (`declare`) at its decisions; at the
+    next signalling instant each live agent's knowledge goes out with its state, and each
+    receiver merges what it got (`receive`), as the deployed agent's inbox does with the
+    knowledge of each state message it accepts. `sent` keeps what went out at the last
+    instant (the knowledge field of each sender's state message)."""
+
+    def __init__(self, batch: int, n: int, device: str = "cpu") -> None:
+        self.failed = torch.zeros(batch, n, n, dtype=torch.bool, device=device)
+        self.epoch = torch.zeros(batch, n, dtype=torch.int64, device=device)
+        self.sent = (self.failed.clone(), self.epoch.clone())
+        # [i, j]: the knowledge j's last message to i carried
+        self.heard_failed = torch.zeros(batch, n, n, n, dtype=torch.bool, device=device)
+        self.heard_epoch = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
+
+    def declare(self, failed: torch.Tensor, epoch: torch.Tensor) -> None:
+        """Agents' own findings: failed (B, N, N) [i, j] i declares j failed at its epoch (B, N)."""
+        self.failed, self.epoch = merge(self.failed, self.epoch, failed, epoch)
+
+    def receive(self, got: torch.Tensor) -> None:
+        """A signalling instant: got (B, N, N) bool [i, j], i received j's state message now.
+        Everyone sends the knowledge it held before the instant (the broadcast is simultaneous)."""
+        self.sent = (self.failed.clone(), self.epoch.clone())
+        self.heard_failed = torch.where(got.unsqueeze(-1), self.failed.unsqueeze(-3), self.heard_failed)
+        self.heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), self.heard_epoch)
+        heard_failed = (got.unsqueeze(-1) & self.failed.unsqueeze(-3)).any(-2)  # [i, k]: some j heard by i knows k
+        heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), torch.zeros_like(self.epoch).unsqueeze(-2)).amax(-1)
+        self.failed, self.epoch = merge(self.failed, self.epoch, heard_failed, heard_epoch)
+
+
+class Knowledge:
+    """One deployed agent's knowledge, with the second each piece arrived at: its state
+    message for instant k carries what the twin's does, everything learnt before k (the
+    twin's agents send at the instant what they knew before it), and its decision at k
+    uses everything learnt up to k. Failed sets are bitmasks (wire format)."""
+
+    def __init__(self) -> None:
+        self.parts: dict[float, tuple[int, int]] = {}  # second learnt -> (failed mask, epoch) merged, non-empty only
+        self.heard: dict[int, tuple[int, int]] = {}  # sender -> the knowledge its last message carried
+
+    def learn(self, t: float, failed: int, epoch: int, sender: int | None = None) -> None:
+        if sender is not None:
+            self.heard[sender] = (failed, epoch)
+        if failed or epoch:  # one entry per second: at most one per signalling instant and decision
+            f, e = self.parts.get(t, (0, 0))
+            self.parts[t] = (f | failed, max(e, epoch))
+
+    def view(self, before: float) -> tuple[int, int]:
+        """(failed mask, epoch) of everything learnt before second `before`."""
+        failed, epoch = 0, 0
+        for t, (f, e) in self.parts.items():
+            if t < before:
+                failed, epoch = failed | f, max(epoch, e)
+        return failed, epoch
+
+
+__all__ = ["Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]

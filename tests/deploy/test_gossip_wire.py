@@ -1,0 +1,81 @@
+"""Schema version 3 (issue 24): state messages of kind 'G' carry the sender's knowledge of
+failures (failed-set bitmask, plan epoch); kind 'S' messages of schema 1-2 still parse (as
+knowing nothing), alone or mixed in one rx batch, signed or not; the neighbour table
+merges what the accepted states carry (model/gossip.py)."""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+
+from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey
+from plmarl_sitl.deploy.mqtt.schema import (
+    SCHEMA_VERSION,
+    STATE_SIZE,
+    Malformed,
+    StateMsg,
+    decode_state,
+    encode_state,
+    failed_mask,
+    split_states,
+)
+from plmarl_sitl.deploy.mqtt.wire import Wire
+
+STATE = (100.0, 200.0, -80.0, 1.0, -2.0, 0.0)
+
+
+def old_state(sender: int, t_ms: int) -> bytes:
+    """A schema-2 state message, byte for byte as a schema-2 agent sends it (kind 'S', 38 bytes)."""
+    return struct.pack("<BBHHIi6f", 1, ord("S"), sender, 7, 3, t_ms, *STATE)
+
+
+def test_gossip_state_round_trip_with_the_largest_ids() -> None:
+    assert SCHEMA_VERSION == 3
+    m = StateMsg(4, 7, 3, 135_000, STATE, failed_mask([0, 5, 249, 255]), 120)
+    raw = encode_state(m)
+    assert len(raw) == STATE_SIZE == 74 and raw[1] == ord("G")
+    got = decode_state(raw)
+    assert got.failed_ids() == [0, 5, 249, 255] and got.epoch_s == 120 and got == m
+
+
+def test_a_schema_2_state_still_parses_as_knowing_nothing() -> None:
+    got = decode_state(old_state(2, 15_000))
+    assert got.sender == 2 and got.t_s == 15.0 and got.failed == 0 and got.epoch_s == 0
+    assert got.state == pytest.approx(STATE)
+
+
+def test_mixed_batches_split_by_kind_and_bad_lengths_are_malformed() -> None:
+    new = encode_state(StateMsg(1, 7, 3, 15_000, STATE, failed_mask([3]), 15))
+    old = old_state(2, 15_000)
+    parts = split_states(old + new + old)
+    assert parts == [old, new, old]
+    assert [decode_state(p).failed for p in parts] == [0, 1 << 3, 0]
+    for bad in (new + new[:20], old + b"\x01"):
+        with pytest.raises(Malformed) as exc:
+            split_states(bad)
+        assert exc.value.reason == "length"
+    with pytest.raises(Malformed) as exc:  # a 'G' cut to the length of an 'S' is not an 'S'
+        decode_state(new[:38])
+    assert exc.value.reason in ("short", "length")
+    with pytest.raises(Malformed) as exc:
+        decode_state(new[:1] + b"X" + new[2:])
+    assert exc.value.reason == "kind"
+
+
+def test_signed_gossip_states_round_trip_and_batch() -> None:
+    wire = Wire(SwarmKey.generate())
+    m = StateMsg(1, 7, 3, 30_000, STATE, failed_mask([2]), 30)
+    signed = wire.state(m)
+    assert len(signed) == wire.state_size == STATE_SIZE + 9
+    assert [wire.read_state(p) for p in wire.split_states(signed + signed)] == [m, m]
+
+
+def test_the_table_merges_the_knowledge_of_accepted_states() -> None:
+    table = NeighbourTable(6, 0, 2)
+    assert table.on_state(1, 15.0, STATE, failed_mask([4]), 15)
+    assert table.on_state(2, 15.0, STATE, failed_mask([5]), 0)
+    assert not table.on_state(1, 0.0, STATE, failed_mask([3]), 99)  # older than held: ignored
+    assert table.knowledge.view(before=15) == (0, 0)  # learnt at instant 15: not in 15's own message
+    assert table.knowledge.view(before=16) == (failed_mask([4, 5]), 15)
