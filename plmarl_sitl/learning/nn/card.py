@@ -64,6 +64,7 @@ class PolicyCard:
     imitation: Any = None
     eval: Any = None
     predictor: Any = None
+    export: Any = None  # how the files were (re-)exported (learning/nn/convert.py)
 
     def __post_init__(self) -> None:
         if not self.method.strip():
