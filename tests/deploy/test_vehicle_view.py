@@ -7,26 +7,35 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
+import logging
 import math
 import time
+from pathlib import Path
 
 import pytest
 
+from plmarl_sitl.deploy.agent.config import AgentConfig
+from plmarl_sitl.deploy.agent.core import Agent
 from plmarl_sitl.deploy.mavlink.client import VehicleLink
 from plmarl_sitl.deploy.mavlink.codec import Codec, dialect
 from plmarl_sitl.deploy.mavlink.connect import connect
-from plmarl_sitl.deploy.mavlink.vehicle_view import HOME_POSITION_ID, VehicleView, place_home
+from plmarl_sitl.deploy.mavlink.vehicle_view import HOME_POSITION_ID, VehicleState, VehicleView, place_home
 from plmarl_sitl.errors import EXIT_VEHICLE, LinkLost, VehicleLost, VehicleTimeout, VehicleUnreachable, exit_code
+from plmarl_sitl.learning.nn.io import load_policy
+from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.geodesy import geodetic_to_ned
 from plmarl_sitl.sitl.autopilot import AutopilotHost, run_realtime
 from plmarl_sitl.sitl.network.broker import free_udp_ports
 
+from .conftest import MISSION
 from .scripted_autopilot import ScriptedAutopilot
+from .test_agent import RecordingBus
 
 pytestmark = pytest.mark.timeout(60)
 
 d = dialect
-ARDUPILOT_GUIDED, ARDUPILOT_LAND = 4, 9  # ArduCopter custom_mode numbers
+ARDUPILOT_GUIDED, ARDUPILOT_LOITER, ARDUPILOT_LAND = 4, 5, 9  # ArduCopter custom_mode numbers
 
 
 class TwoComponents:
@@ -188,3 +197,53 @@ def test_link_lost_and_vehicle_timeout_are_siblings() -> None:
             raise lost
         except VehicleTimeout:
             pytest.fail("a timeout handler caught a lost link")
+
+
+def test_the_agent_reengages_after_a_failsafe_and_stops_by_the_views_heartbeat(
+        policy_dir: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """The agent's session reads the autopilot's state through the view: armed in the
+    personality's hold mode (ArduPilot LOITER, a setpoint-loss failsafe) it asks for GUIDED
+    back; stopping, it commands BRAKE to an armed vehicle and leaves a disarmed one alone."""
+    caplog.set_level(logging.INFO, logger="plmarl.agent")
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
+
+    async def main() -> None:
+        host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name="ardupilot")
+        await host.start()
+        stop = asyncio.Event()
+        clock = asyncio.create_task(run_realtime(host, 2.0, stop=stop))
+        link = VehicleLink("127.0.0.1", host.ports[0])
+        try:
+            await link.open(timeout=5.0)
+            view = VehicleView(link)
+            cfg = AgentConfig(uav_id=0, connect_url=f"udpout://127.0.0.1:{host.ports[0]}", mission=mission)
+            session = Agent(cfg, load_policy(policy_dir, mission), RecordingBus(), link).session
+            session.personality, session.flying = link.personality, True
+            await link.set_mode("LOITER")
+            await link.arm()
+            while not (await view.next_state(3.0)).armed:
+                pass
+            assert view.latest_state() == VehicleState(True, "LOITER", ARDUPILOT_LOITER)
+            session._check_mode()
+            assert session.reengaged == 1
+            for _ in range(20):
+                if (await view.next_state(3.0)).mode == "GUIDED":
+                    break
+            assert view.latest_state().mode == "GUIDED"
+            await session.hold()
+            assert (await view.next_state(3.0)).mode == "BRAKE"
+            await link.disarm(force=True)
+            while (await view.next_state(3.0)).armed:
+                pass
+            await session.hold()
+        finally:
+            link.close()
+            stop.set()
+            await clock
+            host.close()
+
+    asyncio.run(main())
+    said = [r.getMessage() for r in caplog.records if r.name == "plmarl.agent"]
+    assert "vehicle fell back to LOITER (setpoint-loss failsafe); re-engaging GUIDED" in said
+    assert "stopped: vehicle in BRAKE" in said
+    assert "stopped: vehicle left to its autopilot (BRAKE, disarmed)" in said

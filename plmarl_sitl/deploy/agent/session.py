@@ -365,17 +365,17 @@ class VehicleSession:
         after a stall of this process), ask for it back once the stream is flowing again,
         at most every REENGAGE_EVERY_S. A mode a pilot chose is left alone: only the
         personality's failsafe hold mode triggers this."""
-        now = self.view.latest_state()
+        state = self.view.latest_state()
         p = self.personality
         assert p is not None
-        if now is None or now.mode != p.hold_mode or not now.armed:
+        if state is None or state.mode != p.hold_mode or not state.armed:
             return
         now = time.perf_counter()
         if now - self._last_reengage < REENGAGE_EVERY_S or self._reengage_task is not None and not self._reengage_task.done():
             return
         self._last_reengage = now
         self.reengaged += 1
-        log.warning("vehicle fell back to %s (setpoint-loss failsafe); re-engaging %s", now.mode, p.offboard_mode)
+        log.warning("vehicle fell back to %s (setpoint-loss failsafe); re-engaging %s", state.mode, p.offboard_mode)
         self._reengage_task = asyncio.ensure_future(self._reengage(p.offboard_mode))
 
     async def _reengage(self, mode: str) -> None:
