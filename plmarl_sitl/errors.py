@@ -37,31 +37,41 @@ class CommandRejected(PlmarlError):
         super().__init__(f"vehicle {sysid}: command {named} rejected ({self.result_name})")
 
 
-class VehicleTimeout(PlmarlError):
+class VehicleUnreachable(PlmarlError):
+    """Nothing came from a vehicle: it did not answer in time (VehicleTimeout) or its link
+    broke (LinkLost). Catch this where both end the same way (a flight that loses its
+    vehicle, a best-effort stop); catch one of them where they differ (a timeout retried or
+    turned into advice, a lost link passed on at once)."""
+
+    def __init__(self, sysid: int, message: str) -> None:
+        self.sysid = sysid
+        super().__init__(message)
+
+
+class VehicleTimeout(VehicleUnreachable):
     """A vehicle did not answer in time (`what` says what we waited for)."""
 
     def __init__(self, sysid: int, what: str, timeout_s: float) -> None:
-        self.sysid = sysid
         self.what = what
         self.timeout_s = timeout_s
-        super().__init__(f"vehicle {sysid}: no {what} within {timeout_s:g} s")
+        super().__init__(sysid, f"vehicle {sysid}: no {what} within {timeout_s:g} s")
 
 
-class LinkLost(VehicleTimeout):
-    """The link to a vehicle broke (a serial radio unplugged): nothing more will come, so
-    every wait on it ends at once instead of at its timeout. A VehicleTimeout, so code that
-    handles a silent vehicle handles this one too; `reason` says which link and why."""
+class LinkLost(VehicleUnreachable):
+    """The link to a vehicle broke (a serial radio unplugged, a TCP connection closed):
+    nothing more will come, so every wait on it ends at once instead of at its timeout.
+    Not a VehicleTimeout: code that retries or explains a timeout must not retry a dead
+    link; `reason` says which link and why."""
 
     def __init__(self, sysid: int, reason: str) -> None:
-        super().__init__(sysid, "message: link lost", 0.0)
         self.reason = reason
-        self.args = (f"vehicle {sysid}: link lost ({reason})",)
+        super().__init__(sysid, f"vehicle {sysid}: link lost ({reason})")
 
 
 class VehicleLost(PlmarlError):
     """A flying vehicle went silent or its link broke: the agent can no longer fly it."""
 
-    def __init__(self, cause: VehicleTimeout) -> None:
+    def __init__(self, cause: VehicleUnreachable) -> None:
         self.sysid = cause.sysid
         super().__init__(f"vehicle lost: {cause}")
 

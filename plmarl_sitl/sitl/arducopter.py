@@ -38,7 +38,7 @@ from pathlib import Path
 
 from plmarl_sitl.deploy.mavlink.codec import signing_timestamp
 from plmarl_sitl.deploy.mavlink.connect import connect
-from plmarl_sitl.errors import UserError, VehicleTimeout
+from plmarl_sitl.errors import UserError, VehicleUnreachable
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.proc import die_with_parent
@@ -256,7 +256,7 @@ async def provision_signing(url: str, key: bytes, timeout_s: float = 30.0) -> No
         link.send(link.codec.mav.setup_signing_encode(link.sysid, 1, list(key), signing_timestamp()))
         link.codec.set_signing_key(key)
         await link.recv("HEARTBEAT", 5.0, lambda m: m.get_srcSystem() == link.sysid and m.get_srcComponent() == 1)
-    except VehicleTimeout as exc:
+    except VehicleUnreachable as exc:  # silent, or it closed the connection
         raise RuntimeError(f"MAVLink signing: the autopilot on {url} did not take its key ({exc})") from None
     finally:
         link.close()

@@ -6,8 +6,8 @@ under their agents on links of their own. The world opens a second link to each 
 (ArduPilot SITL: SERIAL1) and takes from it what the emulator gives it in-process:
 
 * positions in the mission frame: LOCAL_POSITION_NED (asked for at 10 Hz on this link),
-  placed by HOME_POSITION exactly as the agent places its own (`local_frame_origin`);
-* the armed flag and the mode, from the autopilot's HEARTBEAT;
+  placed by HOME_POSITION with the agent's own code (`mavlink.vehicle_view.place_home`);
+* the armed flag and the mode, from the autopilot's HEARTBEAT (`mavlink.vehicle_view`);
 * the vehicle's clock, time_boot_ms.
 
 Each vehicle has a clock of its own: an ArduPilot SITL starts its clock when its first
@@ -41,9 +41,9 @@ import torch
 
 from plmarl_sitl.deploy.mavlink.client import VehicleLink
 from plmarl_sitl.deploy.mavlink.connect import connect, parse_url
-from plmarl_sitl.errors import CommandRejected, LinkLost, UserError, VehicleTimeout
+from plmarl_sitl.deploy.mavlink.vehicle_view import HOME_POSITION_ID, LOCAL_POSITION_NED_ID, VehicleView, place_home
+from plmarl_sitl.errors import LinkLost, UserError, VehicleTimeout, VehicleUnreachable
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.geodesy import local_frame_origin
 from plmarl_sitl.sitl.vehicles import GPS_OFF, GPS_ON, MOTOR_FAIL
 
 log = logging.getLogger("plmarl.world")
@@ -56,8 +56,6 @@ SILENT_S = 5.0  # wall: a vehicle not heard this long has no known position (not
 CLIMB_DONE_MPS = 0.5  # |vertical speed| under this at take-off altitude: the climb is over
 STREAM_GAP_S = 1.0  # vehicle s: no LOCAL_POSITION_NED this long (10 Hz asked for): its EKF has no position
 PARAM_TRIES = 3  # PARAM_SET attempts (2 s each) before a fault is reported unconfirmed
-HOME_POSITION_ID = 242
-LOCAL_POSITION_NED_ID = 32
 
 
 @dataclass
@@ -185,7 +183,7 @@ class ExternalVehicles:
             v.state = f"connecting to {v.url}"
             try:
                 await link.open(timeout=OPEN_TIMEOUT_S)
-            except VehicleTimeout:
+            except VehicleUnreachable:  # no heartbeat yet, or the connection closed while opening
                 link.close()
                 v.state = f"no autopilot heartbeat on {v.url} yet"
                 continue
@@ -202,17 +200,14 @@ class ExternalVehicles:
             try:
                 await self._serve(v, link)
             except LinkLost as exc:
-                log.warning("vehicle %d: link lost (%s); reconnecting", v.index, exc.what)
+                log.warning("vehicle %d: link lost (%s); reconnecting", v.index, exc.reason)
             finally:
                 link.close()
                 v.link = None
 
     async def _serve(self, v: ExternalVehicle, link: VehicleLink) -> None:
-        sysid = link.sysid
-
-        def mine(m: Any) -> bool:
-            return m.get_srcSystem() == sysid and m.get_srcComponent() == 1  # not a GCS's forwarded heartbeat
-
+        view = VehicleView(link)
+        mine = view.from_autopilot  # not a GCS's forwarded heartbeat
         streaming = False
         asked = -math.inf
         with (link.subscribe("LOCAL_POSITION_NED", mine) as positions, link.subscribe("HEARTBEAT", mine) as beats,
@@ -221,20 +216,16 @@ class ExternalVehicles:
             while True:
                 if (not streaming or v.origin is None) and time.monotonic() - asked >= ASK_EVERY_S:
                     asked = time.monotonic()
-                    streaming = streaming or await self._ask(link, "stream", LOCAL_POSITION_NED_ID, TELEMETRY_HZ)
+                    streaming = streaming or await view.stream(LOCAL_POSITION_NED_ID, TELEMETRY_HZ)
                     if v.origin is None:
-                        await self._ask(link, "request", HOME_POSITION_ID)
+                        await view.request(HOME_POSITION_ID)
                 try:
                     m = await positions.newest(0.5)
-                except LinkLost:
-                    raise
                 except VehicleTimeout:
                     m = None
                 while beats.queued:
-                    hb = beats.queued.popleft()
-                    spec = link.personality.mode_by_custom(hb.custom_mode) if link.personality else None
-                    v.mode = spec.name if spec is not None else str(hb.custom_mode)
-                    v.armed = bool(hb.base_mode & 128)
+                    state = view.state(beats.queued.popleft())
+                    v.mode, v.armed = state.mode, state.armed
                 while homes.queued:
                     self.place(v, homes.queued.popleft())
                 while texts.queued:
@@ -250,33 +241,15 @@ class ExternalVehicles:
                     v.state = "streaming its position, but no home position yet"
                 self._on_sample()
 
-    @staticmethod
-    async def _ask(link: VehicleLink, how: str, msgid: int, hz: float = 0.0) -> bool:
-        """Ask for a stream or one message; False (asked again later) if it went unanswered."""
-        try:
-            if how == "stream":
-                await link.set_message_interval(msgid, hz)
-            else:
-                await link.request_message(msgid)
-            return True
-        except LinkLost:
-            raise
-        except (CommandRejected, VehicleTimeout) as exc:
-            log.debug("vehicle sysid %d: %s %d: %s", link.sysid, how, msgid, exc)
-            return False
-
     def place(self, v: ExternalVehicle, home: Any) -> None:
         """Vehicle v's local frame in the mission frame, from a HOME_POSITION (as the agent's)."""
         o = self.mission.origin
-        local = (home.x, home.y, home.z)
-        if not all(math.isfinite(x) for x in local):  # no local frame reported: it starts at home
-            local = (0.0, 0.0, 0.0)
+        placed = place_home(o.lat_deg, o.lon_deg, o.alt_m, home)
         first = v.origin is None
-        v.origin = local_frame_origin(o.lat_deg, o.lon_deg, o.alt_m,
-                                      (home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0), local)
+        v.origin = placed.origin
         if first:
             log.info("vehicle %d: home %.7f, %.7f, %.1f m: local origin at %s in the mission frame", v.index,
-                     home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0, [round(x, 1) for x in v.origin])
+                     placed.lat_deg, placed.lon_deg, placed.alt_m, [round(x, 1) for x in v.origin])
 
     # ------------------------------------------------------------------ the clock
     def _on_sample(self) -> None:
@@ -366,7 +339,7 @@ class ExternalVehicles:
                     continue
                 try:
                     echo = await link.param_set(name, value)
-                except (LinkLost, VehicleTimeout) as exc:
+                except VehicleUnreachable as exc:
                     why = str(exc)
                     continue
                 self._reports.append({"uav": v.index, "boot_s": round(v.clock_at(time.perf_counter()), 3), "param": name,

@@ -222,3 +222,49 @@ def test_an_arducopter_that_exits_while_its_key_is_provisioned_is_named_with_its
     msg = asyncio.run(main())
     assert msg.startswith("arducopter ") and "exited with code 1" in msg and "PANIC: Failed to load defaults" in msg, msg
     assert "arducopter.log" in msg and "\n" not in msg
+
+
+def test_external_vehicles_follow_an_emulated_autopilot_through_the_vehicle_view() -> None:
+    """The world's own link to an autopilot elsewhere (here the emulator's UDP port): the
+    stream and home are asked for, the home placed as the agent places it, and the armed
+    flag and mode read from the autopilot's heartbeat as the agent reads them."""
+    from plmarl_sitl.deploy.mavlink.client import VehicleLink
+    from plmarl_sitl.sitl.autopilot import AutopilotHost, run_realtime
+    from plmarl_sitl.sitl.network.broker import free_udp_ports
+
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
+    home_ned = (420.0, -135.0, 0.0)  # where the emulator puts the vehicle's home, in the mission frame
+
+    async def main() -> tuple:
+        host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name="ardupilot", origin=mission.origin,
+                             home_offsets_ned=[home_ned])
+        await host.start()
+        stop = asyncio.Event()
+        clock = asyncio.create_task(run_realtime(host, 2.0, stop=stop))
+        ext = ExternalVehicles(mission, [f"udpout://127.0.0.1:{host.ports[0]}"])
+        pilot = VehicleLink("127.0.0.1", host.ports[0])
+        try:
+            await ext.start()
+            v = ext.vehicles[0]
+            t_end = time.monotonic() + 20.0
+            while not v.flying_data() and time.monotonic() < t_end:
+                await asyncio.sleep(0.1)
+            seen = (v.state, v.mode, v.armed, v.origin, v.offboard_mode)
+            await pilot.open(timeout=5.0)
+            await pilot.set_mode("GUIDED")
+            await pilot.arm()
+            while not (v.armed and v.mode == "GUIDED") and time.monotonic() < t_end:
+                await asyncio.sleep(0.1)
+            return seen, (v.mode, v.armed), v.position()
+        finally:
+            pilot.close()
+            ext.close()
+            stop.set()
+            await clock
+            host.close()
+
+    (state, mode, armed, origin, offboard), after, pos = asyncio.run(main())
+    assert origin is not None, state
+    assert offboard == "GUIDED" and not armed and mode != "GUIDED"
+    assert after == ("GUIDED", True)
+    assert pos == pytest.approx(home_ned, abs=0.5)  # on the ground at its home, in the mission frame

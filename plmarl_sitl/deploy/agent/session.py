@@ -16,7 +16,6 @@ brake). Every mode name comes from the personality.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import gc
 import logging
 import math
@@ -32,9 +31,10 @@ from plmarl_sitl.deploy.agent.config import AgentConfig
 from plmarl_sitl.deploy.agent.decision import Decision
 from plmarl_sitl.deploy.agent.stats import LoopStats, rss_mb
 from plmarl_sitl.deploy.mavlink.personality import Personality
-from plmarl_sitl.errors import CommandRejected, LinkLost, UserError, VehicleLost, VehicleTimeout
+from plmarl_sitl.deploy.mavlink.vehicle_view import HOME_POSITION_ID, SYSTEM_TIME_ID, VehicleView, place_home
+from plmarl_sitl.errors import CommandRejected, UserError, VehicleLost, VehicleTimeout, VehicleUnreachable
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.geodesy import EARTH_RADIUS_M, geodetic_to_ned, local_frame_origin
+from plmarl_sitl.model.geodesy import EARTH_RADIUS_M, geodetic_to_ned
 
 log = logging.getLogger("plmarl.agent")
 
@@ -48,8 +48,6 @@ TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 120.0
 FLY_CHECK_S = 0.1  # wall: a lockstep agent checks this often for a failure, a lost link or silence
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
-HOME_POSITION_ID = 242  # MAVLINK_MSG_ID_HOME_POSITION
-SYSTEM_TIME_ID = 2  # MAVLINK_MSG_ID_SYSTEM_TIME
 UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
 REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
 ASK_HOME_EVERY_S = 2.0  # wall: REQUEST_MESSAGE(HOME_POSITION) again while home is not set
@@ -58,7 +56,6 @@ AIRBORNE_M = 2.0  # above home: an armed vehicle higher than this is flying (att
 # A home farther than this outside the mission area is not a launch site of that mission
 # but a wrong --home (ArduPilot SITL's default is Canberra) or a wrong --mission.
 FAR_HOME_M = 5_000.0
-ARMED = 128  # MAV_MODE_FLAG_SAFETY_ARMED of HEARTBEAT.base_mode
 
 
 class Subscription(Protocol):
@@ -117,6 +114,7 @@ class VehicleSession:
     def __init__(self, link: Link, cfg: AgentConfig, clock: MissionClock, decision: Decision, stats: LoopStats,
                  t_proc0: float, on_telemetry: Callable[[Any], None]) -> None:
         self.link, self.cfg, self.clock, self.decision, self.stats = link, cfg, clock, decision, stats
+        self.view = VehicleView(link)  # heartbeat, home and optional requests, as every follower reads them
         self.t_proc0 = t_proc0  # unix time the process started (start-up is counted from it)
         self.on_telemetry = on_telemetry  # each LOCAL_POSITION_NED goes here
         self.vm = cfg.mission.vehicle_model()
@@ -206,8 +204,6 @@ class VehicleSession:
         self._waiting(bound, f"an autopilot heartbeat on {cfg.connect_url}")
         try:
             await link.open(timeout=bound)
-        except LinkLost:
-            raise
         except VehicleTimeout as exc:
             raise UserError(f"no autopilot heartbeat on {cfg.connect_url} within {bound:g} s "
                             "(is the autopilot running, and is this its address?)") from exc
@@ -227,41 +223,25 @@ class VehicleSession:
         t_end = time.monotonic() + bound
         with link.subscribe("HOME_POSITION") as homes:
             while True:
-                await self._ask(HOME_POSITION_ID)
+                await self.view.request(HOME_POSITION_ID)
                 left = t_end - time.monotonic()
                 try:
                     return await homes.next(max(0.0, min(ASK_HOME_EVERY_S, left)))
-                except LinkLost:
-                    raise
                 except VehicleTimeout:
                     if time.monotonic() >= t_end:
                         raise VehicleTimeout(link.sysid, "HOME_POSITION (the autopilot has not set its home)", bound) from None
-
-    async def _ask(self, msgid: int) -> None:
-        """REQUEST_MESSAGE, for an answer that comes through a subscription. Refused or
-        unanswered is no error: an autopilot that streams the message needs no asking."""
-        try:
-            await self.link.request_message(msgid)
-        except LinkLost:
-            raise
-        except (CommandRejected, VehicleTimeout) as exc:
-            log.debug("REQUEST_MESSAGE %d: %s", msgid, exc)
 
     def _place(self, home: Any) -> None:
         """Where the vehicle's local frame lies in the mission frame, from its home: known
         geodetically (lat, lon, alt) and in the local frame (x, y, z; ArduPilot's EKF origin
         need not be the home). A home far outside the mission area is a UserError."""
-        lat, lon, alt = home.latitude / 1e7, home.longitude / 1e7, home.altitude / 1000.0
-        err = far_home_error(self.cfg.mission, self.link.sysid, lat, lon, alt)
+        o = self.cfg.mission.origin
+        placed = place_home(o.lat_deg, o.lon_deg, o.alt_m, home)
+        err = far_home_error(self.cfg.mission, self.link.sysid, placed.lat_deg, placed.lon_deg, placed.alt_m)
         if err is not None:
             raise err
-        o = self.cfg.mission.origin
-        local = (home.x, home.y, home.z)
-        if not all(math.isfinite(v) for v in local):  # no local frame reported: it starts at home
-            local = (0.0, 0.0, 0.0)
-        self.home_local = tuple(float(v) for v in local)  # type: ignore[assignment]
-        self.origin = torch.tensor(local_frame_origin(o.lat_deg, o.lon_deg, o.alt_m, (lat, lon, alt), self.home_local),
-                                   dtype=torch.float32)
+        self.home_local = placed.local
+        self.origin = torch.tensor(placed.origin, dtype=torch.float32)
         self._origin_np = self.origin.numpy()
 
     async def _wait_position(self) -> None:
@@ -269,16 +249,12 @@ class VehicleSession:
         self._waiting(bound, "the autopilot's local position (LOCAL_POSITION_NED: streamed once its EKF uses GPS)")
         try:
             await self._telemetry(bound)
-        except LinkLost:
-            raise
         except VehicleTimeout:
             raise VehicleTimeout(self.link.sysid, "LOCAL_POSITION_NED (the autopilot has no position estimate)", bound) from None
 
     async def _armed(self) -> bool:
         """The ARMED flag of the autopilot's next heartbeat (another component's does not count)."""
-        link = self.link
-        hb = await link.recv("HEARTBEAT", 3.0, lambda m: m.get_srcComponent() == 1 and m.get_srcSystem() == link.sysid)
-        return bool(hb.base_mode & ARMED)
+        return (await self.view.next_state(3.0)).armed
 
     async def _until_ready(self, what: str, step: Callable[[], Awaitable[None]]) -> None:
         """Run `step` until the autopilot accepts it: a refusal other than UNSUPPORTED means
@@ -337,8 +313,7 @@ class VehicleSession:
         # Streams the agent does not use cost the autopilot link (and, in SITL, the
         # world's CPU) for nothing; our MAVLink instance is ours alone, a GCS has its own.
         for name, hz in UNUSED_STREAMS.items():
-            with contextlib.suppress(CommandRejected, VehicleTimeout):
-                await link.set_message_interval(name, hz)
+            await self.view.stream(name, hz)
         # Everything alive now (torch, the policy, the loop) lives for the whole flight:
         # freezing it keeps full GC passes from walking ~10^5 objects mid-decision. Done
         # here, on the ground, because the collection itself takes a while.
@@ -372,10 +347,8 @@ class VehicleSession:
         # Asked for, not only awaited: ArduPilot does not stream SYSTEM_TIME unless told.
         with self.link.subscribe("SYSTEM_TIME") as times:
             try:
-                await self._ask(SYSTEM_TIME_ID)
+                await self.view.request(SYSTEM_TIME_ID)
                 st = await times.next(5.0)
-            except LinkLost:
-                raise
             except VehicleTimeout:
                 st = None
         if st is None or st.time_unix_usec == 0:
@@ -395,7 +368,7 @@ class VehicleSession:
         while not stop.is_set():
             try:
                 await self._telemetry()
-            except VehicleTimeout as exc:
+            except VehicleUnreachable as exc:  # silent, or its link broke
                 raise VehicleLost(exc) from exc
             self._check_mode()
 
@@ -443,27 +416,24 @@ class VehicleSession:
         after a stall of this process), ask for it back once the stream is flowing again,
         at most every REENGAGE_EVERY_S. A mode a pilot chose is left alone: only the
         personality's failsafe hold mode triggers this."""
-        hb = self.link.latest.get("HEARTBEAT")
-        if hb is None or hb.get_srcComponent() != 1:
-            return
+        state = self.view.latest_state()
         p = self.personality
         assert p is not None
-        mode = p.mode_by_custom(hb.custom_mode)
-        if mode is None or mode.name != p.hold_mode or not hb.base_mode & 128:
+        if state is None or state.mode != p.hold_mode or not state.armed:
             return
         now = time.perf_counter()
         if now - self._last_reengage < REENGAGE_EVERY_S or self._reengage_task is not None and not self._reengage_task.done():
             return
         self._last_reengage = now
         self.reengaged += 1
-        log.warning("vehicle fell back to %s (setpoint-loss failsafe); re-engaging %s", mode.name, p.offboard_mode)
+        log.warning("vehicle fell back to %s (setpoint-loss failsafe); re-engaging %s", state.mode, p.offboard_mode)
         self._reengage_task = asyncio.ensure_future(self._reengage(p.offboard_mode))
 
     async def _reengage(self, mode: str) -> None:
         try:
             async with asyncio.timeout(3.0):
                 await self._set_mode(mode)
-        except (TimeoutError, VehicleTimeout, CommandRejected) as exc:
+        except (TimeoutError, VehicleUnreachable, CommandRejected) as exc:
             log.error("could not re-engage %s: %s", mode, exc)
 
     async def hold(self) -> None:
@@ -475,19 +445,16 @@ class VehicleSession:
         if self.leave_to_autopilot:
             log.warning("stopped: vehicle left to its autopilot (the UAV is out of the mission)")
             return
-        hb = self.link.latest.get("HEARTBEAT")
-        if hb is not None and hb.get_srcComponent() == 1:
-            now = self.personality.mode_by_custom(hb.custom_mode)
-            if not hb.base_mode & ARMED or (now is not None and now.name == self.personality.land_mode):
-                log.warning("stopped: vehicle left to its autopilot (%s, %s)", now.name if now else hb.custom_mode,
-                            "armed" if hb.base_mode & ARMED else "disarmed")
-                return
+        now = self.view.latest_state()
+        if now is not None and (not now.armed or now.mode == self.personality.land_mode):
+            log.warning("stopped: vehicle left to its autopilot (%s, %s)", now.mode, "armed" if now.armed else "disarmed")
+            return
         mode = self.personality.stop_mode
         try:
             async with asyncio.timeout(3.0):
                 await self._set_mode(mode)
             log.warning("stopped: vehicle in %s", mode)
-        except (TimeoutError, VehicleTimeout, CommandRejected) as exc:
+        except (TimeoutError, VehicleUnreachable, CommandRejected) as exc:
             log.error("stopped, but could not command %s: %s (the autopilot's own failsafe takes over)", mode, exc)
 
     def close(self) -> None:

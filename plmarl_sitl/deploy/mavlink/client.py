@@ -347,9 +347,7 @@ class VehicleLink:
                 self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
                 try:
                     ack = await acks.next(timeout)
-                except LinkLost:
-                    raise
-                except VehicleTimeout:
+                except VehicleTimeout:  # unanswered: send again (a lost link, LinkLost, ends here)
                     continue
                 if ack.result != d.MAV_RESULT_ACCEPTED:
                     raise CommandRejected(self.sysid, command, ack.result, enum_name("MAV_RESULT", ack.result),
