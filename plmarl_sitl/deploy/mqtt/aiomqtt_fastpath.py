@@ -152,3 +152,7 @@ def retrieve_disconnection(client: aiomqtt.Client) -> None:
     gone = client._disconnected
     if gone.done() and not gone.cancelled():
         gone.exception()
+    else:
+        # Not yet: a connect attempt abandoned while the broker was stopped (timed out) can
+        # still be ended by paho later, after this session is over; read it then.
+        gone.add_done_callback(lambda f: f.cancelled() or f.exception())
