@@ -62,6 +62,20 @@ def agent_child_setup(nice: int = 0) -> None:
         os.nice(nice)
 
 
+def output_to(log_path: str, mode: int) -> None:
+    """A child agent's stdout and stderr to the file `log_path` (created with `mode`,
+    truncated), line-buffered so its log can be followed while it runs."""
+    import os
+    import sys
+
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    sys.stderr.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+
+
 def set_process_name(name: str) -> None:
     """What ps, top and psutil's name() show (15 bytes at most)."""
     _prctl(15, name.encode()[:15])  # PR_SET_NAME

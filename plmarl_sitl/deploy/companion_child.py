@@ -7,7 +7,7 @@ torch (nor start a thread: forking a process with threads is unsafe)."""
 import os
 import sys
 
-from plmarl_sitl.proc import agent_child_setup, set_process_name, sigterm_when_gone
+from plmarl_sitl.proc import agent_child_setup, output_to, set_process_name, sigterm_when_gone
 
 # What the forkserver imports before it forks an agent (its environment already says one
 # BLAS/OpenMP thread per agent: the companion sets it before the forkserver starts).
@@ -30,12 +30,7 @@ def run_agent(argv: list[str], log_path: str, cwd: str, nice: int, companion: in
     agent_child_setup(nice)
     sigterm_when_gone(companion)
     set_process_name(name)
-    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-    sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
-    sys.stderr.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    output_to(log_path, 0o600)  # a host's private directory: the log stays the host user's
     os.chdir(cwd)
     from plmarl_sitl.deploy.agent.program import main
 

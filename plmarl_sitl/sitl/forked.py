@@ -29,7 +29,7 @@ from multiprocessing.context import ForkServerContext
 
 import psutil
 
-from plmarl_sitl.proc import agent_child_setup, set_process_name, sigterm_when_gone
+from plmarl_sitl.proc import agent_child_setup, output_to, set_process_name, sigterm_when_gone
 
 # What the forkserver imports once; a forked agent finds these already in sys.modules.
 PRELOAD = ["plmarl_sitl.sitl.forked_child"]
@@ -79,12 +79,7 @@ def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, ni
         # The launcher died before the pidfd was opened: its pid may name another process by now.
         os.kill(os.getpid(), signal.SIGTERM)
     set_process_name(name)  # the command line is the forkserver's
-    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    os.dup2(fd, 1)
-    os.dup2(fd, 2)
-    os.close(fd)
-    sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
-    sys.stderr.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    output_to(log_path, 0o644)
     os.environ.update(env)
     from plmarl_sitl.deploy.agent.program import main
 
