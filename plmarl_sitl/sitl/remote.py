@@ -33,6 +33,7 @@ from pathlib import Path
 
 import yaml
 
+from plmarl_sitl.config import read_yaml
 from plmarl_sitl.deploy.companion import BUNDLE, LINE_LIMIT
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.errors import PlmarlError
@@ -196,7 +197,7 @@ class RemoteHost:
 
     def _ship_mission(self, path: Path) -> str:
         """The resolved mission; a vehicle model given as a file travels with it."""
-        data = yaml.safe_load(path.read_text())
+        data = read_yaml(path)  # the run's mission.yaml, written by the launcher
         vehicle = Path(str(data.get("vehicle", "")))
         if vehicle.suffix:  # a file, not a name in vehicle_models/ (which the host has installed)
             self._ship(f"mission/{vehicle.name}", vehicle.read_bytes())

@@ -14,9 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
-import yaml
-
-from plmarl_sitl.config import PROJECT_POLICIES
+from plmarl_sitl.config import PROJECT_POLICIES, read_yaml
 from plmarl_sitl.learning.eval.report import (
     coverage_table_md,
     full_table_md,
@@ -37,7 +35,7 @@ def training_table(policies: Path) -> str:
         f = policies / m / "card.yaml"
         if not f.is_file():
             continue
-        c = yaml.safe_load(f.read_text())
+        c = read_yaml(f)
         t = c["training"]
         lines.append(f"| {m} | {t['episodes']} | {t.get('predictor_wall_s', 0):.0f} | {t.get('imitation_wall_s', 0):.0f} | "
                      f"{t['mappo_wall_s']:.0f} | {t['total_wall_s']:.0f} | `{c['git_commit'][:12]}{'+dirty' if c['git_commit'].endswith('+dirty') else ''}` | {t['machine']} |")
