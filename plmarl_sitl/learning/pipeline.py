@@ -122,6 +122,10 @@ def run_training(
     card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],
                              "machine": machine_info(), "torch_threads": threads})
     card["config"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}
+    # The engine this run fitted lives in a scratch folder under runs/work, which a reader of the
+    # card cannot find: what ships is this folder's predictor.pt (card["predictor"] says how it was fitted).
+    if "predictor" in card:
+        card["config"]["predictor_state"] = "predictor.pt"
     card["training"]["total_wall_s"] = sum(card["training"].get(k, 0.0) for k in ("predictor_wall_s", "imitation_wall_s", "mappo_wall_s"))
     shutil.copy(res["curve"], out / "curve.jsonl")
     tracker = res["tracker"]

@@ -116,6 +116,7 @@ def test_a_shipped_predictor_is_reused_as_it_is(tmp_path: Path, monkeypatch) -> 
         b = old.tracker(7.0, held, torch.tensor([0.0, 5.0]), *old.tracker.init_state(held))[0]
     assert torch.equal(a, b)
     assert new.card["trained_on"]["n_uavs"] == [4, 4] and new.card["trained_on"]["vehicle"]["max_speed_mps"] == 20.0
+    assert Path(new.card["config"]["predictor_state"]).is_file()  # the file the user gave, not a scratch path
 
 
 def test_train_never_writes_over_a_policy_without_force(tmp_path: Path, monkeypatch, capsys) -> None:
