@@ -71,3 +71,21 @@ def test_dead_reckoning_re_plans_from_constant_velocity_and_pl_marl_from_the_pla
     pl = controller_factory("pl-marl", loaded)(env)
     assert dr.perceive.plan.sources == "cv"
     assert pl.perceive.plan.sources == "plan"
+
+
+def test_a_copy_that_counts_everyone_failed_keeps_its_plan() -> None:
+    """Only false declarations can make a live agent's copy count every identity failed (the
+    constant-velocity ablation did, flying a policy that leaves the plan's nominal path); the
+    re-plan then keeps the plan it had instead of placing zero points."""
+    m = load_mission("missions/suite/failure_transit.yaml")
+    env = CoverageEnv(m, 1, 1_000_000_011)
+    ctl = ServiceController(m)
+    obs = env.observe()
+    for _ in range(3):
+        obs, _, _ = env.step(ctl.act(obs))
+    plans = ctl.targets.plans
+    before = plans.all_targets()[0, 0].copy()
+    everyone = np.ones(m.n_uavs, dtype=bool)
+    plans.replan(0, 0, everyone, 3)
+    assert plans.failed[0, 0].all() and plans.epoch[0, 0] == 3
+    assert np.array_equal(np.nan_to_num(plans.all_targets()[0, 0]), np.nan_to_num(before))
