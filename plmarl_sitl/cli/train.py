@@ -51,6 +51,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imitation-tup-chunks", type=int, default=5,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
                    "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
+    p.add_argument("--teacher", choices=("plan", "react"), default="plan",
+                   help="the imitation teacher: plan, fly to your own point of the team plan (what the student has); "
+                   "react (CTDE, issue 24): the plan re-solved the second a UAV fails from the survivors' true positions, "
+                   "with 1-2 UAVs failing in every imitation batch at a random second in 20..160 s (default: plan)")
     p.add_argument("--scenarios", choices=("general", "mission"), default="general",
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
@@ -118,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",
-                            "reads_map": args.policy_inputs == "plan+map"}
+                            "reads_map": args.policy_inputs == "plan+map", "imitation_teacher": args.teacher,
+                            "imitation_failures": "scripted" if args.teacher == "react" else "random"}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

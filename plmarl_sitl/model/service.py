@@ -321,6 +321,9 @@ class TeamPlans:
         replaces the predicted positions (the constant-velocity ablation)."""
         assert self.motion is not None and self.points is not None and self.slot is not None
         alive = np.flatnonzero(~failed)
+        if alive.size == 0:  # only false declarations get here (the copy's own agent is alive): keep the plan
+            self.failed[b, a], self.epoch[b, a] = failed, epoch
+            return
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
         pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
         self.points[b, a] = np.nan

@@ -19,9 +19,9 @@ from plmarl_sitl.twin.env import Observation
 
 
 class LearnedController:
-    def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None) -> None:  # noqa: ANN001 - Mission
+    def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         self.policy = PolicyCall(policy)
-        self.perceive = Perception(tracker, self.policy.form, float(policy.r_comm), mission)
+        self.perceive = Perception(tracker, self.policy.form, float(policy.r_comm), mission, sources)
 
     def reset(self) -> None:
         self.perceive.reset()

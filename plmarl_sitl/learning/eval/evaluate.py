@@ -71,7 +71,10 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         pol = loaded["pl-marl"].policy
         buffer_len = int(loaded["pl-marl"].card["io"]["buffer_len"])
         cv = script(dead_reckoning_tracker(buffer_len))
-        return lambda env: LearnedController(cv, pol, env.mission)
+        # The ablation replaces the predictor wherever PL-MARL uses one: the tracker's beliefs and
+        # the positions a failure re-plan assigns from (constant velocity from each agent's held
+        # states, instead of the plan-aware prediction every survivor computes alike).
+        return lambda env: LearnedController(cv, pol, env.mission, sources="cv")
     if method in LEARNT:
         lp = loaded[method]
         return lambda env: LearnedController(lp.tracker, lp.policy, env.mission)

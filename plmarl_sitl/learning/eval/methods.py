@@ -12,7 +12,7 @@ METHOD_HELP = {
     "pl-marl": "the letter's method: MLP predictor phi + attention policy (policies/pl-marl)",
     "gru": "GRU predictor + the same policy (policies/gru)",
     "tag-mappo": "no predictor, held states as they are (policies/tag-mappo)",
-    "dead-reckoning": "the PL-MARL policy with a constant-velocity tracker (ablation)",
+    "dead-reckoning": "the PL-MARL policy with constant-velocity prediction in its tracker and in its failure re-plans (ablation)",
     "service": "the plan follower: each UAV flies to its point of the team plan, re-planned after failures, no learning (a reference)",
     "service-fixed": "the plan follower without failure re-plans (the team plan of before issue 24; an ablation)",
     "greedy": "greedy clairvoyant placement with global knowledge (a reference; called 'oracle' before)",

@@ -27,13 +27,18 @@ from plmarl_sitl.learning.nn.plan import ServiceTargets
 
 
 class Perception:
-    def __init__(self, tracker: torch.nn.Module, form: PolicyForm, r_comm: float, mission=None) -> None:  # noqa: ANN001 - Mission
+    def __init__(self, tracker: torch.nn.Module, form: PolicyForm, r_comm: float, mission=None,  # noqa: ANN001 - Mission
+                 sources: str = "plan") -> None:
+        """`sources`: where the plan's failure re-plans assign from (`ServiceTargets`): "plan",
+        the plan-aware prediction (the method's, common knowledge); "cv", each agent's held
+        states dead-reckoned at constant velocity (the dead-reckoning ablation, whose tracker is
+        constant velocity too)."""
         if form.takes_plan and mission is None:
             raise ValueError("a policy that takes the team plan needs the mission (its plan grid)")
         self.form = form
         self.beliefs = Beliefs(tracker)
         self.flags = FailureFlags(r_comm)
-        self.plan = ServiceTargets.of(mission) if form.takes_plan else None
+        self.plan = ServiceTargets.of(mission, True, sources) if form.takes_plan else None
 
     def reset(self) -> None:
         self.beliefs.reset()

@@ -32,7 +32,8 @@ from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
-from plmarl_sitl.mission import Mission
+from plmarl_sitl.learning.train.teacher import ReactTargets
+from plmarl_sitl.mission import Failure, Mission
 from plmarl_sitl.twin.env import CoverageEnv
 from plmarl_sitl.twin.greedy import GreedyController
 
@@ -58,9 +59,24 @@ class ImitationArgs:
     # (GreedyController.act_from_state; the key keeps the name recorded in older cards); "plan" = fly to the agent's own team-plan point
     # (model/service.py), a teacher that uses only what the student has.
     teacher: str = "plan"
+    # "react" (issue 24, CTDE): the plan re-solved the second a UAV fails, from the survivors'
+    # true positions (learning/train/teacher.py); the student keeps its own perception.
+    # Failures of the curriculum: "random", one random UAV at t = 100 s with failure_prob;
+    # "scripted", every batch 1 or 2 UAVs (at most N - 2) fail at one second drawn in
+    # failure_window_s (in transit early, on station later).
+    failures: str = "random"
+    failure_window_s: tuple[int, int] = (20, 160)
 
 
 INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
+
+
+def scripted_failures(m: Mission, rng: np.random.Generator, window: tuple[int, int]) -> Mission:
+    """The mission with 1 or 2 of its UAVs (at most N - 2) failing at one second in `window`."""
+    k = int(rng.integers(1, min(2, m.n_uavs - 2) + 1)) if m.n_uavs > 2 else 0
+    at = float(rng.integers(window[0], window[1] + 1))
+    uavs = rng.choice(m.n_uavs, size=k, replace=False)
+    return dataclasses.replace(m, failures=tuple(Failure(at_s=at, uav=int(u)) for u in sorted(uavs)))
 
 
 def cat_slots(parts: list[torch.Tensor]) -> torch.Tensor:
@@ -95,9 +111,12 @@ def imitate_oracle(
             tups.append(tup)
             m = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
             m = m.with_tup(tup)
-            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=args.failure_prob,
-                              random_launch=args.general)
+            p_fail = args.failure_prob
+            if args.failures == "scripted":
+                m, p_fail = scripted_failures(m, rng, args.failure_window_s), 0.0
+            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=p_fail, random_launch=args.general)
             teacher = GreedyController(env)
+            react = ReactTargets.of(m) if args.teacher == "react" else None
             perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
             obs = env.reset()
             teacher.reset()
@@ -106,7 +125,9 @@ def imitate_oracle(
                 while not env.done:
                     inputs = perceive(obs)
                     x = policy_input(scales, inputs)
-                    if args.teacher == "plan":
+                    if react is not None:
+                        a_teacher = react.accel(obs.ego, react.update_true(obs))
+                    elif args.teacher == "plan":
                         a_teacher = perceive.plan.accel(obs.ego, inputs.target)
                     else:
                         a_teacher = teacher.act_from_state(obs)

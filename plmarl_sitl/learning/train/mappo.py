@@ -94,6 +94,8 @@ class Args:
     imitation_rounds: int = 6
     imitation_episodes_per_round: int = 40
     imitation_tup_chunks: int = 5  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
+    imitation_teacher: str = "plan"  # ImitationArgs.teacher: "plan", "oracle" (greedy) or "react" (CTDE, issue 24)
+    imitation_failures: str = "random"  # ImitationArgs.failures: "random" or "scripted"
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     # False: a map-blind actor (the plan target, own state, sensing, f, neighbours; no demand
@@ -251,7 +253,8 @@ def train(args: Args, progress=None) -> dict:
         warm = imitate_oracle(
             actor, tracker, mission,
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
-                          tup_chunks=args.imitation_tup_chunks, general=args.general),
+                          tup_chunks=args.imitation_tup_chunks, general=args.general, teacher=args.imitation_teacher,
+                          failures=args.imitation_failures),
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
     opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)
