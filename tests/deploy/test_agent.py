@@ -43,6 +43,7 @@ class SilentLink:
     personality = None
     latest: dict = {}
     sysid = 1
+    is_open = True
 
     def __init__(self) -> None:
         self.closed = False

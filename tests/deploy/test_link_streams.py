@@ -10,6 +10,7 @@ serial port), so two frames can be put in one datagram or one write on purpose.
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import logging
 import os
 import re
@@ -23,13 +24,18 @@ from pathlib import Path
 
 import pytest
 
+from plmarl_sitl.deploy.agent.config import AgentConfig
+from plmarl_sitl.deploy.agent.core import Agent
 from plmarl_sitl.deploy.mavlink.codec import Codec, dialect
 from plmarl_sitl.deploy.mavlink.connect import connect
 from plmarl_sitl.errors import LinkLost, VehicleTimeout
+from plmarl_sitl.learning.nn.io import load_policy
+from plmarl_sitl.mission import load_mission
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.sitl.network.broker import MosquittoBroker, free_port, free_udp_ports
 
 from .conftest import MISSION, ROOT
+from .test_agent import RecordingBus
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -284,3 +290,44 @@ def test_the_agent_stops_with_one_line_when_its_radio_is_unplugged(policy_dir: P
     link_lines = [x for x in err.splitlines() if "link closed" in x]
     assert len(link_lines) == 1 and f"serial port {dev}: " in link_lines[0], err
     assert any("vehicle lost" in x and "link lost" in x for x in err.splitlines()), err
+
+
+def test_the_agents_heartbeat_waits_for_a_tcp_autopilot_that_is_slow_to_accept(policy_dir: Path) -> None:
+    """ArduPilot SITL's SERIAL0 can take seconds to accept a connection while it is busy (a
+    loaded machine, the launcher's key provisioning just closed): the agent's 1 Hz GCS
+    heartbeat must wait for the link, not end the agent with "link not open" (a real
+    two-ArduCopter mission did, session 13). Nobody listens here for 1.5 s, then the
+    autopilot accepts and speaks: the agent finds it."""
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
+
+    async def main() -> tuple[bool, bool, int]:
+        port = free_port()
+        url = f"tcpout://127.0.0.1:{port}"
+        link = connect(url)
+        assert not link.is_open
+        session = Agent(AgentConfig(uav_id=0, connect_url=url, mission=mission), load_policy(policy_dir, mission),
+                        RecordingBus(), link).session
+        finding = asyncio.create_task(session._find_autopilot())
+        session.started = True  # as start() says before it looks for the autopilot
+        beating = asyncio.create_task(session.gcs_heartbeat())
+        await asyncio.sleep(1.5)  # a tick or two of the heartbeat while nothing accepts
+        heartbeat_alive = not beating.done()
+        vehicle = Vehicle()
+
+        async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            writer.write(vehicle.heartbeat())
+            await reader.read(1)  # the agent's hello
+
+        server = await asyncio.start_server(serve, "127.0.0.1", port)
+        try:
+            personality = await asyncio.wait_for(finding, 10.0)
+            await asyncio.sleep(1.2)  # a heartbeat tick on the open link
+            return heartbeat_alive, not beating.done(), personality.name == "px4" and link.sent
+        finally:
+            beating.cancel()
+            link.close()
+            server.close()
+
+    heartbeat_alive, still_beating, sent = asyncio.run(main())
+    assert heartbeat_alive, "the GCS heartbeat ended while the TCP connection was still being made"
+    assert still_beating and sent

@@ -103,7 +103,9 @@ def test_a_short_mission_on_two_real_arducopters_completes(tmp_path: Path) -> No
             except psutil.NoSuchProcess:
                 break
             seen += new
-            kinds.update(names(new))
+            # Names read again each time: a forked agent renames itself (plmarl-agentN) a moment
+            # after the fork, and a loaded machine can show it here in between as "python".
+            kinds.update(names(seen))
             time.sleep(0.5)
         stdout, stderr = proc.communicate(timeout=30)
     finally:

@@ -78,6 +78,8 @@ class Link(Protocol):
 
     @property
     def sysid(self) -> int: ...
+    @property
+    def is_open(self) -> bool: ...
     async def open(self, timeout: float = ...) -> None: ...
     def close(self) -> None: ...
     def subscribe(self, mtype: str, pred: Callable[[Any], bool] | None = ...) -> Subscription: ...
@@ -163,9 +165,11 @@ class VehicleSession:
                 self.send_setpoint()
 
     async def gcs_heartbeat(self) -> None:
-        """A companion computer announces itself at 1 Hz (autopilots track their peers)."""
+        """A companion computer announces itself at 1 Hz (autopilots track their peers).
+        Not before the link is up: a TCP connection (ArduPilot SITL's SERIAL0) can take
+        seconds while the autopilot is busy, and `open` says hello itself meanwhile."""
         while True:
-            if self.started:
+            if self.started and self.link.is_open:
                 self.link.send_heartbeat()
             await asyncio.sleep(1.0)
 

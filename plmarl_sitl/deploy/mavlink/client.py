@@ -244,6 +244,12 @@ class VehicleLink:
         self.close()
 
     @property
+    def is_open(self) -> bool:
+        """Its transport is up (TCP: connected), so `send` works; `open` may still be
+        waiting for the autopilot's heartbeat."""
+        return self._transport is not None
+
+    @property
     def sysid(self) -> int:
         if self.target_sysid is None:
             raise RuntimeError("link not open")
