@@ -1,5 +1,7 @@
 """The shipped agent against a REAL PX4 SITL (issue 28): set PX4_SITL to the build output of
-`make px4_sitl_default` (holding bin/px4 and etc/); without it this test skips.
+`make px4_sitl_default` (holding bin/px4 and etc/); without it the `px4` case skips. The same
+test body also runs on the emulator's PX4 personality (`plmarl autopilot --personality px4
+--boot real` at 1x), so the two are compared under the same agent.
 
 PX4 runs with its built-in SIH quadrotor at 1x, home at the mission's launch slot 0, in a
 temporary working directory (tests/conformance/px4_sitl.py). `plmarl agent` runs unchanged
@@ -12,8 +14,11 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import math
 import os
 import shutil
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -27,7 +32,7 @@ from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.sitl.network.broker import MosquittoBroker
 from plmarl_sitl.twin.env import launch_positions
 
-from .agent_process import run_agent
+from .agent_process import ROOT, run_agent
 from .conftest import MISSION
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink's mavutil is imported
@@ -53,7 +58,7 @@ class Watch:
     offboard_armed_at: float | None = None
     modes: list[tuple[float, int]] = field(default_factory=list)  # t, custom_mode of each heartbeat
     rel_alt_m: list[tuple[float, float]] = field(default_factory=list)
-    positions: list[tuple[float, float, float, float]] = field(default_factory=list)  # t, x, y, z
+    positions: list[tuple[float, float, float, float, float, float]] = field(default_factory=list)  # t, x, y, z, vx, vy
     accel_echoes: list[tuple[float, float, float, float]] = field(default_factory=list)
     error: str | None = None
 
@@ -64,7 +69,7 @@ def watch_gcs(port: int, sysid: int, t0: float, stop: threading.Event, seen: Wat
     try:
         m = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=250, source_component=190)
         mav = m.mav
-        asked = False
+        asked = 0.0
         last_hb = 0.0
         while not stop.is_set():
             now = time.monotonic()
@@ -74,11 +79,13 @@ def watch_gcs(port: int, sysid: int, t0: float, stop: threading.Event, seen: Wat
             msg = m.recv_match(blocking=True, timeout=0.3)
             if msg is None or msg.get_srcSystem() != sysid or msg.get_srcComponent() != 1:
                 continue
-            if not asked:
-                for msgid, hz in ((85, 5.0), (32, 5.0), (33, 5.0)):  # POSITION_TARGET_LOCAL_NED, LPN, GPI
+            if now - asked > 3.0:  # again and again: on the emulator the agent's link is this one,
+                # and the agent stops the streams it does not use (a real PX4's GCS link is its own)
+                # LPN at the agent's own 10 Hz: on the emulator the rate is the vehicle's, not per link
+                for msgid, hz in ((85, 5.0), (32, 10.0), (33, 5.0)):  # POSITION_TARGET_LOCAL_NED, LPN, GPI
                     mav.command_long_send(sysid, 1, mavutil.mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
                                           msgid, 1e6 / hz, 0, 0, 0, 0, 0)
-                asked = True
+                asked = now
             t = time.monotonic() - t0
             kind = msg.get_type()
             if kind == "HEARTBEAT":
@@ -88,7 +95,7 @@ def watch_gcs(port: int, sysid: int, t0: float, stop: threading.Event, seen: Wat
             elif kind == "GLOBAL_POSITION_INT":
                 seen.rel_alt_m.append((t, msg.relative_alt / 1000.0))
             elif kind == "LOCAL_POSITION_NED":
-                seen.positions.append((t, msg.x, msg.y, msg.z))
+                seen.positions.append((t, msg.x, msg.y, msg.z, msg.vx, msg.vy))
             elif kind == "POSITION_TARGET_LOCAL_NED" and msg.type_mask & 0x1FF == ACCEL_ONLY & 0x1FF:
                 # position and velocity ignored (PX4 echoes 0x3F: the yaw bits clear)
                 seen.accel_echoes.append((t, msg.afx, msg.afy, msg.afz))
@@ -104,14 +111,51 @@ def launch_slot_home() -> tuple[float, float, float]:
     return ned_to_geodetic(m.origin.lat_deg, m.origin.lon_deg, m.origin.alt_m, north, east, 0.0)
 
 
-def test_the_shipped_agent_flies_a_real_px4_in_offboard(tmp_path: Path) -> None:
-    build = px4_build_or_skip()
+class _Emulated:
+    """`plmarl autopilot --personality px4 --boot real` at 1x: one port for every link."""
+
+    def __init__(self, tmp: Path, home: tuple[float, float, float]) -> None:
+        from plmarl_sitl.sitl.network.broker import free_udp_ports
+
+        self.port = self.api_port = self.gcs_port = free_udp_ports(1)
+        self.sysid = 1
+        self.log = tmp / "emulator.log"
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
+        with open(self.log, "wb") as out:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--personality", "px4", "--boot", "real",
+                 "--base-port", str(self.port), "--home", ",".join(f"{x:.7f}" for x in home)],
+                cwd=tmp, stdout=out, stderr=subprocess.STDOUT, env=env)
+        deadline = time.monotonic() + 120
+        while "Ctrl-C stops" not in self.log.read_text(errors="replace"):
+            assert self.proc.poll() is None and time.monotonic() < deadline, self.tail()
+            time.sleep(0.1)
+
+    def connect_url(self) -> str:
+        return f"udpout://127.0.0.1:{self.port}"
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(10)
+
+    def tail(self, n: int = 1500) -> str:
+        return self.log.read_text(errors="replace")[-n:]
+
+
+@pytest.mark.parametrize("target", ["emulator", "px4"])
+def test_the_shipped_agent_flies_px4_in_offboard(tmp_path: Path, target: str) -> None:
     agent_dir = tmp_path / "elsewhere"  # the agent runs from another directory
     agent_dir.mkdir()
     seen = Watch()
     stop = threading.Event()
     lines: list[tuple[float, str]] = []
-    px4 = start_px4(build, tmp_path, instance=INSTANCE, home=launch_slot_home())
+    if target == "px4":
+        px4 = start_px4(px4_build_or_skip(), tmp_path, instance=INSTANCE, home=launch_slot_home())
+        url = f"udpin://127.0.0.1:{px4.api_port}"
+    else:
+        px4 = _Emulated(tmp_path, launch_slot_home())  # type: ignore[assignment]
+        url = px4.connect_url()  # type: ignore[attr-defined]
     try:
         with MosquittoBroker() as broker:
             t0 = time.monotonic()
@@ -133,7 +177,7 @@ def test_the_shipped_agent_flies_a_real_px4_in_offboard(tmp_path: Path) -> None:
                 return False
 
             run = asyncio.run(run_agent(
-                ["--id", "0", "--n-uavs", "1", "--connect", f"udpin://127.0.0.1:{px4.api_port}", "--broker", broker.url,
+                ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker.url,
                  "--bus", "direct", "--no-auth"], cwd=agent_dir, timeout_s=200, on_line=on_line,
                 interrupt_when=flown_enough))
             stop.set()
@@ -143,8 +187,14 @@ def test_the_shipped_agent_flies_a_real_px4_in_offboard(tmp_path: Path) -> None:
     log = run.err
     for key in ("ready after", "taking off", "in OFFBOARD at", "mission clock", "fell back", "stopped"):
         print(next((line for line in log.splitlines() if key in line), f"(no {key!r})"))
-    print(f"\nreal PX4 SIH, instance {INSTANCE}: OFFBOARD (agent) at {offboard[:1]} s, (GCS) at {seen.offboard_armed_at} s; "
-          f"max rel alt {max((a for _, a in seen.rel_alt_m), default=0):.1f} m; {len(seen.accel_echoes)} accel echoes")
+    moved = [p for p in seen.positions if seen.offboard_armed_at is not None and p[0] >= seen.offboard_armed_at
+             and (not interrupted or p[0] < interrupted[0])]
+    speed = max((math.hypot(p[4], p[5]) for p in moved), default=float("nan"))
+    span = max((math.hypot(p[1] - moved[0][1], p[2] - moved[0][2]) for p in moved), default=float("nan"))
+    alts = [a for t, a in seen.rel_alt_m if seen.offboard_armed_at is not None and t >= seen.offboard_armed_at]
+    print(f"\n{target}: OFFBOARD (agent) at {offboard[:1]} s, (GCS) at {seen.offboard_armed_at} s; "
+          f"in OFFBOARD: max horizontal speed {speed:.2f} m/s, moved up to {span:.1f} m, altitude "
+          f"{min(alts, default=0):.1f}-{max(alts, default=0):.1f} m; {len(seen.accel_echoes)} accel echoes")
     assert seen.error is None, seen.error
     assert run.code == 0, log + "\n" + px4.tail()
     assert "taking off to 60 m above home" in log and "in OFFBOARD at" in log, log
@@ -160,8 +210,7 @@ def test_the_shipped_agent_flies_a_real_px4_in_offboard(tmp_path: Path) -> None:
     assert len(echoes) >= 10, (len(seen.accel_echoes), log)
     # The policy acts: its commands are not the pre-mission hold (a constant near zero).
     assert len({(round(a, 2), round(b, 2)) for _, a, b, _ in echoes}) > 3, echoes[:10]
-    moved = [p for p in seen.positions if p[0] >= seen.offboard_armed_at]
-    assert moved and max(abs(p[1] - moved[0][1]) + abs(p[2] - moved[0][2]) for p in moved) > 0.5, moved[:3]
+    assert moved and span > 0.5, moved[:3]
     # Ctrl-C: the agent asks for AUTO.LOITER (under heavy load its 3 s wait for the answer may
     # run out; the mode the GCS sees is what counts).
     after_stop = [m for t, m in seen.modes if t >= interrupted[0]]

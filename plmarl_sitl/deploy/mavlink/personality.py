@@ -200,6 +200,8 @@ PX4 = Personality(
         ParamSpec("MPC_ACC_HOR_MAX", "max_accel_mps2", _REAL32),
         ParamSpec("MPC_LAND_SPEED", "land_speed_mps", _REAL32),
         ParamSpec("MPC_TKO_SPEED", "takeoff_speed_mps", _REAL32),
+        # SIH's linear drag (N s/m on its 1 kg airframe: 1 /s); 0 flies the twin's drag-free mass
+        ParamSpec("SIH_KDV", "accel_drag_per_s", _REAL32),
         ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
         ParamSpec("MPC_Z_VEL_MAX_UP", "max_climb_mps", _REAL32),
     ),

@@ -108,8 +108,6 @@ class Vehicle:
         self._climb_at = 0.0  # sim time the take-off climb starts (after the spool-up)
         self.returning = False  # PX4 AUTO.RTL on its way home
         self.failsafe = False  # a failsafe chose the mode (PX4: heartbeat CRITICAL until a new mode)
-        g = fleet.guidance
-        g.drag[index] = personality.accel_drag_per_s
         self._apply_limits()
 
     # ------------------------------------------------------------------ identity / state
@@ -303,6 +301,7 @@ class Vehicle:
         i = self.index
         g.max_speed[i, 0] = self.params["max_speed_mps"]
         g.max_accel[i, 0] = self.params["max_accel_mps2"]
+        g.drag[i] = self.params["accel_drag_per_s"]
 
     def params_changed(self) -> None:
         self._apply_limits()
