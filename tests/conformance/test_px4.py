@@ -106,13 +106,15 @@ def test_heartbeat_fields(px4_target: Target) -> None:
 def test_position_then_home_then_ready(px4_target: Target) -> None:
     """Real PX4 SIH: LOCAL_POSITION_NED at 0.5-0.9 s, home at 1.2-2.4 s (it is sent unasked),
     first heartbeat by ~1.8 s, "Ready for takeoff!" at ~4.5 s; the heartbeat says
-    STANDBY only from then on."""
+    STANDBY only from then on. PX4's start-up scripts run in wall time before SIH's lockstep
+    clock takes over: at load ~45 on 2 cores the same instants came at 2.4 / 4.3 / 3.3 s, hence
+    the bounds (still an order of magnitude before ArduCopter's 19 s / 40 s)."""
     b = px4_target.boot
-    assert b["lpn_s"] is not None and b["lpn_s"] <= 1.5, b
-    assert b["home_s"] is not None and 0.8 <= b["home_s"] <= 3.5, b
+    assert b["lpn_s"] is not None and b["lpn_s"] <= 3.0, b
+    assert b["home_s"] is not None and 0.8 <= b["home_s"] <= 5.0, b
     assert b["lpn_s"] < b["home_s"], b
-    assert b["heartbeat_s"] is not None and b["heartbeat_s"] <= 2.5, b
-    assert b["ready_s"] is not None and 3.0 <= b["ready_s"] <= 8.0, b  # no STATUSTEXT: the heartbeat says it
+    assert b["heartbeat_s"] is not None and b["heartbeat_s"] <= 4.0, b
+    assert b["ready_s"] is not None and 3.0 <= b["ready_s"] <= 10.0, b  # no STATUSTEXT: the heartbeat says it
     assert mav.MAV_STATE_STANDBY not in b["status_before_ready"], b
     assert b["status_after_ready"] == {mav.MAV_STATE_STANDBY}, b
     home = b["home"]
@@ -125,6 +127,7 @@ def test_position_then_home_then_ready(px4_target: Target) -> None:
     ("COM_OBL_RC_ACT", mav.MAV_PARAM_TYPE_INT32, 0),
     ("MPC_TKO_SPEED", mav.MAV_PARAM_TYPE_REAL32, 1.5),
     ("MPC_LAND_SPEED", mav.MAV_PARAM_TYPE_REAL32, 0.7),
+    ("SIH_KDV", mav.MAV_PARAM_TYPE_REAL32, 1.0),  # the drag behind the acceleration response below
     ("MAV_SYS_ID", mav.MAV_PARAM_TYPE_INT32, None),
 ])
 def test_param_defaults(px4_link: Link, name: str, ptype: int, value: float | None) -> None:
@@ -189,7 +192,7 @@ def test_takeoff_disarmed_then_arm_climbs(px4_link: Link, px4_target: Target) ->
     px4_target.boot["lift_s"] = lift
     px4_target.boot["loiter_after_s"] = None if loiter_at is None else loiter_at - armed_at
     px4_target.boot["peak_alt_m"] = max(alt for _, alt, _ in climb)
-    assert 2.5 <= lift <= 6.5, f"first metre {lift:.1f} s after arming"
+    assert 2.5 <= lift <= 8.0, f"first metre {lift:.1f} s after arming"  # 4.2-6.4 s measured (load)
     t2 = next(t for t, alt, _ in climb if alt > 2.0)
     t8 = next(t for t, alt, _ in climb if alt > 8.0)
     rate = 6.0 / (t8 - t2)
@@ -254,7 +257,7 @@ def test_acceleration_only_setpoint_is_feed_forward(px4_link: Link, px4_target: 
     _stream(px4_link, 8.0, (0.5, 0.0, 0.0), seen)
     vx = [m.vx for m in seen if m.time_boot_ms / 1000 > seen[0].time_boot_ms / 1000 + 5.0]
     px4_target.boot["accel_vx"] = (min(vx), max(vx))
-    assert vx and all(0.3 <= v <= 0.8 for v in vx), (min(vx), max(vx))
+    assert vx and all(0.25 <= v <= 0.8 for v in vx), (min(vx), max(vx))  # measured 0.33-0.65; drag-free: 2.5-4
     echo = px4_link.wait("POSITION_TARGET_LOCAL_NED", sim_s=2.0)
     if echo is not None:  # streamed by both on this link; not every PX4 build streams it
         # position and velocity ignored, acceleration used (PX4 leaves the yaw bits clear: 0x3F)
@@ -267,9 +270,9 @@ def test_setpoint_loss_failsafe_rtl(px4_link: Link, px4_target: Target) -> None:
     lands there and PX4 disarms on the ground."""
     assert _set_param(px4_link, "COM_OF_LOSS_T", 2.0, mav.MAV_PARAM_TYPE_REAL32) is not None
     _stream(px4_link, 1.0)
-    hb = px4_link.wait("HEARTBEAT", sim_s=2.0)
+    stopped = px4_link.clock_s  # the last setpoint went out about now
+    hb = px4_link.wait("HEARTBEAT", sim_s=1.2)
     assert hb is not None and hb.custom_mode == OFFBOARD
-    stopped = px4_link.clock_s
     text = px4_link.wait("STATUSTEXT", lambda t: "Failsafe activated" in t.text, sim_s=5.0)
     assert text is not None, px4_link.texts[-5:]
     lost_after = px4_link.clock_s - stopped
