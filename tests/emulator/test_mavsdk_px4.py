@@ -102,8 +102,16 @@ async def _scenario() -> None:
                 s = host.true_states()[1]
                 return float(s[3:].norm()) < 0.2 and float((s[:3] - hold).norm()) < 0.5
 
-            await wait_until(settled, 10, "settled on the hold point")
-            await asyncio.sleep(1.0)
+            # Settled for 1.5 s on end: the brake overshoots the hold point once and turns back
+            # (at the turn it is briefly at rest within 0.5 m).
+            since = None
+            async with asyncio.timeout(15):
+                while since is None or time.monotonic() - since < 1.5:
+                    if not settled():
+                        since = None
+                    elif since is None:
+                        since = time.monotonic()
+                    await asyncio.sleep(0.05)
             assert settled() and vehicle.mode == "AUTO.LOITER"
             assert host.vehicle(0).counters.messages == 0  # vehicle 1 was never talked to
             assert vehicle.counters.dropped == 0
