@@ -200,6 +200,9 @@ class SitlWorld:
                 bind_host=cfg.bind_host,
                 boot=cfg.boot,
                 signing_keys=list(cfg.mavlink_keys) or None,
+                # A swarm's vehicles hold where they are when their agent's setpoints stop
+                # (PX4 COM_OBL_RC_ACT 5; its default, without RC, flies home: issue 28).
+                params={"offboard_loss_action": 5},
                 # Lockstep: every vehicle's telemetry on the same grid points, so all agents
                 # answer (and decide) in parallel at each barrier instead of in 5 serial groups.
                 **({"stream_phases": 1} if cfg.lockstep else {}),

@@ -16,6 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from pymavlink import mavutil
 
 from conformance.link import Link
 from conformance.targets import Target, connect, start_arducopter, start_emulator
@@ -102,3 +103,80 @@ def target(request: pytest.FixtureRequest) -> Iterator[Target]:
 @pytest.fixture
 def link(target: Target) -> Link:
     return target.link  # type: ignore[attr-defined]
+
+
+# ---------------------------------------------------------------------------- PX4
+PX4_TARGETS = ["emulator", "px4"]
+PX4_BOOT_S = 10.0  # vehicle seconds the PX4 start-up may take (the real one: ~4.5 to "Ready for takeoff!")
+
+
+def record_px4_boot(link: Link, target: Target) -> dict:
+    """Follow a PX4 start-up until "Ready for takeoff!": vehicle seconds (time_boot_ms of the
+    streamed LOCAL_POSITION_NED, ATTITUDE ...) of the first HEARTBEAT, HOME_POSITION and
+    LOCAL_POSITION_NED, and the heartbeats' system_status before and after."""
+    boot: dict = {"heartbeat": None, "heartbeat_s": None, "home": None, "home_s": None, "lpn_s": None,
+                  "ready_s": None, "status_before_ready": set(), "status_after_ready": set()}
+    deadline = time.monotonic() + target.wall(PX4_BOOT_S)
+    while time.monotonic() < deadline:
+        msg = link.recv(0.2)
+        if msg is None:
+            continue
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            if boot["heartbeat"] is None:
+                boot["heartbeat"], boot["heartbeat_s"] = msg, link.clock_s
+            if msg.system_status == mavutil.mavlink.MAV_STATE_STANDBY and boot["ready_s"] is None:
+                boot["ready_s"] = link.clock_s  # "Ready for takeoff!" (PX4 sends no STATUSTEXT for it)
+            boot["status_before_ready" if boot["ready_s"] is None else "status_after_ready"].add(msg.system_status)
+            if boot["ready_s"] is not None and link.clock_s > boot["ready_s"] + 1.5:
+                break
+        elif kind == "HOME_POSITION" and boot["home"] is None:
+            boot["home"], boot["home_s"] = msg, link.clock_s
+        elif kind == "LOCAL_POSITION_NED" and boot["lpn_s"] is None:
+            boot["lpn_s"] = msg.time_boot_ms / 1000
+    boot["texts"] = list(link.texts)
+    return boot
+
+
+@pytest.fixture(scope="module", params=PX4_TARGETS)
+def px4_target(request: pytest.FixtureRequest) -> Iterator[Target]:
+    from conformance.px4_sitl import px4_build_or_skip
+    from conformance.targets import start_real_px4
+
+    build = px4_build_or_skip() if request.param == "px4" else None
+    workdir = Path(tempfile.mkdtemp(prefix=f"plmarl-conformance-px4-{request.param}-"))
+    t: Target | None = None
+    try:
+        if build is None:
+            t = start_emulator(workdir, speedup=5.0, personality="px4")
+            link = Link(connect(t), t)
+        else:
+            # Listen before PX4 starts: it sends to 14540 + i from its first instant.
+            from conformance.px4_sitl import PX4_INSTANCE
+
+            m = mavutil.mavlink_connection(f"udpin:127.0.0.1:{14540 + PX4_INSTANCE}", source_system=255,
+                                           source_component=190)
+            t = start_real_px4(build, workdir)
+            link = Link(m, t)
+        t0 = time.monotonic()
+        t.boot = record_px4_boot(link, t)
+        t.boot["wall_s"] = time.monotonic() - t0
+        t.link = link  # type: ignore[attr-defined]
+        yield t
+        link.close()
+        b = t.boot  # what docs/CONFORMANCE.md records (pytest -s shows it)
+        keys = ("lpn_s", "home_s", "heartbeat_s", "ready_s", "lift_s", "climb_rate", "loiter_after_s", "peak_alt_m", "accel_vx", "failsafe_after_s",
+                "rtl_from_alt_m", "rtl_disarmed_after_s", "wall_s")
+        print(f"\nPX4 conformance, {request.param}: " + ", ".join(f"{k} {b.get(k)!r}" for k in keys))
+    finally:
+        if t is not None:
+            t.stop()
+        if os.environ.get("CONFORMANCE_KEEP"):
+            print(f"px4 {request.param}: working directory kept at {workdir}")
+        else:
+            shutil.rmtree(workdir, ignore_errors=True)
+
+
+@pytest.fixture
+def px4_link(px4_target: Target) -> Link:
+    return px4_target.link  # type: ignore[attr-defined]

@@ -19,6 +19,7 @@ class Link:
         self.clock_s = 0.0  # vehicle seconds since boot, from the latest time_boot_ms
         self.texts: list[tuple[float, str]] = []
         self._last_hb_sent = 0.0
+        self.sysid = target.sysid
 
     def close(self) -> None:
         self.m.close()
@@ -30,7 +31,8 @@ class Link:
             self._last_hb_sent = now
             self.m.mav.heartbeat_send(self.mav.MAV_TYPE_GCS, self.mav.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         msg = self.m.recv_match(blocking=True, timeout=timeout)
-        if msg is None or msg.get_type() == "BAD_DATA" or msg.get_srcComponent() != 1:
+        if (msg is None or msg.get_type() == "BAD_DATA" or msg.get_srcComponent() != 1
+                or msg.get_srcSystem() != self.sysid):
             return None
         ms = getattr(msg, "time_boot_ms", None)
         if ms is not None:
@@ -60,7 +62,7 @@ class Link:
     def command(self, command: int, *params: float, sim_s: float = 5.0) -> int | None:
         """COMMAND_LONG with the 7 params given; the result of its COMMAND_ACK (None: no ack)."""
         assert len(params) == 7, "give all 7 params: the suite checks what each value does"
-        self.m.mav.command_long_send(1, 1, command, 0, *params)
+        self.m.mav.command_long_send(self.sysid, 1, command, 0, *params)
         ack = self.wait("COMMAND_ACK", lambda a: a.command == command, sim_s=sim_s)
         return None if ack is None else ack.result
 

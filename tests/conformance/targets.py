@@ -41,12 +41,17 @@ class Target:
     proc: subprocess.Popen
     workdir: Path
     boot: dict = field(default_factory=dict)  # what the start-up looked like (see conftest.record_boot)
+    sysid: int = 1  # the vehicle's system id (real PX4 instance i: i + 1)
+    stopper: object = None  # a callable that stops it, when not `proc` alone (real PX4)
 
     def wall(self, sim_s: float) -> float:
         """A wall-clock bound for `sim_s` seconds of vehicle time (with slack for a loaded machine)."""
         return 3.0 + 2.5 * sim_s / self.speedup
 
     def stop(self) -> None:
+        if callable(self.stopper):
+            self.stopper()
+            return
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
@@ -73,11 +78,11 @@ def _wait_for_line(proc: subprocess.Popen, log: Path, needle: str, timeout: floa
     raise RuntimeError(f"no {needle!r} within {timeout} s: {log.read_text(errors='replace')[-800:]}")
 
 
-def start_emulator(workdir: Path, speedup: float = 20.0) -> Target:
+def start_emulator(workdir: Path, speedup: float = 20.0, personality: str = "ardupilot") -> Target:
     port = _free_udp_port()
     log = workdir / "emulator.log"
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    cmd = [sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--personality", "ardupilot", "--boot", "real",
+    cmd = [sys.executable, "-m", "plmarl_sitl.cli", "autopilot", "--personality", personality, "--boot", "real",
            "--speedup", str(speedup), "--base-port", str(port), "--home", ",".join(map(str, HOME))]
     with open(log, "wb") as out:
         proc = subprocess.Popen(cmd, cwd=workdir, stdout=out, stderr=subprocess.STDOUT, env=env)
@@ -111,6 +116,16 @@ def start_arducopter(binary: str, workdir: Path, speedup: float = 10.0) -> Targe
         target.stop()
         raise
     return target
+
+
+def start_real_px4(build: Path, workdir: Path) -> Target:
+    """Real PX4 SITL (SIH quadrotor, at 1x in lockstep), reached on its offboard/API link as the
+    agent reaches it; the GCS link (18570 + i, answers whoever sends a HEARTBEAT) is the second."""
+    from conformance.px4_sitl import start_px4
+
+    px4 = start_px4(build, workdir, home=HOME)
+    return Target("px4", 1.0, f"udpin:127.0.0.1:{px4.api_port}", f"udpout://127.0.0.1:{px4.gcs_port}",
+                  px4.proc, workdir, sysid=px4.sysid, stopper=px4.stop)
 
 
 def connect(target: Target) -> mavutil.mavfile:

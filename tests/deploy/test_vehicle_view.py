@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import copy
 import dataclasses
 import logging
 import math
@@ -247,3 +248,53 @@ def test_the_agent_reengages_after_a_failsafe_and_stops_by_the_views_heartbeat(
     assert "vehicle fell back to LOITER (setpoint-loss failsafe); re-engaging GUIDED" in said
     assert "stopped: vehicle in BRAKE" in said
     assert "stopped: vehicle left to its autopilot (BRAKE, disarmed)" in said
+
+
+def test_a_heartbeat_from_before_our_own_offboard_switch_is_no_failsafe(
+        policy_dir: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """Issue 28: PX4 acknowledges OFFBOARD and shows it only in its next 1 Hz heartbeat, so the
+    heartbeat in hand right after the switch still says AUTO.LOITER. That is not a
+    setpoint-loss failsafe (the agent used to warn "fell back" 0.1 s after every switch on a
+    real PX4); a hold-mode heartbeat that comes later still is."""
+    caplog.set_level(logging.INFO, logger="plmarl.agent")
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
+
+    async def main() -> None:
+        host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name="px4")
+        await host.start()
+        stop = asyncio.Event()
+        clock = asyncio.create_task(run_realtime(host, 4.0, stop=stop))
+        link = VehicleLink("127.0.0.1", host.ports[0])
+        try:
+            await link.open(timeout=5.0)
+            view = VehicleView(link)
+            cfg = AgentConfig(uav_id=0, connect_url=f"udpout://127.0.0.1:{host.ports[0]}", mission=mission)
+            session = Agent(cfg, load_policy(policy_dir, mission), RecordingBus(), link).session
+            session.personality, session.flying = link.personality, True
+            await link.arm()
+            while not (await view.next_state(3.0)).armed:
+                pass
+            stale = link.latest["HEARTBEAT"]  # armed, AUTO.LOITER: what PX4 sent before the switch
+            assert view.state(stale).mode == "AUTO.LOITER"
+            for _ in range(5):
+                link.send_accel_ned(0.0, 0.0, 0.0)
+                await asyncio.sleep(0.02)
+            await session._set_mode("OFFBOARD")
+            link.latest["HEARTBEAT"] = stale  # as on PX4: no new heartbeat yet
+            for _ in range(3):
+                session._check_mode()
+                await asyncio.sleep(0.15)
+            assert session.reengaged == 0
+            await asyncio.sleep(0.4)  # later, a (new) hold-mode heartbeat is a failsafe again
+            link.latest["HEARTBEAT"] = copy.copy(stale)
+            session._check_mode()  # first seen now: after MODE_ECHO_S
+            assert session.reengaged == 1
+        finally:
+            link.close()
+            stop.set()
+            await clock
+            host.close()
+
+    asyncio.run(main())
+    said = [r.getMessage() for r in caplog.records if r.name == "plmarl.agent"]
+    assert said.count("vehicle fell back to AUTO.LOITER (setpoint-loss failsafe); re-engaging OFFBOARD") == 1

@@ -28,7 +28,8 @@ def test_client_flies_a_vehicle(personality: str, offboard: str) -> None:
                 with pytest.raises(CommandRejected) as exc:
                     await link.disarm()
                 # What each real autopilot answers a disarm in the air (ArduCopter 4.7: FAILED, measured).
-                refused = "MAV_RESULT_DENIED" if personality == "px4" else "MAV_RESULT_FAILED"
+                # PX4 SITL: TEMPORARILY_REJECTED, "Disarming denied: not landed" (issue 28, measured).
+                refused = "MAV_RESULT_TEMPORARILY_REJECTED" if personality == "px4" else "MAV_RESULT_FAILED"
                 assert exc.value.result_name == refused and exc.value.sysid == 2
                 link.send_accel_ned(0.0, 0.0, 0.0)
                 await link.set_mode(offboard)

@@ -7,6 +7,7 @@ acceleration setpoints in OFFBOARD, then stop streaming and watch the failsafe.
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 
 import pytest
@@ -43,13 +44,16 @@ async def _scenario() -> None:
                         break
 
             assert await par.get_param_float("COM_OF_LOSS_T") == pytest.approx(1.0)
+            # Setpoint loss: hold (5) instead of PX4's default 0, which without RC ends in RTL.
+            await par.set_param_int("COM_OBL_RC_ACT", 5)
+            assert vehicle.params["offboard_loss_action"] == 5
             await act.set_takeoff_altitude(8.0)  # writes MIS_TAKEOFF_ALT over the param protocol
             assert vehicle.params["takeoff_alt_m"] == pytest.approx(8.0)
 
             await act.arm()
             assert vehicle.armed
             await act.takeoff()
-            await wait_until(lambda: vehicle.mode == "AUTO.LOITER", 10, "takeoff done")
+            await wait_until(lambda: vehicle.mode == "AUTO.LOITER", 25, "takeoff done")  # PX4: ~4 s spool-up, 1.5 m/s
             await asyncio.sleep(1.5)  # let the hold settle
 
             await tel.set_rate_position_velocity_ned(50.0)  # SET_MESSAGE_INTERVAL
@@ -57,7 +61,8 @@ async def _scenario() -> None:
             await off.start()
             assert vehicle.mode == "OFFBOARD"
 
-            # 2 s of 2 m/s^2 north, timed by telemetry so event-loop jitter does not count.
+            # 2 s of 2 m/s^2 north, timed by telemetry so event-loop jitter does not count. PX4
+            # feeds it forward and the airframe's drag (1 /s, SIH) slows it: 2 (1 - e^-2) m/s.
             await off.set_acceleration_ned(AccelerationNed(2.0, 0.0, 0.0))
             t_start = None
             async with asyncio.timeout(10):
@@ -68,7 +73,7 @@ async def _scenario() -> None:
                         t_start = now - vn / 2.0  # extrapolate back to when acceleration began
                     if t_start is not None and now - t_start >= 2.0:
                         break
-            assert vn == pytest.approx(4.0, rel=0.05)
+            assert vn == pytest.approx(2.0 * (1 - math.exp(-2.0)), rel=0.08)
 
             await asyncio.sleep(4.0 - (time.monotonic() - t_start))
             assert await off.is_active()
@@ -97,8 +102,16 @@ async def _scenario() -> None:
                 s = host.true_states()[1]
                 return float(s[3:].norm()) < 0.2 and float((s[:3] - hold).norm()) < 0.5
 
-            await wait_until(settled, 10, "settled on the hold point")
-            await asyncio.sleep(1.0)
+            # Settled for 1.5 s on end: the brake overshoots the hold point once and turns back
+            # (at the turn it is briefly at rest within 0.5 m).
+            since = None
+            async with asyncio.timeout(15):
+                while since is None or time.monotonic() - since < 1.5:
+                    if not settled():
+                        since = None
+                    elif since is None:
+                        since = time.monotonic()
+                    await asyncio.sleep(0.05)
             assert settled() and vehicle.mode == "AUTO.LOITER"
             assert host.vehicle(0).counters.messages == 0  # vehicle 1 was never talked to
             assert vehicle.counters.dropped == 0

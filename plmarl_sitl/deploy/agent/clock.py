@@ -64,15 +64,17 @@ class MissionClock:
                 self.rate = r if self.rate is None else 0.5 * self.rate + 0.5 * r
             self._rate_ref = (wall_s, boot_s)
 
-    def set_t0(self, t0: float) -> int:
-        """Start the mission at boot time t0; returns the first second processed (the
-        current one when the mission began before this agent did)."""
+    def set_t0(self, t0: float, origin: str = "") -> int:
+        """Start the mission at boot time t0 (`origin`: what that instant is, for the log);
+        returns the first second processed (the current one when the mission began before
+        this agent did)."""
         self.t0 = t0
         k = max(0, math.ceil(self.boot_s - t0 - EPS))
         self.next_k = self.first_k = k
         self.next_close = next_multiple(k, self.tup)
         self.next_pub_k = next_multiple(k, self.tup)
-        log.info("mission clock: t0 = boot %.3f s (first second %d)", t0, k)
+        said = f", {origin}" if origin else ""
+        log.info("mission clock: t0 = boot %.3f s (first second %d%s)", t0, k, said)
         return k
 
     def set_tup(self, tup: int) -> None:

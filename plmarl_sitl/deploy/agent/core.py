@@ -212,7 +212,11 @@ class Agent:
             self.decision.warm_up()
             await self.session.start()
             if not self.cfg.wait_start and self.clock.t0 is None:
-                self.clock.set_t0(await self.session.common_epoch())
+                epoch = await self.session.common_epoch()
+                # A midnight lies before the vehicle booted (t0 < 0: hours of mission seconds
+                # already past); every agent of the swarm picks the same one, so they agree.
+                self.clock.set_t0(epoch, "the vehicle's boot" if epoch == 0.0 else
+                                  "the last UTC midnight, the swarm's common epoch in direct mode")
             await self.session.fly(self.stop_event)
         except asyncio.CancelledError:
             if not self.stop_event.is_set():

@@ -50,6 +50,9 @@ FLY_CHECK_S = 0.1  # wall: a lockstep agent checks this often for a failure, a l
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
 REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
+# wall: a heartbeat first seen this soon after a mode change was acknowledged may have been
+# sent before it (PX4 acknowledges, then its next 1 Hz heartbeat shows the new mode)
+MODE_ECHO_S = 0.3
 ASK_HOME_EVERY_S = 2.0  # wall: REQUEST_MESSAGE(HOME_POSITION) again while home is not set
 NOT_READY_RETRY_S = 1.0  # wall: retry a mode/arm command the autopilot is not ready for
 AIRBORNE_M = 2.0  # above home: an armed vehicle higher than this is flying (attach, no takeoff)
@@ -131,6 +134,11 @@ class VehicleSession:
         self.reengaged = 0
         self.leave_to_autopilot = False  # stop without commanding the stop mode (Agent.release)
         self._last_reengage = 0.0
+        # The heartbeat in hand and when this session first saw it: a mode change's
+        # acknowledgement makes every heartbeat seen until then (or just after) stale.
+        self._hb: Any = None
+        self._hb_seen = -math.inf
+        self._mode_acked = -math.inf
         self._reengage_task: asyncio.Task | None = None
 
     def mission_state(self, m: Any) -> torch.Tensor:
@@ -193,6 +201,9 @@ class VehicleSession:
         for attempt in range(5):
             try:
                 await self.link.set_mode(name)
+                self._mode_acked = time.perf_counter()
+                self._hb = self.link.latest.get("HEARTBEAT")  # sent before the switch, whenever it arrived
+                self._hb_seen = -math.inf
                 return
             except CommandRejected as exc:
                 if exc.result_name != "MAV_RESULT_TEMPORARILY_REJECTED" or attempt == 4:
@@ -294,6 +305,11 @@ class VehicleSession:
         else:  # PX4: arm, AUTO.TAKEOFF, then OFFBOARD once the stream is up
             await self._until_ready("arming", link.arm)
             await link.takeoff(alt_tgt, home_amsl_m=home_amsl_m)
+            # Stream from now on: AUTO.TAKEOFF ignores the setpoints, but PX4 sees the offboard
+            # signal all along, so the switch to OFFBOARD at the top has no gap to wait out.
+            # Before the mission the command damps the motion (hold point: where it is).
+            self.decision.hold_target = None
+            self.flying = True
         log.info("taking off to %.0f m above home", alt_tgt)
         await self._wait_until(
             "takeoff", lambda: self.height_above_home() >= alt_tgt - 0.5 and abs(float(self.decision.ego[5])) < 0.3,
@@ -420,12 +436,17 @@ class VehicleSession:
         after a stall of this process), ask for it back once the stream is flowing again,
         at most every REENGAGE_EVERY_S. A mode a pilot chose is left alone: only the
         personality's failsafe hold mode triggers this."""
+        now = time.perf_counter()
+        hb = self.link.latest.get("HEARTBEAT")
+        if hb is not self._hb:
+            self._hb, self._hb_seen = hb, now
+        if self._hb_seen < self._mode_acked + MODE_ECHO_S:
+            return  # the heartbeat may predate our own mode change (issue 28: a false alarm on PX4)
         state = self.view.latest_state()
         p = self.personality
         assert p is not None
         if state is None or state.mode != p.hold_mode or not state.armed:
             return
-        now = time.perf_counter()
         if now - self._last_reengage < REENGAGE_EVERY_S or self._reengage_task is not None and not self._reengage_task.done():
             return
         self._last_reengage = now

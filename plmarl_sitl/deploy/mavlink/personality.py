@@ -23,6 +23,7 @@ class Behaviour(enum.Enum):
     TAKEOFF = "takeoff"
     LAND = "land"
     BRAKE = "brake"
+    RETURN = "return"  # PX4 AUTO.RTL: fly home at the current altitude, land there
 
 
 class Failsafe(enum.Enum):
@@ -38,6 +39,7 @@ class ModeSpec:
     custom_mode: int
     behaviour: Behaviour
     needs_position: bool = False  # ArduPilot `requires_GPS()`: no arming (or entering it armed) without a position
+    base_flags: int | None = None  # HEARTBEAT base_mode bits in this mode (None: the personality's base_mode_flags)
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,7 @@ class Answers:
     interval_param3_must_be_zero: bool  # SET_MESSAGE_INTERVAL param3 (reserved) other than 0: DENIED
     only_minus_one_stops: bool  # interval -1 stops a stream and other negatives are DENIED (else any < 0 stops)
     set_mode_message_acked: bool  # the legacy SET_MODE message gets a COMMAND_ACK
+    disarm_in_air: int = dialect.MAV_RESULT_FAILED  # PX4: TEMPORARILY_REJECTED ("Disarming denied: not landed")
 
 
 @dataclass(frozen=True)
@@ -113,6 +116,21 @@ class Personality:
     accept_unsigned: tuple[int, ...] = ()
     # SETUP_SIGNING is refused while armed (ArduPilot: "ERROR: Won't setup signing when armed")
     setup_signing_disarmed_only: bool = False
+    # -- measured on PX4 SITL with SIH (docs/CONFORMANCE.md, "PX4"); the defaults are ArduPilot's
+    # An acceleration-only setpoint is a pure feed-forward in PX4's position controller (no
+    # velocity loop closes around it), so the airframe's drag decelerates the vehicle: SIH's
+    # linear drag SIH_KDV / SIH_MASS = 1 /s. ArduCopter integrates it into a velocity target.
+    accel_drag_per_s: float = 0.0
+    takeoff_speed_mps: float | None = None  # climb of the take-off mode (PX4 MPC_TKO_SPEED); None: the max climb
+    takeoff_spoolup_s: float = 0.0  # from the take-off command to the climb (PX4: spool-up and ramp)
+    # The setpoint-loss failsafe's mode for each value of the offboard-loss action parameter
+    # (PX4 COM_OBL_RC_ACT; without RC, 0-3 end in RTL); empty: hold_mode.
+    loss_modes: tuple[str, ...] = ()
+    loss_text: str = "Offboard lost: position hold"
+    # PX4's commander takes any mode while disarmed (the user's intention: OFFBOARD without a
+    # setpoint stream too); armed, OFFBOARD without one is ACCEPTED and nothing changes.
+    mode_change_disarmed_accepted: bool = False
+    takeoff_disarmed_accepted: bool = False  # PX4: NAV_TAKEOFF disarmed switches to AUTO.TAKEOFF; arming climbs
 
     def mode(self, name: str) -> ModeSpec:
         for m in self.modes:
@@ -147,19 +165,25 @@ def px4_custom_mode(main_mode: int, sub_mode: int = 0) -> int:
 
 
 _REAL32 = dialect.MAV_PARAM_TYPE_REAL32
+# PX4's HEARTBEAT (streams/HEARTBEAT.hpp): CUSTOM_MODE always; STABILIZE with attitude control;
+# MANUAL_INPUT in manual modes; AUTO | GUIDED | STABILIZE in auto modes (measured: AUTO.* 29,
+# OFFBOARD 17, +128 armed).
+_PX4_OFFBOARD = dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | dialect.MAV_MODE_FLAG_STABILIZE_ENABLED
+_PX4_MANUAL = _PX4_OFFBOARD | dialect.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 
 PX4 = Personality(
     name="px4",
     autopilot=dialect.MAV_AUTOPILOT_PX4,
     modes=(
-        ModeSpec("MANUAL", px4_custom_mode(1), Behaviour.HOLD),
-        ModeSpec("ALTCTL", px4_custom_mode(2), Behaviour.HOLD),
-        ModeSpec("POSCTL", px4_custom_mode(3), Behaviour.HOLD),
+        ModeSpec("MANUAL", px4_custom_mode(1), Behaviour.HOLD, base_flags=_PX4_MANUAL),
+        ModeSpec("ALTCTL", px4_custom_mode(2), Behaviour.HOLD, base_flags=_PX4_MANUAL),
+        ModeSpec("POSCTL", px4_custom_mode(3), Behaviour.HOLD, base_flags=_PX4_MANUAL),
         ModeSpec("AUTO.TAKEOFF", px4_custom_mode(4, 2), Behaviour.TAKEOFF),
         ModeSpec("AUTO.LOITER", px4_custom_mode(4, 3), Behaviour.HOLD),
+        ModeSpec("AUTO.RTL", px4_custom_mode(4, 5), Behaviour.RETURN),
         ModeSpec("AUTO.LAND", px4_custom_mode(4, 6), Behaviour.LAND),
-        ModeSpec("OFFBOARD", px4_custom_mode(6), Behaviour.OFFBOARD),
-        ModeSpec("STABILIZED", px4_custom_mode(7), Behaviour.HOLD),
+        ModeSpec("OFFBOARD", px4_custom_mode(6), Behaviour.OFFBOARD, base_flags=_PX4_OFFBOARD),
+        ModeSpec("STABILIZED", px4_custom_mode(7), Behaviour.HOLD, base_flags=_PX4_MANUAL),
     ),
     boot_mode="AUTO.LOITER",
     hold_mode="AUTO.LOITER",
@@ -169,11 +193,15 @@ PX4 = Personality(
     takeoff_mode="AUTO.TAKEOFF",
     failsafe=Failsafe.LEAVE_TO_HOLD,
     params=(
+        ParamSpec("COM_OBL_RC_ACT", "offboard_loss_action", dialect.MAV_PARAM_TYPE_INT32),
         ParamSpec("COM_OF_LOSS_T", "offboard_timeout_s", _REAL32),
         ParamSpec("MAV_SYS_ID", "sysid", dialect.MAV_PARAM_TYPE_INT32),
         ParamSpec("MIS_TAKEOFF_ALT", "takeoff_alt_m", _REAL32),
         ParamSpec("MPC_ACC_HOR_MAX", "max_accel_mps2", _REAL32),
         ParamSpec("MPC_LAND_SPEED", "land_speed_mps", _REAL32),
+        ParamSpec("MPC_TKO_SPEED", "takeoff_speed_mps", _REAL32),
+        # SIH's linear drag (N s/m on its 1 kg airframe: 1 /s); 0 flies the twin's drag-free mass
+        ParamSpec("SIH_KDV", "accel_drag_per_s", _REAL32),
         ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
         ParamSpec("MPC_Z_VEL_MAX_UP", "max_climb_mps", _REAL32),
     ),
@@ -195,12 +223,32 @@ PX4 = Personality(
         interval_param3_must_be_zero=False,
         only_minus_one_stops=False,
         set_mode_message_acked=True,
+        disarm_in_air=dialect.MAV_RESULT_TEMPORARILY_REJECTED,
     ),
-    base_mode_flags=dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-    arm_texts=("Armed", "Disarmed"),
-    boot_timeline=None,
+    # PX4 SITL, measured in AUTO.LOITER, AUTO.TAKEOFF, AUTO.RTL: 29 (157 armed)
+    base_mode_flags=(
+        dialect.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | dialect.MAV_MODE_FLAG_AUTO_ENABLED
+        | dialect.MAV_MODE_FLAG_GUIDED_ENABLED | dialect.MAV_MODE_FLAG_STABILIZE_ENABLED
+    ),
+    arm_texts=("Armed by external command", "Disarmed by external command"),
+    # PX4 SITL with SIH: position at 0.5-0.9 s, home at 1.2-2.2 s, "Ready for takeoff!" (arming
+    # possible, heartbeat STANDBY instead of UNINIT) at ~4.5 s, measured from the process start.
+    boot_timeline=BootTimeline(
+        texts=(),  # PX4 logs "Ready for takeoff!" but sends no STATUSTEXT for it
+        ready_s=4.5,
+        attitude_s=4.5,
+        origin_s=1.2,
+        position_s=0.6,
+    ),
     accept_unsigned=(dialect.MAVLINK_MSG_ID_RADIO_STATUS, dialect.MAVLINK_MSG_ID_ADSB_VEHICLE,
                      dialect.MAVLINK_MSG_ID_COLLISION),
+    accel_drag_per_s=1.0,
+    takeoff_speed_mps=1.5,
+    takeoff_spoolup_s=3.5,
+    loss_modes=("AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"),
+    loss_text="Failsafe activated",
+    mode_change_disarmed_accepted=True,
+    takeoff_disarmed_accepted=True,
 )
 
 ARDUPILOT = Personality(

@@ -41,6 +41,10 @@ class Guidance:
         self.max_speed = np.ones((n, 1), dtype=np.float64)
         self.max_accel = np.ones((n, 1), dtype=np.float64)
         self.descent = np.zeros(n, dtype=np.float64)
+        # Linear drag on an acceleration setpoint, 1/s (the personality's accel_drag_per_s):
+        # PX4 feeds an acceleration-only setpoint forward with no velocity loop around it, so
+        # the airframe's drag slows the vehicle (SIH: SIH_KDV / SIH_MASS = 1 /s).
+        self.drag = np.zeros(n, dtype=np.float64)
 
     def set(self, i: int, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
         self.kind[i] = kind
@@ -49,7 +53,7 @@ class Guidance:
 
     def accel(self, pos: torch.Tensor, vel: torch.Tensor, fall_accel: float) -> torch.Tensor:
         """(N, 3) acceleration commands for the current states."""
-        fast = self._accel_setpoints_only()
+        fast = self._accel_setpoints_only(vel)
         if fast is not None:
             return fast
         kind = torch.from_numpy(self.kind)
@@ -59,7 +63,10 @@ class Guidance:
         present = set(np.unique(self.kind).tolist())
         out = torch.zeros_like(pos)
         if Kind.ACCEL in present:
-            out = torch.where((kind == Kind.ACCEL).unsqueeze(-1), clip_norm(target, ma), out)
+            a = clip_norm(target, ma)
+            if self.drag.any():
+                a = a - torch.from_numpy(self.drag).unsqueeze(-1) * vel
+            out = torch.where((kind == Kind.ACCEL).unsqueeze(-1), a, out)
         if Kind.VELOCITY in present:
             a = velocity_tracking_accel(vel, clip_norm(target, ms), ma, TIME_CONST_S)
             out = torch.where((kind == Kind.VELOCITY).unsqueeze(-1), a, out)
@@ -77,7 +84,7 @@ class Guidance:
             out = torch.where((kind == Kind.FALL).unsqueeze(-1), down, out)
         return out
 
-    def _accel_setpoints_only(self) -> torch.Tensor | None:
+    def _accel_setpoints_only(self, vel: torch.Tensor) -> torch.Tensor | None:
         """The common case of a flying swarm, without a torch call: every vehicle flies an
         acceleration setpoint clearly inside its limit, or has no command (zero). `accel`
         would return the setpoint times a scale factor of exactly 1.0 there (`clip_norm`),
@@ -91,4 +98,6 @@ class Guidance:
         limit = self.max_accel[:, 0] * (1.0 - 1e-9)  # far outside a norm's round-off
         if not (np.isfinite(sq).all() and (sq[accel] <= (limit * limit)[accel]).all()):
             return None
+        if self.drag.any():
+            target = target - self.drag[:, None] * vel.numpy()
         return torch.from_numpy(np.where(accel[:, None], target, 0.0))

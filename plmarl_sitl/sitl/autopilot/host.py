@@ -84,6 +84,8 @@ class AutopilotHost:
     mission frame, whose geodetic origin is `origin`. `streams` overrides the default
     telemetry rates (message name or id -> Hz of sim time; 0 disables). `boot` is "instant"
     (home and position at once) or "real" (the personality's measured start-up timeline).
+    `params` sets parameters (emulator keys, SI units, e.g. {"offboard_loss_action": 5}) on
+    every vehicle before it starts, as an operator's parameter file does.
     """
 
     def __init__(
@@ -104,6 +106,7 @@ class AutopilotHost:
         sysids: Sequence[int] | None = None,
         boot: str = "instant",
         stream_phases: int = STREAM_PHASES,
+        params: Mapping[str, float] | None = None,
     ) -> None:
         if count < 1:
             raise ValueError("count must be >= 1")
@@ -143,6 +146,12 @@ class AutopilotHost:
             )
             for i in range(count)
         ]
+        for v in self.vehicles:
+            for key, value in (params or {}).items():
+                if key not in v.params.values:
+                    raise ValueError(f"unknown vehicle parameter {key!r}")
+                v.params.values[key] = float(value)
+            v.params_changed()
         self._transports: list[asyncio.DatagramTransport] = []
         self._logged_drops: dict[int, int] = {}
         self._gps_lost: set[int] = set()  # vehicles whose GPS is dark (their EKF reacts as time goes on)

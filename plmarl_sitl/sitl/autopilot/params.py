@@ -42,6 +42,9 @@ def ranges(model: VehicleModel) -> dict[str, Range]:
         "max_speed_mps": Range(0.1, model.max_speed_mps),
         "max_climb_mps": Range(0.1, model.max_climb_mps),
         "land_speed_mps": Range(0.1, model.max_climb_mps),
+        "takeoff_speed_mps": Range(0.1, model.max_climb_mps),
+        "offboard_loss_action": Range(0, 5),
+        "accel_drag_per_s": Range(0.0, 10.0),  # PX4 COM_OBL_RC_ACT: 0-3 RTL (no RC), 4 land, 5 hold
     }
 
 
@@ -54,6 +57,9 @@ def defaults(model: VehicleModel, personality: Personality, sysid: int) -> dict[
         "max_speed_mps": model.max_speed_mps,
         "max_climb_mps": model.max_climb_mps,
         "land_speed_mps": min(personality.land_speed_mps, model.max_climb_mps),
+        "takeoff_speed_mps": min(personality.takeoff_speed_mps or model.max_climb_mps, model.max_climb_mps),
+        "offboard_loss_action": 0.0,
+        "accel_drag_per_s": personality.accel_drag_per_s,
     }
 
 

@@ -56,11 +56,14 @@ def _ms(v: Vehicle) -> int:
 
 
 def heartbeat(v: Vehicle) -> Message:
-    base = v.personality.base_mode_flags
+    flags = v.mode_spec.base_flags
+    base = v.personality.base_mode_flags if flags is None else flags
     if v.armed:
         base |= d.MAV_MODE_FLAG_SAFETY_ARMED
     if not v.fleet.boot.ready(v.fleet.now):
         status = d.MAV_STATE_BOOT
+    elif v.failsafe:
+        status = d.MAV_STATE_CRITICAL  # PX4, measured: while a failsafe holds the mode
     else:
         status = d.MAV_STATE_ACTIVE if v.armed else d.MAV_STATE_STANDBY
     return v.codec.mav.heartbeat_encode(

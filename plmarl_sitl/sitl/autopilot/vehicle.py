@@ -40,6 +40,10 @@ DENIED = d.MAV_RESULT_DENIED
 TEMP_REJECTED = d.MAV_RESULT_TEMPORARILY_REJECTED
 
 LAND_SLOW_BELOW_M = 10.0  # PX4 MPC_LAND_ALT1 / ArduPilot LAND_ALT_LOW: slow down near ground
+# PX4 AUTO.TAKEOFF climbs at MPC_TKO_SPEED below MPC_LAND_ALT1, then at MPC_Z_V_AUTO_UP
+# (FlightTaskAuto::_updateTrajConstraints); measured on SIH: 1.45 m/s, then 3.0 m/s.
+PX4_AUTO_CLIMB_MPS = 3.0
+RETURNED_M = 0.5  # RTL: this close to home (horizontally), it lands
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
 # SETUP_SIGNING: a vehicle's signing timestamp starts this far past the one given (10 us
@@ -101,6 +105,9 @@ class Vehicle:
         self.setpoint_timed_out = False  # ArduPilot: braked after GUID_TIMEOUT until the next one
         self.taking_off = False
         self._takeoff_alt = 0.0
+        self._climb_at = 0.0  # sim time the take-off climb starts (after the spool-up)
+        self.returning = False  # PX4 AUTO.RTL on its way home
+        self.failsafe = False  # a failsafe chose the mode (PX4: heartbeat CRITICAL until a new mode)
         self._apply_limits()
 
     # ------------------------------------------------------------------ identity / state
@@ -294,6 +301,7 @@ class Vehicle:
         i = self.index
         g.max_speed[i, 0] = self.params["max_speed_mps"]
         g.max_accel[i, 0] = self.params["max_accel_mps2"]
+        g.drag[i] = self.params["accel_drag_per_s"]
 
     def params_changed(self) -> None:
         self._apply_limits()
@@ -304,7 +312,7 @@ class Vehicle:
     def _guide(self, kind: Kind, target: tuple[float, float, float] | None = None) -> None:
         if self.motor_failed:  # whatever it is asked, a quadrotor with a dead motor falls, or lies where it fell
             kind, target = (Kind.IDLE if self.on_ground() else Kind.FALL), None
-        self.fleet.guide(self.index, kind, target, watch=self.taking_off)
+        self.fleet.guide(self.index, kind, target, watch=self.taking_off or self.returning)
         self._apply_limits()
 
     def _hold_here(self) -> None:
@@ -353,16 +361,26 @@ class Vehicle:
             return self.takeoff(None)
         if spec.behaviour == Behaviour.OFFBOARD and self.personality.offboard_needs_stream:
             if self._setpoint_stale():
-                return TEMP_REJECTED
+                if not self.personality.mode_change_disarmed_accepted:
+                    return TEMP_REJECTED
+                # PX4 (measured): disarmed, any mode is taken (the heartbeat says OFFBOARD);
+                # armed, ACCEPTED all the same, but the mode stays and it says why.
+                if self.armed:
+                    self.statustext("Switching to Offboard is currently not available", d.MAV_SEVERITY_CRITICAL)
+                    return ACCEPTED
         if self.armed and spec.needs_position and not self._position_ok():
             self.statustext(f"Flight mode change failed: {spec.name} requires position", d.MAV_SEVERITY_WARNING)
             return self.personality.answers.refused
+        self.failsafe = False
         self.mode_spec = spec
         self.taking_off = False
+        self.returning = False
         self.setpoint_timed_out = False
         b = spec.behaviour
         if b == Behaviour.LAND:
             self._start_land()
+        elif b == Behaviour.RETURN:
+            self._start_return()
         elif b == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
             self._apply_setpoint()
         elif self.armed:
@@ -386,18 +404,22 @@ class Vehicle:
             self.statustext("Arm: Need Position Estimate", d.MAV_SEVERITY_CRITICAL)
             return refused
         self.armed = True
-        if self.behaviour == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
+        self.statustext(self.personality.arm_texts[0])
+        if self.behaviour == Behaviour.TAKEOFF:  # PX4: a take-off asked for while disarmed starts now
+            self._start_takeoff(self._takeoff_alt)
+        elif self.behaviour == Behaviour.OFFBOARD and self.setpoint is not None and self._offboard_in_control():
             self._apply_setpoint()
         else:
             self._hold_here()
-        self.statustext(self.personality.arm_texts[0])
         return ACCEPTED
 
     def disarm(self, force: bool) -> int:
         if not self.armed:
             return ACCEPTED
         if not force and not self.on_ground():
-            return self.personality.answers.refused
+            if self.personality.answers.disarm_in_air == TEMP_REJECTED:
+                self.statustext("Disarming denied: not landed", d.MAV_SEVERITY_CRITICAL)
+            return self.personality.answers.disarm_in_air
         self.armed = False
         self.taking_off = False
         self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
@@ -407,7 +429,9 @@ class Vehicle:
     def takeoff(self, alt_rel_m: float | None) -> int:
         """Climb to `alt_rel_m` above home (None: the takeoff-altitude parameter)."""
         p = self.personality
-        if not self.armed or not self.on_ground():
+        if not self.on_ground():
+            return p.answers.refused
+        if not self.armed and not p.takeoff_disarmed_accepted:
             return p.answers.refused
         if p.takeoff_needs_offboard_mode and self.behaviour != Behaviour.OFFBOARD:
             return p.answers.refused
@@ -418,19 +442,40 @@ class Vehicle:
             self.drop("bad_value", f"takeoff altitude {alt:g} m")
             return DENIED
         if p.takeoff_mode is not None:
+            self.failsafe = False
             self.mode_spec = p.mode(p.takeoff_mode)
-        x, y, _ = self.position()
-        self.taking_off = True
         self._takeoff_alt = alt
-        self._guide(Kind.POSITION, (x, y, -alt))
-        self.fleet.guidance.max_speed[self.index, 0] = self.params["max_climb_mps"]
+        if self.armed:  # else (PX4): in AUTO.TAKEOFF, the climb starts when it is armed
+            self._start_takeoff(alt)
         return ACCEPTED
+
+    def _start_takeoff(self, alt: float) -> None:
+        self.taking_off = True
+        self.returning = False
+        if self.on_ground():  # PX4: the motors spool up and the thrust ramps before the climb
+            self._climb_at = self.fleet.now + self.personality.takeoff_spoolup_s
+        x, y, _ = self.position()
+        if self.fleet.now < self._climb_at:
+            self._guide(Kind.IDLE)
+        else:
+            self._guide(Kind.POSITION, (x, y, -alt))
+        self._climb_limit()
+
+    def _climb_limit(self) -> None:
+        """The take-off climb speed: the take-off speed near the ground (PX4), else the max climb."""
+        speed = self.params["max_climb_mps"]
+        if self.personality.takeoff_speed_mps is not None:
+            low = self.altitude() < LAND_SLOW_BELOW_M
+            speed = min(speed, self.params["takeoff_speed_mps"] if low else PX4_AUTO_CLIMB_MPS)
+        self.fleet.guidance.max_speed[self.index, 0] = speed
 
     def land(self) -> int:
         if not self.armed:
             return self.personality.answers.refused
+        self.failsafe = False
         self.mode_spec = self.personality.mode(self.personality.land_mode)
         self.taking_off = False
+        self.returning = False
         self._start_land()
         return ACCEPTED
 
@@ -440,6 +485,15 @@ class Vehicle:
             return
         x, y, _ = self.position()
         self._guide(Kind.LAND, (x, y, 0.0))
+
+    def _start_return(self) -> None:
+        """PX4 AUTO.RTL, simplified: fly home at the current altitude, then land there."""
+        if not self.armed or self.on_ground():
+            self._guide(Kind.IDLE)
+            return
+        _, _, z = self.position()
+        self.returning = True
+        self._guide(Kind.POSITION, (0.0, 0.0, z))
 
     def accept_setpoint(self, kind: Kind, vec: tuple[float, float, float], type_mask: int) -> None:
         self.setpoint = (kind, vec, type_mask)
@@ -518,7 +572,20 @@ class Vehicle:
             return True
         if kind == Kind.FALL:
             return True
+        if self.returning:
+            x, y, _ = self.position()
+            if math.hypot(x, y) < RETURNED_M and math.hypot(*self.velocity()[:2]) < 0.3:
+                self.returning = False
+                self.statustext("RTL: land at destination")
+                self._start_land()
+            return True
         if self.taking_off:
+            if kind == Kind.IDLE:
+                if now < self._climb_at:
+                    return True
+                x, y, _ = self.position()
+                self._guide(Kind.POSITION, (x, y, -self._takeoff_alt))
+            self._climb_limit()
             if abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3:
                 self._takeoff_done()
                 return False
@@ -560,10 +627,20 @@ class Vehicle:
             return
         assert self.setpoint is not None
         if self.personality.failsafe == Failsafe.LEAVE_TO_HOLD:
-            self.mode_spec = self.personality.mode(self.personality.hold_mode)
-            self._hold_here()
-            self.statustext("Offboard lost: position hold", d.MAV_SEVERITY_WARNING)
-            log.info("vehicle %d: offboard setpoints lost at t=%.2f s, holding", self.sysid, now)
+            p = self.personality
+            action = int(self.params["offboard_loss_action"])
+            name = p.loss_modes[action] if p.loss_modes else p.hold_mode
+            self.failsafe = bool(p.loss_modes)
+            self.statustext(p.loss_text, d.MAV_SEVERITY_WARNING)
+            self.mode_spec = p.mode(name)
+            b = self.behaviour
+            if b == Behaviour.RETURN:
+                self._start_return()
+            elif b == Behaviour.LAND:
+                self._start_land()
+            else:
+                self._hold_here()
+            log.info("vehicle %d: offboard setpoints lost at t=%.2f s, %s", self.sysid, now, name)
         elif self.setpoint[0] != Kind.POSITION:
             # ArduPilot keeps GUIDED; a velocity/accel target times out and it brakes.
             self.setpoint_timed_out = True
