@@ -1,0 +1,283 @@
+"""Real PX4 SITL processes for a swarm run (`plmarl swarm up --autopilot px4=PATH`).
+
+PATH is PX4's SITL build output (`build/px4_sitl_default`, which holds `bin/px4` and
+`etc/`) or its `bin/px4`. Vehicle i is one `px4` process with PX4's built-in SIH simulator
+(quadrotor airframe 10040, `sihsim_quadx`: no Gazebo), in its own working directory
+`RUN/px4/vehicleI` (parameters, dataman; px4.log), started as
+
+    PX4_SYS_AUTOSTART=10040 PX4_SIMULATOR=sihsim PX4_SIM_MODEL=sihsim_quadx
+    PX4_HOME_LAT=.. PX4_HOME_LON=.. PX4_HOME_ALT=.. PX4_SIM_SPEED_FACTOR=S PX4_PARAM_..=..
+        px4 -d -i B+i -w RUN/px4/vehicleI BUILD/etc
+
+with its home at the mission's launch slot i on the ground (`arducopter.launch_homes`, as
+for ArduCopter). Instance B+i binds UDP 18570 + (B+i) (its GCS link: the world's) and
+14580 + (B+i) (its onboard/offboard link: the agent's), and 14280, 13030, 19450 + (B+i)
+(payload, gimbal, SIH display links); B is the first instance whose ports and lock file
+(/tmp/px4_lock-I) are all free for every vehicle, unless given. Both clients connect
+`udpout`: they speak first, and PX4 answers the first address that speaks to it on each link
+(`mavlink_receiver.cpp`: a UDP link's partner is fixed on its first datagram from
+localhost), so neither depends on PX4's fixed remote ports (14540 + I, which every instance
+above 9 shares, and 14550, which every instance shares).
+
+The pace: SIH runs in lockstep with PX4's modules, PX4_SIM_SPEED_FACTOR times wall time at
+most (`simulator_sih/sih.cpp`), slower when the machine cannot keep up (it waits for every
+module each step); the world follows each vehicle's clock (`sitl.external`). PX4's rcS
+multiplies COM_OF_LOSS_T, COM_DL_LOSS_T, COM_RC_LOSS_T and COM_OBC_LOSS_T by the factor.
+
+MAVLink signing: this PX4 has none (no MAV_SIGN_CFG parameter, no SETUP_SIGNING handler in
+`src/modules/mavlink`), so a PX4 swarm flies unsigned and says so.
+
+Faults go through PX4's own failure injection (`failure_injection`): SYS_FAILURE_EN is 1 in
+every SITL (rcS).
+
+The processes are started, watched and stopped as the ArduCopter ones are: each in a
+session of its own, dying with the launcher (PR_SET_PDEATHSIG); `stop()` is SIGTERM (PX4
+exits cleanly on it), then SIGKILL.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fcntl
+import os
+import socket
+import struct
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+
+from plmarl_sitl.deploy.mavlink.client import VehicleLink
+from plmarl_sitl.deploy.mavlink.codec import dialect as d
+from plmarl_sitl.errors import CommandRejected, UserError, VehicleUnreachable
+from plmarl_sitl.mission import Mission
+from plmarl_sitl.proc import die_with_parent
+from plmarl_sitl.sitl.arducopter import launch_homes, port_free, stop_processes
+
+GCS_PORT = 18570  # + I: the world's link (PX4 binds it)
+OFFBOARD_PORT = 14580  # + I: the agent's link (PX4 binds it; "onboard" mode, high rate)
+OTHER_PORTS = (14280, 13030, 19450)  # + I: payload, gimbal, SIH display links (bound too)
+MAX_INSTANCE = 200
+AIRFRAME = "10040"  # sihsim_quadx
+LOCK_FILE = "/tmp/px4_lock-{}"  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
+
+# What the run sets on top of the airframe's defaults (PX4_PARAM_<NAME>, applied after the
+# airframe); everything else keeps PX4's defaults, so the vehicles fly as a stock PX4 does.
+RUN_PARAMS = {
+    # No .ulg per vehicle and run: the logger costs CPU and disk on a shared machine.
+    "SDLOG_BACKEND": 0,
+}
+
+# Fault injection (PX4's own). The motor: MAV_CMD_INJECT_FAILURE (420), unit
+# FAILURE_UNIT_SYSTEM_MOTOR (101), type FAILURE_TYPE_OFF (1), instance 1: commander's
+# FailureInjector stops motor 1 in the control allocator (motor_stop_mask). The GPS:
+# INJECT_FAILURE of FAILURE_UNIT_SENSOR_GPS is handled only by the Gazebo/jMAVSim bridge
+# (simulator_mavlink), not by SIH, whose GPS is sensor_gps_sim: its SIM_GPS_USED parameter
+# (satellites used, default 10) below 4 makes it report no fix.
+MAV_CMD_INJECT_FAILURE = 420
+FAILURE_UNIT_SYSTEM_MOTOR = 101
+FAILURE_TYPE_OFF = 1
+GPS_PARAM = "SIM_GPS_USED"
+GPS_SATS_ON = 10
+GPS_SATS_OFF = 0
+
+
+def int32_wire(value: int) -> float:
+    """An INT32 parameter's value as PX4 puts it on the wire: its bytes in the float (bytewise)."""
+    return struct.unpack("<f", struct.pack("<i", int(value)))[0]
+
+
+def wire_int32(value: float) -> int:
+    return struct.unpack("<i", struct.pack("<f", value))[0]
+
+
+def find_build(path: Path) -> tuple[Path, Path]:
+    """(bin/px4, etc) of PX4's SITL build output PATH (or of PATH = its bin/px4); a UserError if not one."""
+    build = path.parent.parent if path.name == "px4" and path.is_file() else path
+    binary, etc = build / "bin" / "px4", build / "etc"
+    if not binary.is_file():
+        raise UserError(f"--autopilot px4={path}: no bin/px4 there (build PX4's SITL: make px4_sitl_default, "
+                        "and give build/px4_sitl_default)")
+    if not (etc / "init.d-posix" / "airframes").is_dir():
+        raise UserError(f"--autopilot px4={path}: no etc/init.d-posix/airframes beside bin/px4 (not a PX4 SITL build?)")
+    if not any((etc / "init.d-posix" / "airframes").glob(f"{AIRFRAME}_*")):
+        raise UserError(f"--autopilot px4={path}: this build has no SIH quadrotor airframe {AIRFRAME}")
+    return binary, etc
+
+
+def instance_ports(instance: int) -> list[int]:
+    """The UDP ports a PX4 SITL instance binds."""
+    return [base + instance for base in (GCS_PORT, OFFBOARD_PORT, *OTHER_PORTS)]
+
+
+def _lock_free(instance: int) -> bool:
+    """No px4 daemon holds instance I's lock file."""
+    path = LOCK_FILE.format(instance)
+    if not os.path.exists(path):
+        return True
+    try:
+        fd = os.open(path, os.O_RDWR)
+    except OSError:
+        return False  # someone else's, unreadable: not ours to take
+    try:
+        fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.lockf(fd, fcntl.LOCK_UN)
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
+def instance_free(instance: int) -> bool:
+    return _lock_free(instance) and all(port_free(p, socket.SOCK_DGRAM) for p in instance_ports(instance))
+
+
+def free_instance_base(n: int, first: int = 0) -> int:
+    """The first instance B >= `first` such that B .. B+n-1 are all free."""
+    for base in range(first, MAX_INSTANCE - n + 1):
+        if all(instance_free(base + i) for i in range(n)):
+            return base
+    raise UserError(f"no {n} consecutive free PX4 SITL instances (udp 18570 + I, 14580 + I) from -i {first}")
+
+
+@dataclass
+class Px4Process:
+    index: int
+    instance: int
+    workdir: Path
+    proc: subprocess.Popen
+
+    @property
+    def gcs_port(self) -> int:
+        return GCS_PORT + self.instance
+
+    @property
+    def offboard_port(self) -> int:
+        return OFFBOARD_PORT + self.instance
+
+    @property
+    def log_path(self) -> Path:
+        return self.workdir / "px4.log"
+
+    def tail(self) -> str:
+        """Its last ERROR line, else its last line; at most 240 characters."""
+        lines = [ln for ln in self.log_path.read_text(errors="replace").splitlines() if ln.strip()] if self.log_path.exists() else []
+        errors = [ln for ln in lines if ln.startswith("ERROR") and "not found" not in ln]
+        line = (errors[-1:] if lines and lines[-1].startswith(("PX4 Exiting", "Exiting")) else []) or lines[-1:] or ["(empty log)"]
+        text = line[0]
+        return text if len(text) <= 240 else text[:237] + "..."
+
+    def exit_reason(self) -> str:
+        return f"px4 {self.index} (instance {self.instance}) exited with code {self.proc.returncode}: {self.tail()} (log: {self.log_path})"
+
+
+class Px4Fleet:
+    """N PX4 SITL (SIH) processes, one per UAV of `mission`; `stop()` ends them all."""
+
+    kind = "px4"
+
+    def __init__(self, build: Path, mission: Mission, speedup: float, run_dir: Path, instance_base: int | None = None) -> None:
+        self.binary, self.etc = find_build(build)
+        self.mission, self.speedup, self.run_dir = mission, speedup, run_dir
+        n = mission.n_uavs
+        if instance_base is None:
+            instance_base = free_instance_base(n)
+        elif not all(instance_free(instance_base + i) for i in range(n)):
+            busy = [instance_base + i for i in range(n) if not instance_free(instance_base + i)]
+            raise UserError(f"--instance {instance_base}: PX4 SITL instance(s) {busy} are in use (ports or lock file)")
+        self.instance_base = instance_base
+        self.procs: list[Px4Process] = []
+
+    def environment(self, i: int) -> dict[str, str]:
+        lat, lon, alt, _ = launch_homes(self.mission)[i]
+        env = {k: v for k, v in os.environ.items() if not k.startswith("PX4_")}  # only what this run says
+        env.update(PX4_SYS_AUTOSTART=AIRFRAME, PX4_SIMULATOR="sihsim", PX4_SIM_MODEL="sihsim_quadx",
+                   PX4_HOME_LAT=f"{lat:.7f}", PX4_HOME_LON=f"{lon:.7f}", PX4_HOME_ALT=f"{alt:.2f}",
+                   PX4_SIM_SPEED_FACTOR=f"{self.speedup:g}")
+        # MAV_SYS_ID i + 1, as an ArduCopter swarm's (PX4 would give instance + 1).
+        env.update({f"PX4_PARAM_{k}": str(v) for k, v in {**RUN_PARAMS, "MAV_SYS_ID": i + 1}.items()})
+        return env
+
+    def command(self, i: int, workdir: Path) -> list[str]:
+        return [str(self.binary.resolve()), "-d", "-i", str(self.instance_base + i), "-w", str(workdir.resolve()),
+                str(self.etc.resolve())]
+
+    def start(self) -> None:
+        """Start every process (from the event loop's thread: PR_SET_PDEATHSIG is tied to it)."""
+        for i in range(self.mission.n_uavs):
+            workdir = self.run_dir / "px4" / f"vehicle{i}"
+            workdir.mkdir(parents=True, exist_ok=True)
+            with open(workdir / "px4.log", "wb") as out:
+                proc = subprocess.Popen(self.command(i, workdir), cwd=workdir, env=self.environment(i), stdout=out,
+                                        stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True,
+                                        preexec_fn=die_with_parent)
+            self.procs.append(Px4Process(i, self.instance_base + i, workdir, proc))
+
+    def agent_urls(self) -> list[str]:
+        return [f"udpout://127.0.0.1:{p.offboard_port}" for p in self.procs]
+
+    def world_urls(self) -> list[str]:
+        return [f"udpout://127.0.0.1:{p.gcs_port}" for p in self.procs]
+
+    def ports_line(self) -> str:
+        first, last = self.instance_base, self.instance_base + self.mission.n_uavs - 1
+        return (f"PX4 SITL (SIH) -i {first}..{last} at {self.speedup:g}x: agents on udp "
+                f"{', '.join(str(p.offboard_port) for p in self.procs)}; world on udp "
+                f"{', '.join(str(p.gcs_port) for p in self.procs)}")
+
+    def exited(self) -> Px4Process | None:
+        return next((p for p in self.procs if p.proc.poll() is not None), None)
+
+    async def wait_listening(self, timeout_s: float = 30.0) -> None:
+        """Until every process has bound its GCS and offboard ports (its MAVLink links are up)."""
+        loop = asyncio.get_running_loop()
+        t_end = loop.time() + timeout_s
+        for p in self.procs:
+            while port_free(p.gcs_port, socket.SOCK_DGRAM) or port_free(p.offboard_port, socket.SOCK_DGRAM):
+                if p.proc.poll() is not None:
+                    raise RuntimeError(p.exit_reason())
+                if loop.time() > t_end:
+                    raise RuntimeError(f"px4 {p.index} did not bind udp {p.gcs_port} and {p.offboard_port} within "
+                                       f"{timeout_s:g} s (log: {p.log_path})")
+                await asyncio.sleep(0.1)
+
+    async def stop(self, grace_s: float = 5.0) -> None:
+        await stop_processes([p.proc for p in self.procs], grace_s)
+        for p in self.procs:  # the daemon's socket stays behind on SIGTERM (harmless, but ours)
+            with contextlib.suppress(OSError):
+                os.unlink(f"/tmp/px4-sock-{p.instance}")
+
+
+SIGNING_UNSUPPORTED = ("MAVLink signing: PX4 has no MAVLink 2 signing to provision (no MAV_SIGN_CFG, no SETUP_SIGNING "
+                       "handler): the PX4 links fly unsigned")
+
+
+async def inject_fault(link: VehicleLink, unit: str, ok: bool) -> dict:
+    """PX4's own failure injection on `link`: unit "gps" (ok: back) or "motor" (motor 1 off).
+    Returns what to record: what was sent and what PX4 answered (or "error")."""
+    if unit == "gps":
+        sats = GPS_SATS_ON if ok else GPS_SATS_OFF
+        out: dict = {"param": GPS_PARAM, "set": sats, "via": "PARAM_SET (sensor_gps_sim)"}
+        for _ in range(3):
+            try:
+                echo = await link.param_set(GPS_PARAM, int32_wire(sats), d.MAV_PARAM_TYPE_INT32)
+            except VehicleUnreachable as exc:
+                out["error"] = str(exc)
+                continue
+            out.pop("error", None)
+            out["echo"] = wire_int32(echo)
+            break
+        return out
+    if unit == "motor":
+        out = {"command": "MAV_CMD_INJECT_FAILURE", "unit": "FAILURE_UNIT_SYSTEM_MOTOR", "type": "FAILURE_TYPE_OFF",
+               "instance": 1, "via": "COMMAND_LONG"}
+        try:
+            await link.command(MAV_CMD_INJECT_FAILURE, FAILURE_UNIT_SYSTEM_MOTOR, FAILURE_TYPE_OFF, 1, timeout=2.0)
+            out["result"] = "ACCEPTED"
+        except CommandRejected as exc:
+            out["error"] = str(exc)
+        except VehicleUnreachable as exc:
+            out["error"] = str(exc)
+        return out
+    raise ValueError(unit)
