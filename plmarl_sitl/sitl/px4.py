@@ -59,13 +59,20 @@ OFFBOARD_PORT = 14580  # + I: the agent's link (PX4 binds it; "onboard" mode, hi
 OTHER_PORTS = (14280, 13030, 19450)  # + I: payload, gimbal, SIH display links (bound too)
 MAX_INSTANCE = 200
 AIRFRAME = "10040"  # sihsim_quadx
-LOCK_FILE = "/tmp/px4_lock-{}"  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
+LOCK_FILE = "/tmp/px4_lock-{}"
+STARTED_LINE = "Startup script returned successfully"  # px4.log: rcS has run to its end  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
 
 # What the run sets on top of the airframe's defaults (PX4_PARAM_<NAME>, applied after the
 # airframe); everything else keeps PX4's defaults, so the vehicles fly as a stock PX4 does.
 RUN_PARAMS = {
     # No .ulg per vehicle and run: the logger costs CPU and disk on a shared machine.
     "SDLOG_BACKEND": 0,
+    # An injected motor failure (below) reaches the motors only through the control allocator,
+    # which reads the failure detector's motor_stop_mask only when CA_FAILURE_MODE > 0
+    # (ControlAllocator::check_for_motor_failures); at PX4's default 0 the command is ACCEPTED
+    # and the motor keeps turning (measured: the vehicle flew on). 1 also takes the stopped
+    # motor out of the allocation, as PX4 does for a motor failure it detects itself.
+    "CA_FAILURE_MODE": 1,
 }
 
 # Fault injection (PX4's own). The motor: MAV_CMD_INJECT_FAILURE (420), unit
@@ -229,18 +236,22 @@ class Px4Fleet:
     def exited(self) -> Px4Process | None:
         return next((p for p in self.procs if p.proc.poll() is not None), None)
 
-    async def wait_listening(self, timeout_s: float = 30.0) -> None:
-        """Until every process has bound its GCS and offboard ports (its MAVLink links are up)."""
+    async def wait_listening(self, timeout_s: float = 90.0) -> None:
+        """Until every process has bound its GCS and offboard ports and run its start-up script
+        to the end (STARTED_LINE in its log). An agent that connects earlier competes with
+        PX4's start-up for the CPU: on a loaded 2-core machine one waited more than its 3 s
+        for the ACK of its first command."""
         loop = asyncio.get_running_loop()
         t_end = loop.time() + timeout_s
         for p in self.procs:
-            while port_free(p.gcs_port, socket.SOCK_DGRAM) or port_free(p.offboard_port, socket.SOCK_DGRAM):
+            while (port_free(p.gcs_port, socket.SOCK_DGRAM) or port_free(p.offboard_port, socket.SOCK_DGRAM)
+                   or STARTED_LINE not in p.log_path.read_text(errors="replace")):
                 if p.proc.poll() is not None:
                     raise RuntimeError(p.exit_reason())
                 if loop.time() > t_end:
-                    raise RuntimeError(f"px4 {p.index} did not bind udp {p.gcs_port} and {p.offboard_port} within "
-                                       f"{timeout_s:g} s (log: {p.log_path})")
-                await asyncio.sleep(0.1)
+                    raise RuntimeError(f"px4 {p.index} did not finish its start-up (udp {p.gcs_port} and {p.offboard_port} "
+                                       f"bound, \"{STARTED_LINE}\") within {timeout_s:g} s (log: {p.log_path})")
+                await asyncio.sleep(0.2)
 
     async def stop(self, grace_s: float = 5.0) -> None:
         await stop_processes([p.proc for p in self.procs], grace_s)
@@ -270,7 +281,7 @@ async def inject_fault(link: VehicleLink, unit: str, ok: bool) -> dict:
             break
         return out
     if unit == "motor":
-        out = {"command": "MAV_CMD_INJECT_FAILURE", "unit": "FAILURE_UNIT_SYSTEM_MOTOR", "type": "FAILURE_TYPE_OFF",
+        out = {"command": "MAV_CMD_INJECT_FAILURE", "unit": "FAILURE_UNIT_SYSTEM_MOTOR", "failure": "FAILURE_TYPE_OFF",
                "instance": 1, "via": "COMMAND_LONG"}
         try:
             await link.command(MAV_CMD_INJECT_FAILURE, FAILURE_UNIT_SYSTEM_MOTOR, FAILURE_TYPE_OFF, 1, timeout=2.0)
