@@ -90,7 +90,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "in the ArduPilot tree the binary was built in)")
     up.add_argument("--instance", type=int, default=None, metavar="I",
                     help="with arducopter: UAV i runs as ArduPilot SITL instance -I I+i, ports 5760 + 10 (I+i); "
-                    "with px4: as PX4 instance -i I+i, udp 18570 + I+i and 14580 + I+i "
+                    "with px4: as PX4 instance -i I+i (at most 9), udp 18570 + I+i (world) and 14540 + I+i (agent) "
                     "(default: the first instances whose ports are free)")
     up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
                     help="with the emulator: autopilot personality (default px4)")

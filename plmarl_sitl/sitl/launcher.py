@@ -406,8 +406,9 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             assert opts.px4 is not None
             copters = Px4Fleet(opts.px4, mission, opts.speedup, out, opts.instance_base)
             copters.start()
-            console.print(copters.ports_line(), highlight=False)
-            log.info("%s", copters.ports_line())
+            for line in filter(None, (copters.ports_line(), copters.gcs_warning())):
+                console.print(line, highlight=False)
+                log.info("%s", line)
             try:
                 await copters.wait_listening()
             except RuntimeError as exc:

@@ -10,14 +10,19 @@ PATH is PX4's SITL build output (`build/px4_sitl_default`, which holds `bin/px4`
         px4 -d -i B+i -w RUN/px4/vehicleI BUILD/etc
 
 with its home at the mission's launch slot i on the ground (`arducopter.launch_homes`, as
-for ArduCopter). Instance B+i binds UDP 18570 + (B+i) (its GCS link: the world's) and
-14580 + (B+i) (its onboard/offboard link: the agent's), and 14280, 13030, 19450 + (B+i)
-(payload, gimbal, SIH display links); B is the first instance whose ports and lock file
-(/tmp/px4_lock-I) are all free for every vehicle, unless given. Both clients connect
-`udpout`: they speak first, and PX4 answers the first address that speaks to it on each link
-(`mavlink_receiver.cpp`: a UDP link's partner is fixed on its first datagram from
-localhost), so neither depends on PX4's fixed remote ports (14540 + I, which every instance
-above 9 shares, and 14550, which every instance shares).
+for ArduCopter). Instance I binds UDP 18570 + I (its GCS link: the world's), 14580 + I (its
+onboard/offboard link) and 14280, 13030, 19450 + I (payload, gimbal, SIH display links).
+
+The links. PX4 fixes a UDP link's partner on the first datagram it receives from localhost
+(`mavlink_receiver.cpp`) and sends only there from then on. Its offboard link sends to
+14540 + I until then, and every instance above 9 to the same 14549: a client listening on
+14549 for its own vehicle answers every such instance's heartbeats and so takes their links
+(measured: four agents on instances 20-23 got no heartbeat in 30 s while another test
+listened on 14549). So agent i listens (`udpin`) on its vehicle's own 14540 + I, with
+I <= 9: at most 10 PX4 vehicles, from the first instance B whose ports (bound and
+remote) and lock file (/tmp/px4_lock-I) are all free, unless given. The world speaks first
+(`udpout`) to the GCS link; that link sends to 14550, shared by every instance, until then, so
+a ground station listening on 14550 could take it first (said at start when 14550 is bound).
 
 The pace: SIH runs in lockstep with PX4's modules, PX4_SIM_SPEED_FACTOR times wall time at
 most (`simulator_sih/sih.cpp`), slower when the machine cannot keep up (it waits for every
@@ -55,9 +60,11 @@ from plmarl_sitl.proc import die_with_parent
 from plmarl_sitl.sitl.arducopter import launch_homes, port_free, stop_processes
 
 GCS_PORT = 18570  # + I: the world's link (PX4 binds it)
-OFFBOARD_PORT = 14580  # + I: the agent's link (PX4 binds it; "onboard" mode, high rate)
+OFFBOARD_PORT = 14580  # + I: the offboard link (PX4 binds it; "onboard" mode, high rate)
+AGENT_PORT = 14540  # + I: where that link sends (its remote), the agent listens there
+GCS_REMOTE_PORT = 14550  # where every instance's GCS link sends until the world speaks
 OTHER_PORTS = (14280, 13030, 19450)  # + I: payload, gimbal, SIH display links (bound too)
-MAX_INSTANCE = 200
+MAX_INSTANCE = 9  # above, every instance's offboard link sends to 14549 (ROMFS px4-rc.mavlink)
 AIRFRAME = "10040"  # sihsim_quadx
 LOCK_FILE = "/tmp/px4_lock-{}"
 STARTED_LINE = "Startup script returned successfully"  # px4.log: rcS has run to its end  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
@@ -113,8 +120,8 @@ def find_build(path: Path) -> tuple[Path, Path]:
 
 
 def instance_ports(instance: int) -> list[int]:
-    """The UDP ports a PX4 SITL instance binds."""
-    return [base + instance for base in (GCS_PORT, OFFBOARD_PORT, *OTHER_PORTS)]
+    """The UDP ports a PX4 SITL instance binds, and the one its agent listens on."""
+    return [base + instance for base in (GCS_PORT, OFFBOARD_PORT, *OTHER_PORTS, AGENT_PORT)]
 
 
 def _lock_free(instance: int) -> bool:
@@ -141,11 +148,19 @@ def instance_free(instance: int) -> bool:
 
 
 def free_instance_base(n: int, first: int = 0) -> int:
-    """The first instance B >= `first` such that B .. B+n-1 are all free."""
-    for base in range(first, MAX_INSTANCE - n + 1):
+    """The first instance B >= `first` such that B .. B+n-1 are all free (and at most MAX_INSTANCE)."""
+    check_count(n)
+    for base in range(first, MAX_INSTANCE - n + 2):
         if all(instance_free(base + i) for i in range(n)):
             return base
-    raise UserError(f"no {n} consecutive free PX4 SITL instances (udp 18570 + I, 14580 + I) from -i {first}")
+    raise UserError(f"no {n} consecutive free PX4 SITL instances in -i {first}..{MAX_INSTANCE} (udp 18570 + I, "
+                    "14580 + I, 14540 + I in use, or a px4 daemon's /tmp/px4_lock-I)")
+
+
+def check_count(n: int, base: int = 0) -> None:
+    if base + n - 1 > MAX_INSTANCE:
+        raise UserError(f"{n} PX4 vehicles from instance {base}: PX4 SITL gives an instance an offboard port of its own "
+                        f"only up to -i {MAX_INSTANCE} (above, all send to 14549): at most {MAX_INSTANCE + 1 - base}")
 
 
 @dataclass
@@ -162,6 +177,10 @@ class Px4Process:
     @property
     def offboard_port(self) -> int:
         return OFFBOARD_PORT + self.instance
+
+    @property
+    def agent_port(self) -> int:
+        return AGENT_PORT + self.instance
 
     @property
     def log_path(self) -> Path:
@@ -190,7 +209,7 @@ class Px4Fleet:
         n = mission.n_uavs
         if instance_base is None:
             instance_base = free_instance_base(n)
-        elif not all(instance_free(instance_base + i) for i in range(n)):
+        elif check_count(n, instance_base) is None and not all(instance_free(instance_base + i) for i in range(n)):
             busy = [instance_base + i for i in range(n) if not instance_free(instance_base + i)]
             raise UserError(f"--instance {instance_base}: PX4 SITL instance(s) {busy} are in use (ports or lock file)")
         self.instance_base = instance_base
@@ -222,16 +241,23 @@ class Px4Fleet:
             self.procs.append(Px4Process(i, self.instance_base + i, workdir, proc))
 
     def agent_urls(self) -> list[str]:
-        return [f"udpout://127.0.0.1:{p.offboard_port}" for p in self.procs]
+        return [f"udpin://127.0.0.1:{p.agent_port}" for p in self.procs]
 
     def world_urls(self) -> list[str]:
         return [f"udpout://127.0.0.1:{p.gcs_port}" for p in self.procs]
 
     def ports_line(self) -> str:
         first, last = self.instance_base, self.instance_base + self.mission.n_uavs - 1
-        return (f"PX4 SITL (SIH) -i {first}..{last} at {self.speedup:g}x: agents on udp "
-                f"{', '.join(str(p.offboard_port) for p in self.procs)}; world on udp "
+        return (f"PX4 SITL (SIH) -i {first}..{last} at {self.speedup:g}x: agents listen on udp "
+                f"{', '.join(str(p.agent_port) for p in self.procs)}; world on udp "
                 f"{', '.join(str(p.gcs_port) for p in self.procs)}")
+
+    def gcs_warning(self) -> str | None:
+        """A line to say when something listens on 14550 (a ground station could take the GCS links first)."""
+        if port_free(GCS_REMOTE_PORT, socket.SOCK_DGRAM):
+            return None
+        return (f"udp {GCS_REMOTE_PORT} is in use: a ground station there gets every PX4's GCS link until the world "
+                "speaks, and if it answers first, PX4 answers only it (the world then waits for telemetry)")
 
     def exited(self) -> Px4Process | None:
         return next((p for p in self.procs if p.proc.poll() is not None), None)

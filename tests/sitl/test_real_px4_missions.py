@@ -5,7 +5,7 @@
   mission on four real PX4 SIH quadrotors, keeps coverage >= 0.7 before UAV 2's failure at
   t = 100 s, records the failure, and leaves no process behind; PX4's own failure injection
   (GPS loss, motor failure) is confirmed in events.jsonl; Ctrl-C mid-run leaves no process.
-  Instances -i 20..39 so that other tests' PX4s (instance 0..) do not collide.
+  Instances: the first free ones of -i 0..9 (other tests' PX4s are skipped over).
 * Always: a user's mistake (no build there) is one line and a non-zero exit; the parts of
   `sitl.px4` that need no PX4.
 
@@ -27,13 +27,13 @@ import pytest
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.sitl.arducopter import launch_homes
-from plmarl_sitl.sitl.px4 import Px4Fleet, find_build, instance_free, int32_wire, wire_int32
+from plmarl_sitl.sitl.px4 import Px4Fleet, check_count, find_build, instance_free, int32_wire, wire_int32
 
 ROOT = Path(__file__).resolve().parents[2]
 BUILD = os.environ.get("PX4_SITL", "")
 needs_px4 = pytest.mark.skipif(not BUILD, reason="set PX4_SITL=/path/to/PX4-Autopilot/build/px4_sitl_default "
                                "(PX4's SITL build output: make px4_sitl_default) to run")
-INSTANCES = range(20, 40)
+INSTANCES = range(0, 10)  # PX4 gives an instance an offboard port of its own only up to 9
 NICE = ["nice", "-n", "10"]
 SPEEDUP = "2"  # PX4_SIM_SPEED_FACTOR; a loaded 2-core machine holds about 1.7x with four instances
 
@@ -127,7 +127,7 @@ def test_each_px4_gets_its_home_at_its_launch_slot_and_a_clean_environment(tmp_p
     (build / "etc" / "init.d-posix" / "airframes" / "10040_sihsim_quadx").write_text("")
     monkeypatch.setenv("PX4_PARAM_COM_OF_LOSS_T", "99")  # the caller's PX4_* do not leak into the run
     mission = load_mission(ROOT / "missions" / "node_failure.yaml")
-    fleet = Px4Fleet(build, mission, 3.0, tmp_path / "run", instance_base=150)
+    fleet = Px4Fleet(build, mission, 3.0, tmp_path / "run")
     homes = launch_homes(mission)
     for i in range(mission.n_uavs):
         e = fleet.environment(i)
@@ -135,8 +135,17 @@ def test_each_px4_gets_its_home_at_its_launch_slot_and_a_clean_environment(tmp_p
         assert e["PX4_SYS_AUTOSTART"] == "10040" and e["PX4_SIMULATOR"] == "sihsim"
         assert e["PX4_SIM_SPEED_FACTOR"] == "3" and e["PX4_PARAM_MAV_SYS_ID"] == str(i + 1)
         assert "PX4_PARAM_COM_OF_LOSS_T" not in e
-        assert fleet.command(i, tmp_path)[1:4] == ["-d", "-i", str(150 + i)]
+        assert fleet.command(i, tmp_path)[1:4] == ["-d", "-i", str(fleet.instance_base + i)]
+        assert fleet.agent_urls()[i:i + 1] in ([], [f"udpin://127.0.0.1:{14540 + fleet.instance_base + i}"])
     assert len({(e := fleet.environment(i))["PX4_HOME_LAT"] + e["PX4_HOME_LON"] for i in range(mission.n_uavs)}) == 4
+
+
+def test_more_px4_vehicles_than_instances_with_ports_of_their_own_is_one_line() -> None:
+    with pytest.raises(UserError, match="at most 10"):
+        check_count(11)
+    with pytest.raises(UserError, match="at most 2"):
+        check_count(4, base=8)
+    check_count(10)
 
 
 def test_int32_parameters_go_on_the_wire_bytewise_as_px4_takes_them() -> None:
