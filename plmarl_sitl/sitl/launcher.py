@@ -413,6 +413,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                 await copters.wait_listening()
             except RuntimeError as exc:
                 raise ComponentFailed(str(exc)) from exc
+            await copters.quiet_gcs_links()
             agent_urls = copters.agent_urls()
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
                               events=schedule, external=tuple(copters.world_urls()), swarm_key=key,

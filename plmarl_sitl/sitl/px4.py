@@ -82,6 +82,15 @@ RUN_PARAMS = {
     "CA_FAILURE_MODE": 1,
 }
 
+# The GCS link's streams the world does not read, and their rates there (ROMFS px4-rc.mavlink
+# sets most of them to 50 Hz on it: about 350 messages a vehicle-second, four vehicles at 2x
+# some 2800 a wall second for the world's process to parse). Set with PX4's own
+# `mavlink stream` through its client (bin/px4-mavlink --instance I) once the start-up is over.
+GCS_STREAMS = {"ATTITUDE": 0, "ATTITUDE_QUATERNION": 0, "ATTITUDE_TARGET": 0, "GLOBAL_POSITION_INT": 0,
+               "SERVO_OUTPUT_RAW_0": 0, "RC_CHANNELS": 0, "OPTICAL_FLOW_RAD": 0, "GPS_RAW_INT": 0,
+               "MOUNT_ORIENTATION": 0, "GIMBAL_DEVICE_ATTITUDE_STATUS": 0, "GIMBAL_DEVICE_SET_ATTITUDE": 0,
+               "GLOBAL_POSITION_SENSOR": 0, "LOCAL_POSITION_NED": 10, "POSITION_TARGET_LOCAL_NED": 2}
+
 # Fault injection (PX4's own). The motor: MAV_CMD_INJECT_FAILURE (420), unit
 # FAILURE_UNIT_SYSTEM_MOTOR (101), type FAILURE_TYPE_OFF (1), instance 1: commander's
 # FailureInjector stops motor 1 in the control allocator (motor_stop_mask). The GPS:
@@ -251,6 +260,21 @@ class Px4Fleet:
         return (f"PX4 SITL (SIH) -i {first}..{last} at {self.speedup:g}x: agents listen on udp "
                 f"{', '.join(str(p.agent_port) for p in self.procs)}; world on udp "
                 f"{', '.join(str(p.gcs_port) for p in self.procs)}")
+
+    async def quiet_gcs_links(self) -> None:
+        """`mavlink stream -u GCS_PORT -s NAME -r HZ` for each of GCS_STREAMS on every instance.
+        A stream a build does not have is left alone (the client says so and exits non-zero)."""
+        client = self.binary.parent / "px4-mavlink"
+        if not client.exists():
+            return
+
+        async def one(p: Px4Process, name: str, hz: float) -> None:
+            proc = await asyncio.create_subprocess_exec(
+                str(client), "--instance", str(p.instance), "stream", "-u", str(p.gcs_port), "-s", name, "-r", f"{hz:g}",
+                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            await proc.wait()
+
+        await asyncio.gather(*(one(p, name, hz) for p in self.procs for name, hz in GCS_STREAMS.items()))
 
     def gcs_warning(self) -> str | None:
         """A line to say when something listens on 14550 (a ground station could take the GCS links first)."""
