@@ -41,6 +41,7 @@ import contextlib
 import datetime as _dt
 import json
 import logging
+import math
 import signal
 import subprocess
 import sys
@@ -415,9 +416,13 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                 raise ComponentFailed(str(exc)) from exc
             await copters.quiet_gcs_links()
             agent_urls = copters.agent_urls()
+            # A PX4's clock runs from its own start, not from its agent's connection (ArduCopter's
+            # does): with slow agent forks at --speedup 2 it passed the world's 300 vehicle-second
+            # start timeout before any agent had connected, and the mission started on the ground.
+            # The launcher's wall-clock start timeout (`_watch`) decides instead.
             cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
                               events=schedule, external=tuple(copters.world_urls()), swarm_key=key,
-                              broker_credentials=world_login)
+                              broker_credentials=world_login, start_timeout_s=math.inf)
         elif real:
             assert opts.arducopter is not None and copter_parm is not None
             copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
