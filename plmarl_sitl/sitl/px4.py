@@ -32,12 +32,16 @@ multiplies COM_OF_LOSS_T, COM_DL_LOSS_T, COM_RC_LOSS_T and COM_OBC_LOSS_T by the
 MAVLink signing: this PX4 has none (no MAV_SIGN_CFG parameter, no SETUP_SIGNING handler in
 `src/modules/mavlink`), so a PX4 swarm flies unsigned and says so.
 
-Faults go through PX4's own failure injection (`failure_injection`): SYS_FAILURE_EN is 1 in
-every SITL (rcS).
+The launcher waits for each instance's start-up script to finish (`wait_listening`), turns
+off the GCS link's streams the world does not read (`quiet_gcs_links`), and only then starts
+the world and the agents.
+
+Faults go through PX4's own failure injection (`inject_fault`): SYS_FAILURE_EN is 1 in every
+SITL (rcS), and CA_FAILURE_MODE 1 (RUN_PARAMS) lets an injected motor failure stop the motor.
 
 The processes are started, watched and stopped as the ArduCopter ones are: each in a
 session of its own, dying with the launcher (PR_SET_PDEATHSIG); `stop()` is SIGTERM (PX4
-exits cleanly on it), then SIGKILL.
+exits cleanly on it), then SIGKILL, and removes the daemon's /tmp/px4-sock-I it leaves.
 """
 
 from __future__ import annotations
@@ -66,8 +70,8 @@ GCS_REMOTE_PORT = 14550  # where every instance's GCS link sends until the world
 OTHER_PORTS = (14280, 13030, 19450)  # + I: payload, gimbal, SIH display links (bound too)
 MAX_INSTANCE = 9  # above, every instance's offboard link sends to 14549 (ROMFS px4-rc.mavlink)
 AIRFRAME = "10040"  # sihsim_quadx
-LOCK_FILE = "/tmp/px4_lock-{}"
-STARTED_LINE = "Startup script returned successfully"  # px4.log: rcS has run to its end  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
+LOCK_FILE = "/tmp/px4_lock-{}"  # the px4 daemon's per-instance lock (platforms/posix/.../main.cpp)
+STARTED_LINE = "Startup script returned successfully"  # px4.log: rcS has run to its end
 
 # What the run sets on top of the airframe's defaults (PX4_PARAM_<NAME>, applied after the
 # airframe); everything else keeps PX4's defaults, so the vehicles fly as a stock PX4 does.
