@@ -19,6 +19,8 @@ examples:
   plmarl swarm up missions/broker_outage.yaml --broker mqtt://127.0.0.1:1883 --headless
   plmarl swarm up missions/paper_urban.yaml --autopilot arducopter=$HOME/ardupilot/build/sitl/bin/arducopter \\
       --speedup 5 --headless    # one real ArduCopter SITL per UAV
+  plmarl swarm up missions/node_failure.yaml --autopilot px4=$HOME/PX4-Autopilot/build/px4_sitl_default \
+      --speedup 2 --headless    # one real PX4 SITL (SIH quadrotor) per UAV
   plmarl swarm up missions/paper_urban.yaml --hosts hosts.yaml --broker mosquitto --lockstep --headless
       # agents on companion computers reached by ssh; hosts.yaml:
       #   launcher: {address: 10.0.0.1}      # the broker and the vehicles' UDP ports listen here
@@ -76,15 +78,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     up.add_argument("--policy", type=policy_arg, default=None, metavar="DIR|NAME",
                     help="policy directory, or the name of one of the project's (policies/NAME: pl-marl, gru, tag-mappo, "
                     "or service, the plan follower, not learnt); default policies/pl-marl")
-    up.add_argument("--autopilot", type=autopilot_arg, default=("emulator", None), metavar="emulator|arducopter=PATH",
-                    help="the autopilots: emulator (the point-mass emulator in the world's process, default) or "
+    up.add_argument("--autopilot", type=autopilot_arg, default=("emulator", None), metavar="emulator|arducopter=PATH|px4=PATH",
+                    help="the autopilots: emulator (the point-mass emulator in the world's process, default), "
                     "arducopter=PATH (one real ArduCopter SITL process per UAV, PATH the `arducopter` binary built from "
-                    "ArduPilot's source; its home at the mission's launch slot, its clock sped up by --speedup)")
+                    "ArduPilot's source; its home at the mission's launch slot, its clock sped up by --speedup) or "
+                    "px4=PATH (one real PX4 SITL process with its SIH quadrotor per UAV, PATH PX4's build output "
+                    "build/px4_sitl_default; home at the launch slot, PX4_SIM_SPEED_FACTOR = --speedup; unsigned: "
+                    "PX4 has no MAVLink signing)")
     up.add_argument("--copter-parm", type=Path, default=None, metavar="FILE",
                     help="with arducopter: ArduPilot's copter.parm (default: Tools/autotest/default_params/copter.parm "
                     "in the ArduPilot tree the binary was built in)")
     up.add_argument("--instance", type=int, default=None, metavar="I",
-                    help="with arducopter: UAV i runs as ArduPilot SITL instance -I I+i, ports 5760 + 10 (I+i) "
+                    help="with arducopter: UAV i runs as ArduPilot SITL instance -I I+i, ports 5760 + 10 (I+i); "
+                    "with px4: as PX4 instance -i I+i (at most 9), udp 18570 + I+i (world) and 14540 + I+i (agent) "
                     "(default: the first instances whose ports are free)")
     up.add_argument("--personality", choices=["px4", "ardupilot"], default="px4",
                     help="with the emulator: autopilot personality (default px4)")
@@ -141,13 +147,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def autopilot_arg(text: str) -> tuple[str, Path | None]:
-    """`emulator` or `arducopter=PATH`."""
+    """`emulator`, `arducopter=PATH` or `px4=PATH`."""
     kind, eq, path = text.partition("=")
     if kind == "emulator" and not eq:
         return "emulator", None
-    if kind == "arducopter" and path:
-        return "arducopter", Path(path).expanduser()
-    raise argparse.ArgumentTypeError(f"{text!r}: expected emulator or arducopter=PATH (the arducopter binary)")
+    if kind in ("arducopter", "px4") and path:
+        return kind, Path(path).expanduser()
+    raise argparse.ArgumentTypeError(f"{text!r}: expected emulator, arducopter=PATH (the arducopter binary) or px4=PATH "
+                                     "(PX4's build/px4_sitl_default)")
 
 
 def run_up(args: argparse.Namespace) -> int:
@@ -162,19 +169,22 @@ def run_up(args: argparse.Namespace) -> int:
     check_boot(args.personality, args.boot)
     autopilot, binary = args.autopilot
     if autopilot == "emulator" and (args.copter_parm is not None or args.instance is not None):
-        raise UserError("--copter-parm and --instance are for --autopilot arducopter=PATH")
+        raise UserError("--copter-parm and --instance are for --autopilot arducopter=PATH or px4=PATH")
+    if autopilot == "px4" and args.copter_parm is not None:
+        raise UserError("--copter-parm is for --autopilot arducopter=PATH")
     if args.instance is not None and args.instance < 0:
         raise UserError("--instance must be >= 0")
     if args.duration is not None and args.duration < 1:
         raise UserError("--duration must be >= 1 s")
     if args.lockstep and autopilot != "emulator":
-        raise UserError("--lockstep needs the emulated autopilots (an ArduCopter SITL runs a clock of its own)")
+        raise UserError(f"--lockstep needs the emulated autopilots (a {autopilot} SITL runs a clock of its own)")
     if not args.straggler > 0:
         raise UserError("--straggler must be > 0 s")
     opts = UpOptions(
         mission_path=args.mission, speedup=args.speedup, duration_s=args.duration, broker=args.broker,
         headless=args.headless or args.json, out=args.out, seed=args.seed, policy=args.policy or DEFAULT_POLICY,
-        personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot, arducopter=binary,
+        personality=args.personality, boot=args.boot, swarm=args.swarm_name, autopilot=autopilot,
+        arducopter=binary if autopilot == "arducopter" else None, px4=binary if autopilot == "px4" else None,
         copter_parm=args.copter_parm, instance_base=args.instance, verbose=args.verbose,
         auth=not args.no_auth, swarm_key=args.swarm_key, broker_credentials=args.broker_credentials,
         mavlink_sign=args.mavlink_sign, mavlink_keys=args.mavlink_keys,

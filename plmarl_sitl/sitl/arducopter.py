@@ -86,7 +86,8 @@ def instance_ports(instance: int) -> tuple[list[int], list[int]]:
     return [SERIAL0_PORT + base, SERIAL1_PORT + base, SERIAL2_PORT + base], [RCIN_PORT + base]
 
 
-def _free(port: int, kind: int) -> bool:
+def port_free(port: int, kind: int) -> bool:
+    """Nobody has bound `port` (TCP or UDP, on any address)."""
     with socket.socket(socket.AF_INET, kind) as s:
         try:
             s.bind(("0.0.0.0", port))
@@ -97,7 +98,7 @@ def _free(port: int, kind: int) -> bool:
 
 def instance_free(instance: int) -> bool:
     tcp, udp = instance_ports(instance)
-    return all(_free(p, socket.SOCK_STREAM) for p in tcp) and all(_free(p, socket.SOCK_DGRAM) for p in udp)
+    return all(port_free(p, socket.SOCK_STREAM) for p in tcp) and all(port_free(p, socket.SOCK_DGRAM) for p in udp)
 
 
 def free_instance_base(n: int, first: int = 0) -> int:
@@ -200,7 +201,7 @@ class ArduCopterFleet:
         loop = asyncio.get_running_loop()
         t_end = loop.time() + timeout_s
         for p in self.procs:
-            while _free(p.serial0, socket.SOCK_STREAM):  # bound by arducopter: listening (a probe would connect)
+            while port_free(p.serial0, socket.SOCK_STREAM):  # bound by arducopter: listening (a probe would connect)
                 if p.proc.poll() is not None:
                     raise RuntimeError(p.exit_reason())
                 if loop.time() > t_end:
@@ -226,19 +227,25 @@ class ArduCopterFleet:
 
     async def stop(self, grace_s: float = 5.0) -> None:
         """SIGTERM every process, SIGKILL whoever is left after `grace_s`."""
-        live = [p.proc for p in self.procs if p.proc.poll() is None]
-        for proc in live:
+        await stop_processes([p.proc for p in self.procs], grace_s)
+
+
+async def stop_processes(procs: list[subprocess.Popen], grace_s: float = 5.0) -> None:
+    """SIGTERM every live process of `procs`, SIGKILL whoever is left after `grace_s` (the
+    autopilot fleets' stop: ArduCopter's, `sitl.px4`'s)."""
+    live = [proc for proc in procs if proc.poll() is None]
+    for proc in live:
+        with contextlib.suppress(ProcessLookupError):
+            proc.send_signal(signal.SIGTERM)
+    loop = asyncio.get_running_loop()
+    t_end = loop.time() + grace_s
+    for proc in live:
+        while proc.poll() is None and loop.time() < t_end:
+            await asyncio.sleep(0.05)
+        if proc.poll() is None:
             with contextlib.suppress(ProcessLookupError):
-                proc.send_signal(signal.SIGTERM)
-        loop = asyncio.get_running_loop()
-        t_end = loop.time() + grace_s
-        for proc in live:
-            while proc.poll() is None and loop.time() < t_end:
-                await asyncio.sleep(0.05)
-            if proc.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    proc.kill()
-                proc.wait()
+                proc.kill()
+            proc.wait()
 
 
 async def provision_signing(url: str, key: bytes, timeout_s: float = 30.0) -> None:

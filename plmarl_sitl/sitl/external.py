@@ -24,7 +24,8 @@ each vehicle is waiting for is in `not_ready`, which the world logs.
 Autopilot faults are PARAM_SETs of ArduPilot SITL's SIM_ parameters on this link
 (`sitl.vehicles.GPS_OFF`, ...); the PARAM_VALUE the vehicle echoes is reported
 (`fault_reports`), and so is every STATUSTEXT of a vehicle under a fault. A real drone has
-no SIM_ parameters: it echoes nothing, which is reported as unconfirmed.
+no SIM_ parameters: it echoes nothing, which is reported as unconfirmed. A PX4 vehicle (its
+heartbeat says so) gets PX4's own failure injection instead (`sitl.px4.inject_fault`).
 """
 
 from __future__ import annotations
@@ -69,6 +70,7 @@ class ExternalVehicle:
     state: str = "not connected yet"  # what it is waiting for, until it streams its position
     mode: str = "?"
     offboard_mode: str = "?"  # the personality's (PX4 OFFBOARD, ArduPilot GUIDED)
+    autopilot: str = "?"  # the personality's name, from its heartbeat (px4, ardupilot)
     armed: bool = False
     killed: bool = False
     origin: tuple[float, float, float] | None = None  # its local frame's origin in the mission frame
@@ -195,7 +197,7 @@ class ExternalVehicles:
             v.link = link
             p = link.personality
             assert p is not None
-            v.offboard_mode = p.offboard_mode
+            v.offboard_mode, v.autopilot = p.offboard_mode, p.name
             log.info("vehicle %d: %s autopilot, sysid %d, on %s", v.index, p.name, link.sysid, v.url)
             try:
                 await self._serve(v, link)
@@ -315,10 +317,34 @@ class ExternalVehicles:
 
     # ------------------------------------------------------------------ autopilot faults
     def set_gps(self, i: int, on: bool) -> None:
-        self._set_params(i, GPS_ON if on else GPS_OFF)
+        if self.vehicles[i].autopilot == "px4":
+            self._inject(i, "gps", on)
+        else:
+            self._set_params(i, GPS_ON if on else GPS_OFF)
 
     def fail_motor(self, i: int) -> None:
-        self._set_params(i, MOTOR_FAIL)
+        if self.vehicles[i].autopilot == "px4":
+            self._inject(i, "motor", False)
+        else:
+            self._set_params(i, MOTOR_FAIL)
+
+    def _inject(self, i: int, unit: str, ok: bool) -> None:
+        """PX4's own failure injection on the world's link (`sitl.px4.inject_fault`), reported."""
+        from plmarl_sitl.sitl.px4 import inject_fault
+
+        v = self.vehicles[i]
+        v.faulted = True
+
+        async def run() -> None:
+            while v.link is None:
+                await asyncio.sleep(ASK_EVERY_S)
+            report = await inject_fault(v.link, unit, ok)
+            self._reports.append({"uav": v.index, "boot_s": round(v.clock_at(time.perf_counter()), 3), **report,
+                                  "via": f"{report['via']} on {v.url}"})
+            if "error" in report:
+                log.warning("vehicle %d: %s fault injection not confirmed: %s", i, unit, report["error"])
+
+        self._tasks.append(asyncio.get_running_loop().create_task(run(), name=f"vehicle{i}-fault"))
 
     def mark_failed(self, i: int) -> None:
         self.kill(i)

@@ -8,7 +8,9 @@ lists run on that host instead (`sitl.hosts`, `sitl.remote`), reached through it
 prefix (ssh); the broker and the vehicles' ports then listen on the launcher's address
 from the hosts file, and a host that falls silent is recorded as node failures. With `--autopilot arducopter=PATH` the autopilots
 are real: one ArduCopter SITL process per UAV (`sitl.arducopter`), each agent on its
-SERIAL0, the world following each vehicle on its SERIAL1 (`sitl.external`). The world starts mission time once every vehicle
+SERIAL0, the world following each vehicle on its SERIAL1 (`sitl.external`); with `--autopilot px4=PATH`
+one PX4 SITL (SIH) process per UAV (`sitl.px4`), each agent on its offboard link, the world on its
+GCS link. The world starts mission time once every vehicle
 flies under its agent; the mission's events fire on that clock, from one schedule
 (`model.events`): the world applies those in its own process, the launcher those that
 touch the processes it manages (`LauncherEvents`: agent kills, the broker gate).
@@ -23,12 +25,13 @@ Everything is recorded in the run directory:
     tlogs/vehicleI.tlog   each vehicle's MAVLink traffic (pymavlink / MAVExplorer; ArduCopter:
                       the world's SERIAL1 link, both ways)
     arducopter/vehicleI/  ArduCopter's working directory: arducopter.log, plmarl.parm, logs/
+    px4/vehicleI/         PX4's working directory: px4.log, parameters, dataman
     agents/agentI.log     each agent's log (and its P-AoI trace); a remote agent's comes back over its host's link
     hosts/NAME.stderr     with --hosts: what each host's command prefix (ssh) said
     launcher.log      world, bus and launcher log
 
 Shutdown (mission end, Ctrl-C, SIGTERM or a failed component) stops the agents (SIGTERM,
-then SIGKILL), the world, the ArduCopters and the broker, so no process is left behind.
+then SIGKILL), the world, the ArduCopters or PX4s and the broker, so no process is left behind.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ import contextlib
 import datetime as _dt
 import json
 import logging
+import math
 import signal
 import subprocess
 import sys
@@ -69,6 +73,7 @@ from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
+from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet, find_build
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.report_csv import write_metrics_csv
 from plmarl_sitl.sitl.rundir import claim_run_dir
@@ -103,11 +108,13 @@ class UpOptions:
     swarm: str = "sitl"
     start_timeout_s: float | None = None  # wall s for every vehicle to get airborne (None: 120; ArduCopter: more)
     # The autopilots: "emulator" (in the world's process, `personality`, `boot`) or
-    # "arducopter" (a real ArduCopter SITL process per UAV, the binary `arducopter`).
+    # "arducopter" (a real ArduCopter SITL process per UAV, the binary `arducopter`) or
+    # "px4" (a real PX4 SITL process with SIH per UAV, `px4` its build output).
     autopilot: str = "emulator"
     arducopter: Path | None = None
+    px4: Path | None = None
     copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
-    instance_base: int | None = None  # first ArduPilot SITL instance -I (None: the first free ones)
+    instance_base: int | None = None  # first ArduPilot SITL instance -I, PX4 -i (None: the first free ones)
     verbose: bool = False  # agents log DEBUG too
     # Message authentication (docs/SECURITY.md): a fresh swarm key per run in the run
     # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
@@ -126,7 +133,8 @@ class UpOptions:
     hosts: Path | None = None  # a hosts file: some agents on other machines (`sitl.hosts`)
 
     def start_timeout(self) -> float:
-        """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s."""
+        """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s; a real PX4
+        ~37 s to OFFBOARD at 60 m (it climbs at ~2 m/s)."""
         if self.start_timeout_s is not None:
             return self.start_timeout_s
         return 120.0 if self.autopilot == "emulator" else max(120.0, 60.0 + 150.0 / self.speedup)
@@ -265,13 +273,18 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
     console = console or Console()
     mission = resolve_mission(opts)
-    real = opts.autopilot == "arducopter"
+    real = opts.autopilot != "emulator"
     copter_parm = None
-    if real:
+    if opts.autopilot == "arducopter":
         assert opts.arducopter is not None
         copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
-        if EventSchedule.of(mission).has("gnss_noise"):
-            raise UserError("gnss_noise events need emulated autopilots (a real ArduCopter navigates on its own GNSS)")
+    elif opts.autopilot == "px4":
+        assert opts.px4 is not None
+        find_build(opts.px4)  # not a PX4 SITL build: one line before anything starts
+        if opts.mavlink_keys is not None:
+            raise UserError("--mavlink-keys with --autopilot px4: PX4 has no MAVLink signing to give them to")
+    if real and EventSchedule.of(mission).has("gnss_noise"):
+        raise UserError(f"gnss_noise events need emulated autopilots (a real {opts.autopilot} navigates on its own GNSS)")
     if opts.broker not in ("embedded", "mosquitto"):
         parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
     if opts.swarm_key is not None:
@@ -301,6 +314,10 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     duration = opts.duration_s or mission.timing.episode_s
     n = mission.n_uavs
     key_path, key = _swarm_key(opts, out)
+    if opts.autopilot == "px4" and opts.mavlink_sign:
+        log.warning("%s", SIGNING_UNSUPPORTED)
+        console.print(f"[bold yellow]{SIGNING_UNSUPPORTED}[/]", highlight=False)
+        opts = replace(opts, mavlink_sign=False)
     mav_dir, mav_keys = _mavlink_keys(opts, out, n)
     metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
     events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
@@ -316,7 +333,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
             monitor.on_event(entry)
 
-    autopilots = f"ArduCopter SITL {opts.arducopter}" if real else f"emulated {opts.personality}"
+    autopilots = {"arducopter": f"ArduCopter SITL {opts.arducopter}", "px4": f"PX4 SITL (SIH) {opts.px4}"}.get(
+        opts.autopilot, f"emulated {opts.personality}")
     pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
             "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
     console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
@@ -327,7 +345,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         console.print(f"messages signed with the swarm key {key_path}" if key is not None else
                       "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
                       highlight=False)
-    if mav_dir is None or opts.verbose:
+    if (mav_dir is None and opts.autopilot != "px4") or opts.verbose:  # px4: said above
         console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
                       "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
                       "command it", highlight=False)
@@ -356,7 +374,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     bus_url = f"mqtt://{up_host}:{up_port}"
     world: SitlWorld | None = None
     script: LauncherEvents | None = None
-    copters: ArduCopterFleet | None = None
+    copters: ArduCopterFleet | Px4Fleet | None = None
     last_headless = [-10.0]
 
     def on_metrics(m: dict) -> None:
@@ -385,7 +403,27 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                     log.info("%s", line)
             except HostFailed as exc:
                 raise ComponentFailed(str(exc)) from None
-        if real:
+        if opts.autopilot == "px4":
+            assert opts.px4 is not None
+            copters = Px4Fleet(opts.px4, mission, opts.speedup, out, opts.instance_base)
+            copters.start()
+            for line in filter(None, (copters.ports_line(), copters.gcs_warning())):
+                console.print(line, highlight=False)
+                log.info("%s", line)
+            try:
+                await copters.wait_listening()
+            except RuntimeError as exc:
+                raise ComponentFailed(str(exc)) from exc
+            await copters.quiet_gcs_links()
+            agent_urls = copters.agent_urls()
+            # A PX4's clock runs from its own start, not from its agent's connection (ArduCopter's
+            # does): with slow agent forks at --speedup 2 it passed the world's 300 vehicle-second
+            # start timeout before any agent had connected, and the mission started on the ground.
+            # The launcher's wall-clock start timeout (`_watch`) decides instead.
+            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
+                              events=schedule, external=tuple(copters.world_urls()), swarm_key=key,
+                              broker_credentials=world_login, start_timeout_s=math.inf)
+        elif real:
             assert opts.arducopter is not None and copter_parm is not None
             copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
             copters.start()
@@ -429,7 +467,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         # scheduled in turn (100 agents: 22-34 s on a loaded 2-core machine).
         await asyncio.gather(*(
             fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
-                        extra=["--autopilot", "ardupilot" if real else opts.personality,
+                        extra=["--autopilot", {"arducopter": "ardupilot", "px4": "px4"}.get(opts.autopilot, opts.personality),
                                *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
                         swarm_key=key_path, credentials=creds.get(f"agent{i}"),
                         mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
@@ -470,7 +508,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     t0s = world.t0_by_uav if world is not None and world.t0_by_uav is not None else world.t0 if world else None
     traces = [ap.trace() for ap in fleet.procs.values()]
     summary["timeliness"] = timeliness(traces, [t0s[i] for i in fleet.procs] if isinstance(t0s, list) else t0s)
-    summary["autopilot"] = "arducopter" if real else f"emulator ({opts.personality})"
+    summary["autopilot"] = opts.autopilot if real else f"emulator ({opts.personality})"
     summary["mavlink_signed"] = bool(mav_keys)
     if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
         summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
@@ -487,8 +525,8 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
 
 
 async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float,
-                 copters: ArduCopterFleet | None = None, remote: RemoteHosts | None = None) -> None:
-    """Fail fast, with a one-line reason, when an agent or an ArduCopter dies unasked or
+                 copters: ArduCopterFleet | Px4Fleet | None = None, remote: RemoteHosts | None = None) -> None:
+    """Fail fast, with a one-line reason, when an agent or an ArduCopter or PX4 dies unasked or
     nothing takes off; a host gone silent in the mission is node failures, not a failure of the run."""
     loop = asyncio.get_running_loop()
     t_start = loop.time()

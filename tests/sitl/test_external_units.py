@@ -157,7 +157,8 @@ def test_copter_parm_is_found_in_the_ardupilot_tree_or_named_in_one_line(tmp_pat
 
 @pytest.mark.parametrize("argv, needle", [
     (["--autopilot", "arducopter=/nonexistent/arducopter"], "no such file"),
-    (["--autopilot", "arducopter"], "expected emulator or arducopter=PATH"),
+    (["--autopilot", "arducopter"], "expected emulator, arducopter=PATH"),
+    (["--autopilot", "px4"], "or px4=PATH"),
     (["--instance", "60"], "are for --autopilot arducopter=PATH"),
 ])
 def test_swarm_up_autopilot_errors_are_one_line(argv: list[str], needle: str, tmp_path: Path) -> None:
