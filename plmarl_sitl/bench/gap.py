@@ -55,7 +55,7 @@ def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[f
 
 async def sitl_coverage(
     mission_path: str | Path, policy_dir: str | Path, seed: int, *, speedup: float = 10.0, workdir: Path | None = None,
-    lockstep: bool = False,
+    lockstep: bool = False, start_wall_s: float = START_WALL_S,
 ) -> tuple[list[float], dict]:
     mission = load_mission(mission_path)
     n = mission.n_uavs
@@ -69,7 +69,7 @@ async def sitl_coverage(
         # 30 s at 10x, shorter than the agents' start-up on a loaded 2-core machine).
         world = SitlWorld(WorldConfig(mission=mission, broker_url=broker.url, speedup=speedup, base_port=base, seed=seed,
                                       episode_s=mission.timing.episode_s, swarm_key=key, lockstep=lockstep,
-                                      start_timeout_s=START_WALL_S * speedup,
+                                      start_timeout_s=start_wall_s * speedup,
                                       # the mission's events, as the twin applies them (its failures: issue 24)
                                       events=EventSchedule.of(mission)))
         try:
@@ -77,7 +77,7 @@ async def sitl_coverage(
             for i in range(n):
                 await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir,
                                   swarm_key=tmp / "swarm.key", extra=["--lockstep"] if lockstep else None)
-            async with asyncio.timeout(START_WALL_S + 3 * mission.timing.episode_s / speedup + 60):
+            async with asyncio.timeout(start_wall_s + 3 * mission.timing.episode_s / speedup + 60):
                 summary = await world.run()
             if summary.not_ready_at_start:  # a gap measured without every vehicle means nothing
                 raise RuntimeError(f"seed {seed}: the mission started without {'; '.join(summary.not_ready_at_start)}")
@@ -94,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     p.add_argument("--speedup", type=speedup_arg, default=10.0)
     p.add_argument("--lockstep", action="store_true", help="fly the SITL side in lockstep (deterministic, load-independent)")
+    p.add_argument("--start-wall-s", type=float, default=START_WALL_S,
+                   help=f"wall seconds the vehicles get to be ready (default {START_WALL_S:g}; more on a loaded machine)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args(argv)
     return run_reporting(PROG, lambda: measure(args))
@@ -107,7 +109,7 @@ def measure(args: argparse.Namespace) -> int:
         twin = twin_coverage(mission, args.policy, seed)
         try:
             sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
-                                                     lockstep=args.lockstep))
+                                                     lockstep=args.lockstep, start_wall_s=args.start_wall_s))
         except RuntimeError as exc:
             print(f"{PROG}: error: {exc}", file=sys.stderr)
             return 1

@@ -15,10 +15,11 @@ signalling graph connects, within one hop per signalling instant, whatever the o
 delivery, and agents that heard the same things hold the same knowledge (the re-plan in
 `model/service.py::TeamPlans.replan` is a function of it and of common knowledge only).
 
-A failure is declared by a neighbour from missed signalling instants: the neighbour table
-drops j after `drop_after_missed` misses in a row; at each decision while j stays out of
-N_i, j is *suspected failed* when it is still predicted in clear hearing (`suspects`): a
-neighbour that flew out of range is predicted out of range and is not declared. And only
+A failure is declared by a neighbour from missed signalling instants: at each decision
+while j has missed the `DECLARE_AFTER_MISSED` newest instants (1 since session 13; the
+neighbour table still drops j from N_i after `drop_after_missed`), j is *suspected failed*
+when it was predicted in clear hearing at each of them (`suspects`): a neighbour that flew
+out of range is predicted out of range and is not declared. And only
 when the plan that predicts j is the plan j flew (`may_predict`: j's last message carried
 the receiver's knowledge), and by a receiver that still hears someone (an agent alone
 cannot tell a dead neighbour from its own isolation). Two UAVs failing at once are learnt a few instants
@@ -43,6 +44,29 @@ MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte ma
 # 300 m), and a prediction is some metres off in transit; a false declaration is for good.
 SUSPECT_RANGE_FRAC = 0.8
 SUSPECT_MARGIN_DB = 6.0
+# Missed signalling instants in a row, each predicted in clear hearing, before a silent
+# teammate is declared failed (session 13: was `drop_after_missed`, 2). The U2U channel is
+# deterministic given positions, so a live teammate misses a clear-hearing instant only when
+# it is far from where the plan-aware prediction puts it (>= ~70 m: 0.8 R_comm against
+# R_comm, or the 6 dB margin) or its radio is cut (a `link_blackout` of it alone); measured
+# false declarations: docs/RESULTS.md, session 13. One instant saves a whole T_up.
+DECLARE_AFTER_MISSED = 1
+
+
+def _links(predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
+           channel: Channel) -> tuple[torch.Tensor, torch.Tensor]:
+    """((..., A, M) predicted SINR of each link j -> a (linear; every identity transmits,
+    failed ones included: interference is over-, never under-estimated), (..., A, M)
+    squared distances), at predicted_pos (..., A, M, 3) with a's own row replaced by
+    own_pos (..., A, 3); me (A,) each receiver's identity."""
+    m = predicted_pos.shape[-2]
+    own_row = torch.nn.functional.one_hot(me, m).bool().unsqueeze(-1)  # (A, M, 1)
+    pos = torch.where(own_row, own_pos.unsqueeze(-2), predicted_pos)
+    sinr = u2u_sinr(pos, torch.ones(pos.shape[:-1], dtype=torch.bool, device=pos.device), channel)  # [.., a, i, j]
+    rows = me.view(*([1] * (pos.dim() - 3)), -1, 1, 1).expand(*pos.shape[:-3], -1, 1, m)
+    sinr_a = torch.take_along_dim(sinr, rows, -2)[..., 0, :]  # (..., A, M): link j -> a
+    d = pos - own_pos.unsqueeze(-2)
+    return sinr_a, (d * d).sum(-1)
 
 
 def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
@@ -51,16 +75,39 @@ def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tenso
     hear: at the positions it predicts for the team (predicted_pos (..., A, M, 3), its own
     row replaced by own_pos (..., A, 3); me (A,) its identity) the shared channel model gives
     the link j -> a a clear margin (`SUSPECT_RANGE_FRAC`, `SUSPECT_MARGIN_DB`)."""
-    m = predicted_pos.shape[-2]
-    own_row = torch.nn.functional.one_hot(me, m).bool().unsqueeze(-1)  # (A, M, 1)
-    pos = torch.where(own_row, own_pos.unsqueeze(-2), predicted_pos)
-    sinr = u2u_sinr(pos, torch.ones(pos.shape[:-1], dtype=torch.bool, device=pos.device), channel)  # [.., a, i, j]
-    rows = me.view(*([1] * (pos.dim() - 3)), -1, 1, 1).expand(*pos.shape[:-3], -1, 1, m)
-    sinr_a = torch.take_along_dim(sinr, rows, -2)[..., 0, :]  # (..., A, M): link j -> a
-    d = pos - own_pos.unsqueeze(-2)
-    near = (d * d).sum(-1) <= (SUSPECT_RANGE_FRAC * comm_m) ** 2
+    sinr_a, d2 = _links(predicted_pos, me, own_pos, channel)
+    near = d2 <= (SUSPECT_RANGE_FRAC * comm_m) ** 2
     clear = sinr_a >= db_to_lin(channel.sinr_threshold_db + SUSPECT_MARGIN_DB)
     return dropped & near & clear
+
+
+# A link heard at the previous instant is "steady" at the missed one when the prediction
+# moved neither end by more than STEADY_MOVE_M, keeps it STEADY_RANGE_M inside R_comm, and
+# gives it at most STEADY_DROP_DB less SINR than then and at least STEADY_MARGIN_DB above the threshold. The
+# U2U channel is a deterministic function of the positions (free space, mean interference),
+# so a live teammate on a steady link is heard again unless the positions are off the
+# prediction; this covers teammates too far for clear hearing (a cluster's pair dying
+# together, heard only by UAVs 250-330 m away).
+STEADY_MOVE_M = 10.0
+STEADY_RANGE_M = 20.0
+STEADY_MARGIN_DB = 1.0
+STEADY_DROP_DB = 0.5
+
+
+def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Tensor, me: torch.Tensor,
+           channel: Channel, comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: receiver a's teammates heard at the previous instant (heard_prev
+    (..., A, M)) whose link j -> a is steady at the missed instant: the predictions
+    pred_now / pred_prev (..., A, M, 3) at the two instants (a's own row its own nominal)."""
+    idx = me.view(*([1] * (pred_now.dim() - 3)), -1, 1, 1).expand(*pred_now.shape[:-3], -1, 1, 3)
+    own_now = torch.take_along_dim(pred_now, idx, -2)[..., 0, :]
+    own_prev = torch.take_along_dim(pred_prev, idx, -2)[..., 0, :]
+    s_now, d2 = _links(pred_now, me, own_now, channel)
+    s_prev, _ = _links(pred_prev, me, own_prev, channel)
+    moved = ((pred_now - pred_prev) ** 2).sum(-1) <= STEADY_MOVE_M ** 2  # (..., A, M)
+    self_moved = ((own_now - own_prev) ** 2).sum(-1, keepdim=True) <= STEADY_MOVE_M ** 2
+    ok = (s_now >= s_prev * db_to_lin(-STEADY_DROP_DB)) & (s_now >= db_to_lin(channel.sinr_threshold_db + STEADY_MARGIN_DB))
+    return heard_prev & moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
 def may_predict(heard_failed: torch.Tensor, heard_epoch: torch.Tensor, failed: torch.Tensor,
@@ -141,4 +188,4 @@ class Knowledge:
         return failed, epoch
 
 
-__all__ = ["Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]
+__all__ = ["DECLARE_AFTER_MISSED", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M", "steady", "Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]

@@ -202,7 +202,8 @@ class Decision:
                 demand = got[1]
             self.used_demand_t = None if got is None else got[0]
             if self.plan is not None:
-                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask)
+                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask,
+                                                         closed=self.table.closed)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:

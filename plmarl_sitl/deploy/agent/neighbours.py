@@ -30,6 +30,7 @@ class NeighbourTable:
         self.ever = [False] * n
         self.lost = False
         self.dropped: list[int] = []  # ids dropped, in order (for logs and tests)
+        self.closed: int | None = None  # the newest signalling instant whose misses are booked
         self.knowledge = Knowledge()  # failures known, merged from the states received (model/gossip.py)
 
     def on_state(self, j: int, t_s: float, state: tuple[float, ...], failed: int = 0, epoch_s: int = 0) -> bool:
@@ -53,6 +54,7 @@ class NeighbourTable:
     def close_instant(self, t_s: float) -> list[int]:
         """Account for signalling instant t; returns the neighbours dropped by it."""
         newly = []
+        self.closed = int(t_s) if self.closed is None else max(self.closed, int(t_s))
         for j in range(self.n):
             if j == self.me:
                 continue

@@ -15,10 +15,10 @@ later, while the plan still follows its first map, are added and the plan restar
 that map: the plan the twin, which hears them at once, started with.
 
 Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
-decision, a neighbour out of N_i that the plan-aware prediction put in clear hearing at
-the instants it missed, and whose
-last message carried this agent's knowledge, is declared failed at the newest signalling
-instant (the epoch);
+decision, a neighbour silent at the `DECLARE_AFTER_MISSED` newest instants whose misses
+are booked (the table's `closed`; in lockstep the newest instant, as in the twin), that the
+plan-aware prediction put in clear hearing at each, and whose last message carried this
+agent's knowledge, is declared failed at the newest signalling instant (the epoch);
 the knowledge the table merged from received states and these declarations, as of the
 decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
 The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
@@ -31,7 +31,7 @@ import torch
 
 from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.gossip import Knowledge, suspects
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Knowledge, steady, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
 
 
@@ -41,7 +41,7 @@ class AgentPlan:
         self.grid = service_grid(mission)
         self.instants = SignallingInstants(mission)
         self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
-        self.drop_after = int(mission.signalling.drop_after_missed)
+        self.declare_after = DECLARE_AFTER_MISSED
         self.knowledge = knowledge if knowledge is not None else Knowledge()  # the neighbour table's
         self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
@@ -53,10 +53,12 @@ class AgentPlan:
         self.point: torch.Tensor | None = None  # this agent's point, recomputed only when the plan changes
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
-               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None) -> torch.Tensor | None:
+               demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None,
+               closed: int | None = None) -> torch.Tensor | None:
         """At a decision at second k: (2,) float32 north, east of this agent's point, or None
         before a map has arrived. held (n, 6) / t_rx (n,): the neighbour table; mask (n,) its
-        N_i, for failures (without: no failure re-plans)."""
+        N_i, for failures (without: no failure re-plans); closed: the newest signalling
+        instant whose misses the table has booked (None: the newest instant, as the twin)."""
         if self.first_k is None:
             self.first_k = k
             self.heard_xy[self.me] = ego[:2].double().numpy()
@@ -84,17 +86,18 @@ class AgentPlan:
                 changed = False
         self.map_t = t_map
         if mask is not None:
-            changed |= self.on_failures(k, mask, t_rx)
+            changed |= self.on_failures(k, t_rx, self.instants.last(k) if closed is None else min(closed, k))
         if changed:
             own = self.plans.targets(np.array([self.me]))[0, 0]
             if not np.isnan(own).any():  # a copy that counts this agent as failed: it keeps its point
                 self.point = torch.from_numpy(own).to(torch.float32)
         return self.point
 
-    def on_failures(self, k: int, mask: torch.Tensor, t_rx: torch.Tensor) -> bool:
-        """Declare the neighbours out of N_i predicted in clear hearing whose last message
-        carried this agent's knowledge (model/gossip.py); re-plan if what this agent knows
-        changed. True if the plan changed."""
+    def on_failures(self, k: int, t_rx: torch.Tensor, closed: int) -> bool:
+        """Declare the neighbours silent at the `DECLARE_AFTER_MISSED` newest booked instants
+        (up to `closed`), predicted in clear hearing at each, whose last message carried this
+        agent's knowledge (model/gossip.py); re-plan if what this agent knows changed. True if
+        the plan changed."""
         failed_mask, epoch = self.knowledge.view(before=k + 1)
         newest = self.instants.last(k)
 
@@ -103,14 +106,27 @@ class AgentPlan:
             same = (heard_failed, heard_epoch) == (failed_mask, epoch)
             return same or (heard_failed & ~failed_mask == 0 and heard_epoch < epoch and epoch >= newest)
 
-        silent = [j for j in range(self.n) if j != self.me and not bool(mask[j]) and float(t_rx[j]) >= 0
-                  and not failed_mask >> j & 1 and may_predict(j)] if bool(mask.any()) else []
+        recent = self.instants.recent(closed, self.declare_after + 1)
+        missed = recent[: self.declare_after]  # newest first
+        rx = t_rx.tolist()
+        heard = any(rx[j] >= missed[0] for j in range(self.n) if j != self.me)  # someone at the newest instant
+        silent = [j for j in range(self.n) if j != self.me and 0 <= rx[j] < missed[-1]
+                  and not failed_mask >> j & 1 and may_predict(j)] \
+            if heard and len(missed) == self.declare_after and missed[-1] > 0 else []
         if silent:
-            sus = torch.zeros(1, 1, self.n, dtype=torch.bool)
-            sus[0, 0, silent] = True
-            for at in self.instants.recent(k, self.drop_after):
+            silent_t = torch.zeros(1, 1, self.n, dtype=torch.bool)
+            silent_t[0, 0, silent] = True
+            sus = silent_t
+            me = torch.tensor([self.me])
+            for at in missed:
                 pred = self.plans.motion.at(at)[..., :3]
-                sus = suspects(sus, pred, torch.tensor([self.me]), pred[:, :, self.me], self.channel, self.comm_m)
+                sus = suspects(sus, pred, me, pred[:, :, self.me], self.channel, self.comm_m)
+            if len(recent) > self.declare_after:  # or heard at the instant before, on a steady link (model/gossip.py)
+                st = silent_t & (t_rx == recent[-1]).view(1, 1, -1)
+                before = self.plans.motion.at(recent[-1])[..., :3]
+                for at in missed:
+                    st = steady(st, self.plans.motion.at(at)[..., :3], before, me, self.channel, self.comm_m)
+                sus = sus | st
             ids = np.flatnonzero(sus[0, 0].numpy())
             if len(ids):
                 self.knowledge.learn(k, sum(1 << int(j) for j in ids), self.instants.last(k))

@@ -15,6 +15,7 @@ from torch import nn
 from plmarl_sitl.learning.nn.contract import PolicyCall
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.plan import ServiceTargets
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED
 from plmarl_sitl.twin.env import Observation
 
 
@@ -37,9 +38,10 @@ class ServiceController:
     With `replan` (the default) the plan is re-solved at failures from the gossiped
     knowledge (model/gossip.py); without, it is today's plan fixed at t = 0 and new maps."""
 
-    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
+    def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
+                 declare_after: int = DECLARE_AFTER_MISSED) -> None:
         self.mission = mission
-        self.targets = ServiceTargets.of(mission, replan, sources)
+        self.targets = ServiceTargets.of(mission, replan, sources, declare_after)
 
     def reset(self) -> None:
         self.targets.reset()

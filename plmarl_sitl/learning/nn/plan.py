@@ -13,7 +13,7 @@ import torch
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
-from plmarl_sitl.model.gossip import Gossip, may_predict, suspects
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line
 from plmarl_sitl.model.vehicle import Limits, goto_accel
@@ -83,7 +83,8 @@ class ServiceTargets:
     whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
     made for."""
 
-    def __init__(self, mission, replan: bool = True, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
+    def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
+                 declare_after: int = DECLARE_AFTER_MISSED) -> None:
         vm = mission.vehicle_model()
         self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.grid = service_grid(mission)
@@ -92,7 +93,7 @@ class ServiceTargets:
         self.tau = int(mission.timing.decision_every_s)
         self.comm_m = float(mission.radii.comm_m)
         self.channel = mission.channel
-        self.drop_after = int(mission.signalling.drop_after_missed)
+        self.declare_after = int(declare_after)  # missed instants before a declaration (model/gossip.py)
         self.replans = replan
         # Where a re-plan assigns from: "plan", the plan-aware prediction (common knowledge);
         # "cv", the ablation: each agent's own held states dead-reckoned at constant velocity.
@@ -102,8 +103,9 @@ class ServiceTargets:
         self.reset()
 
     @classmethod
-    def of(cls, mission, replan: bool = True, sources: str = "plan") -> ServiceTargets:  # noqa: ANN001 - Mission
-        return cls(mission, replan, sources)
+    def of(cls, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
+           declare_after: int = DECLARE_AFTER_MISSED) -> ServiceTargets:
+        return cls(mission, replan, sources, declare_after)
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to the plan point `target` (..., 2) at the altitude of the largest coverage radius
@@ -158,18 +160,26 @@ class ServiceTargets:
         plans = self.plans
         assert plans is not None and plans.motion is not None
         n = mask.shape[-1]
-        silent = ~mask & (t_rx >= 0) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
-        silent &= mask.any(-1, keepdim=True)  # someone is still heard
+        recent = self.instants.recent(t, self.declare_after + 1)
+        missed = recent[: self.declare_after]  # the instants j must have missed, newest first
+        silent = (t_rx >= 0) & (t_rx < missed[-1]) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
+        silent &= (t_rx == missed[0]).any(-1, keepdim=True)  # someone was heard at the newest instant
         silent &= may_predict(gossip.heard_failed, gossip.heard_epoch, gossip.failed, gossip.epoch, self.instants.last(t))
-        if bool(silent.any()):
+        if len(missed) == self.declare_after and missed[-1] > 0 and bool(silent.any()):
             # Silent at the instants it missed, at each of which the plan-aware prediction
             # says it should have been heard (the tracker's beliefs, 30 s after the last
             # state, declared live teammates failed: docs/RESULTS.md, issue 24).
             sus = silent
-            for at in self.instants.recent(t, self.drop_after):
+            for at in missed:
                 pred = plans.motion.at(at)[..., :3]
                 own = pred[:, torch.arange(n), torch.arange(n)]  # (B, N, 3): each agent's own nominal then
                 sus = suspects(sus, pred, torch.arange(n), own, self.channel, self.comm_m)
+            if len(recent) > self.declare_after:  # or heard at the instant before, on a link the prediction keeps steady
+                st = silent & (t_rx == recent[-1])
+                before = plans.motion.at(recent[-1])[..., :3]
+                for at in missed:
+                    st = steady(st, plans.motion.at(at)[..., :3], before, torch.arange(n), self.channel, self.comm_m)
+                sus = sus | st
             at = torch.full_like(gossip.epoch, self.instants.last(t))
             gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
         known = gossip.failed.numpy()
