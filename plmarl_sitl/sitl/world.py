@@ -202,7 +202,10 @@ class SitlWorld:
                 signing_keys=list(cfg.mavlink_keys) or None,
                 # A swarm's vehicles hold where they are when their agent's setpoints stop
                 # (PX4 COM_OBL_RC_ACT 5; its default, without RC, flies home: issue 28).
-                params={"offboard_loss_action": 5},
+                # The airframe is the mission's vehicle model, the twin's point mass (one model
+                # of the world): no SIH airframe drag (SIH_KDV 0). `plmarl autopilot` keeps
+                # SIH's drag, as real PX4 SIH flies (docs/CONFORMANCE.md).
+                params={"offboard_loss_action": 5, "accel_drag_per_s": 0.0},
                 # Lockstep: every vehicle's telemetry on the same grid points, so all agents
                 # answer (and decide) in parallel at each barrier instead of in 5 serial groups.
                 **({"stream_phases": 1} if cfg.lockstep else {}),
