@@ -33,7 +33,7 @@ def preload(policy: str | Path, mission: str | Path) -> None:
 
     m = load_mission(mission)
     lp = load_policy(policy, m)
-    if lp.takes_plan:
+    if lp.takes_plan and m.coordination == "team":  # the neighbourhood plan (coordination: local) needs no grid
         service_grid(m)  # cached by its constants: the agents' AgentPlan finds it built
     _loaded[_key(policy, mission)] = lp
 
