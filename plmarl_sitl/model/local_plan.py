@@ -40,6 +40,7 @@ import numpy as np
 
 from plmarl_sitl.model.assignment import linear_sum_assignment
 from plmarl_sitl.model.demand import grid_shape
+from plmarl_sitl.model.service import launch_line
 
 REGION_FRAC = 2.0  # the side of a region's tile, x R_comm; the window is 3 x 3 tiles
 PRED_CAP_S = 10.0  # a neighbour's held state is dead-reckoned for at most this long
@@ -176,6 +177,15 @@ class LocalPlan:
         return xy[int(d2.argmin())]
 
 
+def heard_launch_line(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int) -> np.ndarray:
+    """(n, 2) the team's launch line fitted through the agent (ego_xy) and the teammates it heard
+    at the first instant (heard (n,) bool, at held_xy (n, 2)): `learning/nn/plan.py::heard_launch`,
+    here so the twin's and the agent's local plans share it without importing the team plan's module."""
+    ids = [me] + [j for j in range(len(heard)) if heard[j] and j != me]
+    pos = np.stack([np.asarray(ego_xy, dtype=np.float64)] + [held_xy[j] for j in ids[1:]])
+    return launch_line(np.asarray(ids), pos, len(heard))
+
+
 def predicted_team(me: int, ego_xy: np.ndarray, held: np.ndarray, t_rx: np.ndarray, mask: np.ndarray, t: float,
                    comm_m: float, window: tuple[float, float, float, float], memory: dict[int, np.ndarray],
                    launch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -186,7 +196,10 @@ def predicted_team(me: int, ego_xy: np.ndarray, held: np.ndarray, t_rx: np.ndarr
     to t for at most PRED_CAP_S; kept if that lies in the window (north0, north1, east0, east1) metres. An
     identity out of N_i predicted within SILENT_FRAC R_comm should be heard and is not:
     presumed gone (failed), it is left out, so its demand is taken over. launch (n, 2) (the
-    first plan only): the team's launch line, where the identities not heard are taken to be."""
+    first plan only): the team's launch line fitted through those heard and rounded
+    (`model/service.py::launch_line`): every identity on it is taken to be there, itself
+    included, so agents whose fits agree assign the first plan alike, ties included (a
+    lattice map has exact ties that held positions' last bits would break differently)."""
     known = t_rx >= 0
     known[[j for j in memory if j != me]] = True  # in its last plan (placed from the launch line, say), heard or not
     heard = np.flatnonzero(known)
@@ -202,13 +215,12 @@ def predicted_team(me: int, ego_xy: np.ndarray, held: np.ndarray, t_rx: np.ndarr
     keep = inside & ~silent
     ids = np.concatenate([[me], heard[keep]]).astype(np.int64)
     xy = np.concatenate([np.asarray(ego_xy, dtype=np.float64)[None], xy[keep]], 0)
-    if launch is not None:  # the first plan: the teammates not heard, on the launch line (as the team plan)
-        lin = launch.copy()
-        lin[ids] = np.nan
-        extra = np.flatnonzero((lin[:, 0] >= n0) & (lin[:, 0] < n1) & (lin[:, 1] >= e0) & (lin[:, 1] < e1))
-        ids, xy = np.concatenate([ids, extra]), np.concatenate([xy, lin[extra]], 0)
+    if launch is not None:  # the first plan: the whole team on the fitted launch line (rounded), as the team plan
+        ids = np.flatnonzero((launch[:, 0] >= n0) & (launch[:, 0] < n1) & (launch[:, 1] >= e0) & (launch[:, 1] < e1))
+        ids = np.union1d(ids, [me]).astype(np.int64)
+        xy = launch[ids].copy()
     order = np.argsort(ids, kind="stable")  # identity order: agents that know the same build the same matrix
     return ids[order], xy[order]
 
 
-__all__ = ["PRED_CAP_S", "REGION_FRAC", "SILENT_FRAC", "LocalPlan", "predicted_team"]
+__all__ = ["PRED_CAP_S", "REGION_FRAC", "SILENT_FRAC", "LocalPlan", "heard_launch_line", "predicted_team"]

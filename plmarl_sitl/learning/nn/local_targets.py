@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import heard_launch
 from plmarl_sitl.model.channel import CoverageRadius
 from plmarl_sitl.model.demand import map_period
-from plmarl_sitl.model.local_plan import LocalPlan
+from plmarl_sitl.model.local_plan import LocalPlan, heard_launch_line
 from plmarl_sitl.model.vehicle import goto_accel
 
 
@@ -73,7 +72,7 @@ class LocalTargets:
                     continue
                 own, rx = m[e, a].copy(), t_rx[e, a].copy()
                 own[a], rx[a] = False, -1.0  # itself: from its own state (row 0)
-                launch = heard_launch(ego_np[e, a], held[e, a, :, :2], t_rx[e, a] == float(t), a) if first else None
+                launch = heard_launch_line(ego_np[e, a], held[e, a, :, :2], t_rx[e, a] == float(t), a) if first else None
                 pt = self.plan.solve(a, self.plan.team(a, ego_np[e, a], held[e, a], rx, own, float(t), self.memory[e][a], launch), self.memory[e][a])
                 out[e, a] = ego_np[e, a] if pt is None else pt
         out = np.where(np.isnan(out), ego_np, out)
