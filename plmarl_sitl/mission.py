@@ -24,6 +24,9 @@ MAX_EPISODE_S = 86_400  # one day of mission time: far beyond any battery, and a
 
 Mobility = Literal["gauss_markov", "random_waypoint", "rpgm", "mixed"]
 Layout = Literal["fixed", "lattice", "random"]
+# How an agent gets its plan point: the whole team's plan in every agent (model/service.py), or a
+# plan of its own neighbourhood whose cost does not grow with N or the area (model/local_plan.py).
+Coordination = Literal["team", "local"]
 
 
 @dataclass(frozen=True)
@@ -240,6 +243,7 @@ class Mission:
     # `model.events.EventSchedule` puts both on one clock).
     failures: tuple[Failure, ...] = ()
     events: tuple[Event, ...] = ()
+    coordination: Coordination = "team"
 
     def __post_init__(self) -> None:
         for i, ev in enumerate(self.events):
@@ -289,6 +293,9 @@ class Mission:
 
     def vehicle_model(self) -> VehicleModel:
         return load_vehicle(self.vehicle)
+
+    def with_coordination(self, coordination: str) -> Mission:
+        return dataclasses.replace(self, coordination=coordination)
 
     def with_tup(self, tup_s: int) -> Mission:
         return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))

@@ -100,6 +100,7 @@ FIELD_DOCS: dict[str, str] = {
     "events[].duration_s": "How long it lasts (s); omitted: to the end where allowed.",
     "events[].tup_s": "`tup_change`: the new T_up (s).",
     "events[].std_m": "`gnss_noise`: standard deviation per axis (m).",
+    "coordination": "How each agent gets its point of the plan (a policy that takes the plan, and `service`): `team`, the whole team's plan solved in every agent (model/service.py), or `local`, a plan of the agent's own neighbourhood (model/local_plan.py), whose cost per map does not grow with N or the area but which covers less (docs/RESULTS.md, *Session 13*).",
 }
 
 VEHICLE_DOCS: dict[str, str] = {

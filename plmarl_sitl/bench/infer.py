@@ -16,17 +16,23 @@ The team plan (model/service.py, what `deploy/agent/plan.py::AgentPlan` runs bes
 policy) is timed as two extra rows, interleaved the same way, when any timed policy takes it:
 
 * `team plan / decision`: `AgentPlan.target` at a decision whose map the plan already
-  follows (the map's cells onto the plan grid, the own point looked up);
-* `team plan / new map`: `AgentPlan.target` at the first decision with a new map (the
+  follows, as the agent calls it: at second k (k advancing by tau, so the plan-aware
+  prediction flies the whole team tau seconds) with its N_i (the failure check);
+* `team plan / new map`: `AgentPlan.target` at the decision with a new map (that and the
   re-placement of N service points and, when it serves more users, the re-assignment).
-  A map arrives every `demand.refresh_s` (30 s, every 10th decision at tau = 3 s), so it is
-  timed at every 10th iteration.
+  A map arrives every `demand.refresh_s` (30 s, every 10th decision at tau = 3 s), so every
+  10th iteration is a new-map decision and the 9 others plain decisions.
+
+The neighbourhood plan (`coordination: local`, model/local_plan.py, what
+`deploy/agent/local_plan.py::LocalAgentPlan` runs) is timed the same way in the rows
+`local plan / decision` and `local plan / new map` (its plan over the agent's window).
 
 Its inputs are a real twin instant: the paper's area with N UAVs on their launch line and N
 clusters of 60 users on a 200 m lattice (as the suite's zero-shot families), the maps of
-t = 0 and of the next map instant alternating. The amortised plan row is plan per decision
-+ plan per map / decisions per map; a row `METHOD + team plan` adds it to the decision of
-each method that takes the plan: the decision's cost including the coordination. `--area`
+t = 0 and of the next map instant alternating. The amortised row is ((decisions per map - 1)
+x plan per decision + plan per new map) / decisions per map; a row `METHOD + team plan`
+(`METHOD + local plan`) adds it to the decision of each method that takes the plan: the
+decision's cost including the coordination. `--area`
 sets the side of the square area (the plan grid and the neighbours' positions; the clusters
 stay on their 200 m lattice, the launch line through the centre): `--n 4,100 --area 3000`
 is issue 24's N = 100 over 3 km. The plan is numpy: run the bench with
@@ -66,6 +72,13 @@ PLAN_DECISION = "team plan / decision"
 PLAN_MAP = "team plan / new map"
 PLAN_AMORTISED = "team plan / amortised"  # per decision: plan per decision + plan per map / decisions per map
 WITH_PLAN = " + team plan"  # a plan-taking method's decision plus the amortised plan: the cost including the coordination
+# The same three rows and the sum for the neighbourhood plan (coordination: local, model/local_plan.py)
+LOCAL_DECISION = "local plan / decision"
+LOCAL_MAP = "local plan / new map"
+LOCAL_AMORTISED = "local plan / amortised"
+WITH_LOCAL = " + local plan"
+COORDINATIONS = {"team": (PLAN_DECISION, PLAN_MAP, PLAN_AMORTISED, WITH_PLAN),
+                 "local": (LOCAL_DECISION, LOCAL_MAP, LOCAL_AMORTISED, WITH_LOCAL)}
 PAPER = Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"
 
 
@@ -186,7 +199,7 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
     import numpy as np
     import torch
 
-    from plmarl_sitl.deploy.agent.plan import AgentPlan
+    from plmarl_sitl.deploy.agent.coordination import agent_plan
     from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyInputs
     from plmarl_sitl.model.coverage import SENSING_FEATURES
 
@@ -204,24 +217,35 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
     pi = plan_inputs(n, seed, area_m) if with_plan else None
     demand = pi.maps[0] if pi is not None else torch.cat(
         [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
-    plan, map_no, target = None, [0], None
+    plans, target = {}, None
     if pi is not None:
-        plan = AgentPlan(pi.mission, 0)
-        target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]))  # the plan starts
+        # What an agent pays at each decision (deploy/agent/decision.py): `target` at second k,
+        # k advancing by tau (the team plan's plan-aware prediction flies the team that far),
+        # with its N_i (the failure check); a new map every decisions_per_map decisions.
+        full = torch.ones(n, dtype=torch.bool)
+        full[0] = False
+        tau = int(pi.mission.timing.decision_every_s)
+        for coord in COORDINATIONS:
+            plan = agent_plan(pi.mission.with_coordination(coord), 0)
+            target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]), full)  # the plan starts
+            plans[coord] = (plan, [0, 0])  # (plan, [second k, map number])
 
-    def plan_decision() -> None:
-        plan.target(0, pi.ego, pi.held, pi.t_rx, (float(map_no[0]), pi.maps[map_no[0] % 2]))
+    def plan_decision(coord: str) -> None:
+        plan, kt = plans[coord]
+        kt[0] += tau
+        plan.target(kt[0], pi.ego, pi.held, pi.t_rx, (float(kt[1]), pi.maps[kt[1] % 2]), full)
 
-    def plan_map() -> None:
-        map_no[0] += 1
-        plan_decision()
+    def plan_map(coord: str) -> None:
+        plans[coord][1][1] += 1
+        plan_decision(coord)
 
     state = {}
     times: dict[str, list[int]] = {m: [] for m in mods}
     cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
     if pi is not None:
-        times[PLAN_DECISION], times[PLAN_MAP] = [], []
-        cpu[PLAN_DECISION], cpu[PLAN_MAP] = [], []
+        for rows_of in COORDINATIONS.values():
+            for label in rows_of[:2]:
+                times[label], cpu[label] = [], []
     with torch.inference_mode():
         for m, (tracker, _, _) in mods.items():
             buf, seen = tracker.init_state(held)
@@ -244,16 +268,19 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
             for m in mods:
                 decide(m)
             if pi is not None:
-                plan_decision()
-                if i % 30 == 0:
-                    plan_map()
+                for coord in COORDINATIONS:
+                    plan_decision(coord)
+                    if i % 30 == 0:
+                        plan_map(coord)
         for i in range(calls):
             for m in mods:
                 timed(m, lambda m=m: decide(m))
             if pi is not None:
-                timed(PLAN_DECISION, plan_decision)
-                if i % pi.decisions_per_map == 0:
-                    timed(PLAN_MAP, plan_map)
+                for coord, (dec, new_map, _, _) in COORDINATIONS.items():
+                    if i % pi.decisions_per_map == 0:
+                        timed(new_map, lambda c=coord: plan_map(c))
+                    else:
+                        timed(dec, lambda c=coord: plan_decision(c))
     rows = []
     for m, ts in times.items():
         a = np.asarray(ts) / 1e3
@@ -263,13 +290,15 @@ def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None
         med = {r["method"]: r["median_us"] for r in rows}
         med_cpu = {r["method"]: r["cpu_median_us"] for r in rows}
         per = pi.decisions_per_map
-        amortised, amortised_cpu = (x[PLAN_DECISION] + x[PLAN_MAP] / per for x in (med, med_cpu))
-        rows.append({"method": PLAN_AMORTISED, "n": n, "decisions_per_map": per,
-                     "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
-        for m in mods:  # the decision including the coordination, for the methods that take the plan
-            if policy_calls[m].form.takes_plan:
-                rows.append({"method": m + WITH_PLAN, "n": n, "median_us": med[m] + amortised, "p99_us": None,
-                             "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
+        for dec, new_map, amort, with_ in COORDINATIONS.values():
+            # per decision: (per - 1) decisions on the map the plan follows and one with a new map
+            amortised, amortised_cpu = (((per - 1) * x[dec] + x[new_map]) / per for x in (med, med_cpu))
+            rows.append({"method": amort, "n": n, "decisions_per_map": per,
+                         "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
+            for m in mods:  # the decision including the coordination, for the methods that take the plan
+                if policy_calls[m].form.takes_plan:
+                    rows.append({"method": m + with_, "n": n, "median_us": med[m] + amortised, "p99_us": None,
+                                 "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
     return rows
 
 
@@ -309,12 +338,13 @@ def print_table(res: dict) -> None:
     by = {(r["method"], r["n"]): r["median_us"] for r in res["rows"]}
     ns = sorted({r["n"] for r in res["rows"]})
     by_cpu = {(r["method"], r["n"]): r["cpu_median_us"] for r in res["rows"]}
-    for m in sorted({r["method"] for r in res["rows"] if r["method"].endswith(WITH_PLAN)}):
-        if (m, ns[0]) in by and (m, ns[-1]) in by and len(ns) > 1:
-            Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
-                            f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f} (CPU {by_cpu[(m, ns[-1])] / by_cpu[(m, ns[0])]:.2f}); "
-                            f"a new map at N={ns[-1]}: {by[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms "
-                            f"(CPU {by_cpu[(PLAN_MAP, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m")
+    for _, new_map, _, with_ in COORDINATIONS.values():
+        for m in sorted({r["method"] for r in res["rows"] if r["method"].endswith(with_)}):
+            if (m, ns[0]) in by and (m, ns[-1]) in by and len(ns) > 1:
+                Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
+                                f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f} (CPU {by_cpu[(m, ns[-1])] / by_cpu[(m, ns[0])]:.2f}); "
+                                f"a new map at N={ns[-1]}: {by[(new_map, ns[-1])] / 1e3:.1f} ms "
+                                f"(CPU {by_cpu[(new_map, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m")
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:

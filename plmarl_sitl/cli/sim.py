@@ -12,7 +12,7 @@ from plmarl_sitl.learning.eval.stats import mean_ci95
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.twin.rollout import run_episodes
 
-METHODS = ("service", "greedy", "clairvoyant", "heuristic")  # the controllers that need no trained policy
+METHODS = ("service", "service-local", "greedy", "clairvoyant", "heuristic")  # the controllers that need no trained policy
 
 
 def _method(text: str) -> str:
@@ -25,7 +25,7 @@ def _method(text: str) -> str:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "sim",
-        help="run episodes of a controller that needs no trained policy (service, greedy, clairvoyant, heuristic) in the digital twin",
+        help="run episodes of a controller that needs no trained policy (service, service-local, greedy, clairvoyant, heuristic) in the digital twin",
         description="Run episodes of a mission in the vectorised digital twin with a non-learned "
         "controller and report mean coverage C (95% CI over episodes), lambda_2 and the closest "
         "approach of two UAVs. " + "; ".join(f"{m}: {METHOD_HELP[m]}" for m in METHODS) + ". "

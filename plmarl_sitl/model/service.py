@@ -34,8 +34,8 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.optimize import linear_sum_assignment
 
+from plmarl_sitl.model.assignment import linear_sum_assignment  # SciPy's answer without importing scipy (agent RSS)
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 from plmarl_sitl.model.plan_motion import ROUND_M, PlanMotion
 

@@ -62,10 +62,12 @@ def test_plan_rows_and_versions(tmp_path: Path, shipped: str) -> None:
     res = infer.run(args)
     rows = {r["method"]: r for r in res["rows"]}
     assert res["weights"] == {"untrained": "untrained", "shipped": "trained"}
-    assert {"untrained", "shipped", infer.PLAN_DECISION, infer.PLAN_MAP, infer.PLAN_AMORTISED} <= set(rows)
-    assert rows[infer.PLAN_DECISION]["calls"] == 12 and rows[infer.PLAN_MAP]["calls"] == 2  # every 10th decision
-    want = rows[infer.PLAN_DECISION]["median_us"] + rows[infer.PLAN_MAP]["median_us"] / 10
-    assert rows[infer.PLAN_AMORTISED]["median_us"] == pytest.approx(want)
+    for dec, new_map, amort, _ in infer.COORDINATIONS.values():  # the team plan and the local plan
+        assert {"untrained", "shipped", dec, new_map, amort} <= set(rows)
+        assert rows[dec]["calls"] == 10 and rows[new_map]["calls"] == 2  # every 10th decision brings a new map
+        want = (9 * rows[dec]["median_us"] + rows[new_map]["median_us"]) / 10
+        assert rows[amort]["median_us"] == pytest.approx(want)
+        assert rows[amort]["decisions_per_map"] == 10
 
 
 def test_the_defaults_time_the_shipped_files_from_any_directory(tmp_path: Path) -> None:
@@ -96,6 +98,8 @@ def test_area_and_the_decision_including_the_plan(tmp_path: Path) -> None:
     with_plan = rows["shipped" + infer.WITH_PLAN]
     assert with_plan["median_us"] == pytest.approx(rows["shipped"]["median_us"] + rows[infer.PLAN_AMORTISED]["median_us"])
     assert with_plan["cpu_median_us"] == pytest.approx(rows["shipped"]["cpu_median_us"] + rows[infer.PLAN_AMORTISED]["cpu_median_us"])
+    with_local = rows["shipped" + infer.WITH_LOCAL]  # the neighbourhood plan (coordination: local) the same way
+    assert with_local["cpu_median_us"] == pytest.approx(rows["shipped"]["cpu_median_us"] + rows[infer.LOCAL_AMORTISED]["cpu_median_us"])
     assert 0 < rows[infer.PLAN_MAP]["cpu_median_us"] <= rows[infer.PLAN_MAP]["median_us"] * 1.05  # CPU time never exceeds wall time
 
 

@@ -25,12 +25,12 @@ import math
 import torch
 
 from plmarl_sitl.deploy.agent.clock import EPS, MissionClock
+from plmarl_sitl.deploy.agent.coordination import agent_plan
 from plmarl_sitl.deploy.agent.demand import DemandMaps
 from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
-from plmarl_sitl.deploy.agent.plan import AgentPlan
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.learning.nn.contract import PolicyInputs
@@ -54,7 +54,8 @@ class Decision:
         self.fail = False  # the f the policy got at the last decision
         self.demand = DemandMaps(mission, topics.demand)
         self.used_demand_t: float | None = None  # snapshot time of the map the last decision used
-        self.plan = AgentPlan(mission, me, table.knowledge) if self.form.takes_plan else None  # the team plan's point (model/service.py)
+        # the plan's point: the team plan (model/service.py) or, with `coordination: local`, the neighbourhood plan
+        self.plan = agent_plan(mission, me, table.knowledge) if self.form.takes_plan else None
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()

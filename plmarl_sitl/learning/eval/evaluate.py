@@ -63,6 +63,10 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         return lambda env: ServiceController(env.mission)
+    if method == "service-local":  # the plan follower on the neighbourhood plan (issue 24, part 2)
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        return lambda env: ServiceController(env.mission.with_coordination("local"))
     if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 

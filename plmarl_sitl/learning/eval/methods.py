@@ -15,6 +15,7 @@ METHOD_HELP = {
     "dead-reckoning": "the PL-MARL policy with constant-velocity prediction in its tracker and in its failure re-plans (ablation)",
     "service": "the plan follower: each UAV flies to its point of the team plan, re-planned after failures, no learning (a reference)",
     "service-fixed": "the plan follower without failure re-plans (the team plan of before issue 24; an ablation)",
+    "service-local": "the plan follower on a neighbourhood plan (coordination: local, model/local_plan.py): each UAV solves a plan of its own region only, a cost that does not grow with N or the area (not the default: see docs/RESULTS.md)",
     "greedy": "greedy clairvoyant placement with global knowledge (a reference; called 'oracle' before)",
     "clairvoyant": "best of several plans re-chosen every decision with true states and users (a reference)",
     "heuristic": "hand-written decentralised controller, local sensing only",

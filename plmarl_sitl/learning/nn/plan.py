@@ -103,8 +103,14 @@ class ServiceTargets:
         self.reset()
 
     @classmethod
-    def of(cls, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
-           declare_after: int = DECLARE_AFTER_MISSED) -> ServiceTargets:
+    def of(cls, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001, ANN206 - Mission; ServiceTargets | LocalTargets
+           declare_after: int = DECLARE_AFTER_MISSED):
+        """The mission's coordination: this team plan, or with `coordination: local` the
+        neighbourhood plan (learning/nn/local_targets.py), which has the same interface."""
+        if getattr(mission, "coordination", "team") == "local":
+            from plmarl_sitl.learning.nn.local_targets import LocalTargets
+
+            return LocalTargets(mission)
         return cls(mission, replan, sources, declare_after)
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
