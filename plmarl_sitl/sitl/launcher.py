@@ -58,13 +58,14 @@ from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError, UserError
 from plmarl_sitl.learning.nn.card import swarm_size_warning
 from plmarl_sitl.learning.nn.io import load_policy
-from plmarl_sitl.mission import Mission, load_mission
-from plmarl_sitl.model.events import EventSchedule
+from plmarl_sitl.mission import Event, Mission, load_mission
+from plmarl_sitl.model.events import Change, EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
 from plmarl_sitl.sitl.hosts import Host, load_hosts
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
+from plmarl_sitl.sitl.mission_events import EventDispatcher
 from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
@@ -144,44 +145,53 @@ def default_out_dir() -> Path:
 
 
 class LauncherEvents:
-    """The launcher's part of the mission's events, from the schedule the SITL world applies
-    too (the world kills the vehicle, cuts the links, sets GNSS noise, T_up and autopilot
-    faults): it kills a failed node's agent process, asks the agent of a UAV an autopilot
-    fault took out of the mission to stop (its companion computer lives on), opens and
-    closes the broker gate for an outage, and records every event as it fires."""
+    """The launcher's part of the mission's events, registered on the world's dispatcher
+    (`mission_events.EventDispatcher`; the world registers the vehicle, the links, GNSS
+    noise, T_up and autopilot faults): it kills a failed node's agent process, asks the
+    agent of a UAV an autopilot fault took out of the mission to stop (its companion
+    computer lives on), opens and closes the broker gate for an outage, and records every
+    event as it fires."""
 
     # The ends worth an entry of their own: the outage's, the noise's and the GPS's are
     # switched at their end second; a blackout's cut expires inside the link emulator.
     RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise", "gps_loss"})
 
-    def __init__(self, schedule: EventSchedule, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
-        self.schedule, self.fleet, self.gate, self.record = schedule, fleet, gate, record
+    def __init__(self, events: EventDispatcher, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
+        self.schedule, self.fleet, self.gate, self.record = events.schedule, fleet, gate, record
         self.killed: set[int] = set()  # agents stopped on purpose (not a failure to report)
+        events.on("node_failure", self._on_node_failure)
+        events.on("broker_outage", self._on_broker_outage)
+        events.on_every(self._record)
+        events.on_fault_failure(self._on_fault_failure)
 
-    def tick(self, second: int) -> None:
-        for change in self.schedule.changes_at(second):
-            ev = change.event
-            if ev.type == "node_failure" and ev.uav is not None:
-                self.killed.add(ev.uav)
-                if ev.uav in self.fleet.procs:
-                    self.fleet.kill(ev.uav)
-            elif ev.type == "broker_outage" and self.gate is not None:  # lockstep: no gate, the world emulates it
-                self.gate.outage(self.schedule.broker_down(second))  # down while any outage lasts
-            t = float(second)
-            if not change.ends:
-                entry = {"t": t, "type": ev.type,
-                         **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
-                log.warning("event at t=%.0f s: %s", t, entry)
-                self.record(entry)
-            elif ev.type in self.RECORDED_ENDS:
-                self.record({"t": t, "type": f"{ev.type}_end"})
-        for uav, ev in self.schedule.fault_failures_at(second):
+    def _on_node_failure(self, change: Change) -> None:
+        uav = change.event.uav
+        if uav is not None:
             self.killed.add(uav)
             if uav in self.fleet.procs:
-                self.fleet.retire(uav)
-            entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
-            log.warning("event at t=%.0f s: %s", second, entry)
+                self.fleet.kill(uav)
+
+    def _on_broker_outage(self, change: Change) -> None:
+        if self.gate is not None and self.schedule is not None:  # lockstep: no gate, the world emulates it
+            self.gate.outage(self.schedule.broker_down(change.second))  # down while any outage lasts
+
+    def _record(self, change: Change) -> None:
+        ev, t = change.event, float(change.second)
+        if not change.ends:
+            entry = {"t": t, "type": ev.type,
+                     **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
+            log.warning("event at t=%.0f s: %s", t, entry)
             self.record(entry)
+        elif ev.type in self.RECORDED_ENDS:
+            self.record({"t": t, "type": f"{ev.type}_end"})
+
+    def _on_fault_failure(self, uav: int, ev: Event, second: int) -> None:
+        self.killed.add(uav)
+        if uav in self.fleet.procs:
+            self.fleet.retire(uav)
+        entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
+        log.warning("event at t=%.0f s: %s", second, entry)
+        self.record(entry)
 
 
 # What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
@@ -350,7 +360,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     log.info("%s; swarm key %s; MAVLink keys %s", guarantees, key_path, mav_dir)
     # Every byte through the gate costs this process's event loop two hops, which at
     # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
-    # needs it (a lockstep world emulates the outage: `SitlWorld._outage_emulated`).
+    # needs it (a lockstep world emulates the outage: `sitl.outbox`).
     schedule = EventSchedule.of(mission)
     gate = BrokerGate(up_host, up_port, host=bind) if schedule.has("broker_outage") and not opts.lockstep else None
     bus_url = f"mqtt://{up_host}:{up_port}"
@@ -363,8 +373,6 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         monitor.on_metrics(m)
         if m.get("t") is None:
             return
-        assert script is not None
-        script.tick(int(m["t"]))
         row = monitor.metrics_row()
         if row is not None:
             rows.append(row)
@@ -411,7 +419,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                               lockstep=opts.lockstep, straggler_s=opts.straggler_s)
         world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
         world.on_behind = lambda msg: console.print(f"[yellow]world:[/] {msg}", highlight=False)
-        script = LauncherEvents(schedule, fleet, gate, record_event)
+        script = LauncherEvents(world.events, fleet, gate, record_event)
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         log.info("start-up: world started at %.1f s", time.monotonic() - t_launch)
@@ -419,7 +427,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if opts.lockstep:
             # The world hands the monitor each state as it relays it and each delivery as it
             # sends it, in its own order: overheard on the broker they would race the metrics.
-            world.on_signal = monitor.on_bus
+            world.relay.on_signal = monitor.on_bus
         # An agent that dies is a node failure to record, in both paces, not a lost run.
         world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
         if not opts.lockstep:
@@ -506,7 +514,7 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
             if rc is None or i in script.killed:
                 continue
             tail = ([ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"])[0][-160:]
-            if world.barrier is None and world.t0 is None:  # free-running, before the mission: a start-up failure
+            if not world.lockstep and world.t0 is None:  # free-running, before the mission: a start-up failure
                 raise ComponentFailed(f"agent {i} exited with code {rc} before the mission started: {tail} (log: {ap.log_path})")
             # In flight (or in lockstep): the mission goes on without it, its vehicle to its failsafe.
             world.agent_failed(i, f"exited with code {rc}" + (f" ({tail})" if rc not in (-9, 137) else " (killed)"))
@@ -540,7 +548,7 @@ def _host_lost(host: Host, fleet: AgentFleet, script: LauncherEvents, world: Sit
         entry = {"t": t, "type": "node_failure", "uav": u, "cause": "host_lost", "host": host.name}
         log.warning("host %s silent for %g s: %s", host.name, silence_s, entry)
         script.record(entry)
-        if world.barrier is not None:
+        if world.lockstep:
             world.agent_failed(u, f"host {host.name} lost")
         if u in fleet.procs:
             fleet.kill(u)
