@@ -256,7 +256,6 @@ class _Run:
         self.events: list[dict] = []
         self.rows: list[dict] = []
         self.world: SitlWorld | None = None
-        self.script: LauncherEvents | None = None
         self.mav_keys: list[bytes] = []
         self._last_headless = -10.0
 
@@ -380,7 +379,7 @@ class _Run:
         self.world = world = SitlWorld(cfg, on_metrics=self.on_metrics, on_event=self.record_event)
         stack.callback(_close_world, world)
         world.on_behind = lambda msg: console.print(f"[yellow]world:[/] {msg}", highlight=False)
-        self.script = script = LauncherEvents(world.events, fleet, gate, self.record_event)
+        script = LauncherEvents(world.events, fleet, gate, self.record_event)  # registers its handlers on the world's dispatcher
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         log.info("start-up: world started at %.1f s", time.monotonic() - t_launch)
