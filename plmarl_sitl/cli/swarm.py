@@ -160,8 +160,9 @@ def autopilot_arg(text: str) -> tuple[str, Path | None]:
 def run_up(args: argparse.Namespace) -> int:
     from plmarl_sitl.errors import UserError
     from plmarl_sitl.sitl.autopilot.boot import check_boot
-    from plmarl_sitl.sitl.launcher import DEFAULT_POLICY, ComponentFailed, UpOptions
+    from plmarl_sitl.sitl.launcher import ComponentFailed
     from plmarl_sitl.sitl.launcher import run_up as launch
+    from plmarl_sitl.sitl.run_inputs import DEFAULT_POLICY, UpOptions
 
     args.speedup = speedup_or_default(args.speedup, args.lockstep)
     if args.speedup <= 0:

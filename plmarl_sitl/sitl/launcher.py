@@ -47,43 +47,38 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import yaml
 
-from plmarl_sitl.config import PROJECT_POLICIES, to_dict
-from plmarl_sitl.deploy.mavlink.keys import create_key_files, key_file, load_key_files
-from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file, load_key
-from plmarl_sitl.deploy.mqtt.credentials import load_credentials
+from plmarl_sitl.config import to_dict
+from plmarl_sitl.deploy.mavlink.keys import create_key_files, key_file
+from plmarl_sitl.deploy.mqtt.auth import SwarmKey, create_key_file
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.deploy.mqtt.wire import Wire
-from plmarl_sitl.errors import PlmarlError, UserError
-from plmarl_sitl.learning.nn.card import swarm_size_warning
-from plmarl_sitl.learning.nn.io import load_policy
-from plmarl_sitl.mission import Mission, load_mission
-from plmarl_sitl.model.events import EventSchedule
+from plmarl_sitl.errors import PlmarlError
+from plmarl_sitl.mission import Event
+from plmarl_sitl.model.events import Change
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
-from plmarl_sitl.sitl.arducopter import ArduCopterFleet, check_binary, find_copter_parm
-from plmarl_sitl.sitl.hosts import Host, load_hosts
+from plmarl_sitl.sitl.arducopter import ArduCopterFleet
+from plmarl_sitl.sitl.hosts import Host
 from plmarl_sitl.sitl.live import headless_line, render
-from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
+from plmarl_sitl.sitl.mission_events import EventDispatcher
 from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
-from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet, find_build
+from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.report_csv import write_metrics_csv
+from plmarl_sitl.sitl.run_inputs import OWN_BROKERS, RunInputs, UpOptions, load_inputs
 from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
 log = logging.getLogger("plmarl.swarm")
-
-DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
-
 
 class ComponentFailed(PlmarlError):
     """A part of the running swarm died or could not start; `reason` is one line."""
@@ -93,103 +88,58 @@ class ComponentFailed(PlmarlError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
-class UpOptions:
-    mission_path: Path
-    speedup: float = 1.0
-    duration_s: int | None = None  # mission seconds; None: the mission's episode length
-    broker: str = "embedded"
-    headless: bool = False
-    out: Path | None = None
-    seed: int | None = None
-    policy: Path = DEFAULT_POLICY
-    personality: str = "px4"
-    boot: str = "instant"  # emulated autopilots' start-up: instant or real (measured timeline)
-    swarm: str = "sitl"
-    start_timeout_s: float | None = None  # wall s for every vehicle to get airborne (None: 120; ArduCopter: more)
-    # The autopilots: "emulator" (in the world's process, `personality`, `boot`) or
-    # "arducopter" (a real ArduCopter SITL process per UAV, the binary `arducopter`) or
-    # "px4" (a real PX4 SITL process with SIH per UAV, `px4` its build output).
-    autopilot: str = "emulator"
-    arducopter: Path | None = None
-    px4: Path | None = None
-    copter_parm: Path | None = None  # ArduPilot's copter.parm (None: found above the binary)
-    instance_base: int | None = None  # first ArduPilot SITL instance -I, PX4 -i (None: the first free ones)
-    verbose: bool = False  # agents log DEBUG too
-    # Message authentication (docs/SECURITY.md): a fresh swarm key per run in the run
-    # directory (swarm.key, 0600), or the key file given; auth=False flies unsigned.
-    auth: bool = True
-    swarm_key: Path | None = None
-    # An external broker's logins: DIR/world.cred, DIR/monitor.cred, DIR/agentI.cred (None: anonymous).
-    broker_credentials: Path | None = None
-    # MAVLink 2 signing between each autopilot and its agent (and the world's links): a fresh
-    # key per vehicle in RUN_DIR/mavlink/vehicleI.key (0600), or DIR/vehicleI.key given.
-    mavlink_sign: bool = True
-    mavlink_keys: Path | None = None
-    # Lockstep (emulated autopilots only, `sitl.lockstep`): deterministic, as fast as the agents
-    # compute; an agent owing an answer for straggler_s wall seconds is declared failed.
-    lockstep: bool = False
-    straggler_s: float = DEFAULT_STRAGGLER_S
-    hosts: Path | None = None  # a hosts file: some agents on other machines (`sitl.hosts`)
-
-    def start_timeout(self) -> float:
-        """A real ArduCopter needs ~40 s of vehicle time to boot and a climb at 2.5 m/s; a real PX4
-        ~37 s to OFFBOARD at 60 m (it climbs at ~2 m/s)."""
-        if self.start_timeout_s is not None:
-            return self.start_timeout_s
-        return 120.0 if self.autopilot == "emulator" else max(120.0, 60.0 + 150.0 / self.speedup)
-
-
-def resolve_mission(opts: UpOptions) -> Mission:
-    mission = load_mission(opts.mission_path)
-    if opts.seed is not None:
-        mission = replace(mission, seed=opts.seed)
-    return mission
-
-
 def default_out_dir() -> Path:
     return Path("runs") / _dt.datetime.now().strftime("%Y-%m-%dT%H-%M-%S")
 
 
 class LauncherEvents:
-    """The launcher's part of the mission's events, from the schedule the SITL world applies
-    too (the world kills the vehicle, cuts the links, sets GNSS noise, T_up and autopilot
-    faults): it kills a failed node's agent process, asks the agent of a UAV an autopilot
-    fault took out of the mission to stop (its companion computer lives on), opens and
-    closes the broker gate for an outage, and records every event as it fires."""
+    """The launcher's part of the mission's events, registered on the world's dispatcher
+    (`mission_events.EventDispatcher`; the world registers the vehicle, the links, GNSS
+    noise, T_up and autopilot faults): it kills a failed node's agent process, asks the
+    agent of a UAV an autopilot fault took out of the mission to stop (its companion
+    computer lives on), opens and closes the broker gate for an outage, and records every
+    event as it fires."""
 
     # The ends worth an entry of their own: the outage's, the noise's and the GPS's are
     # switched at their end second; a blackout's cut expires inside the link emulator.
     RECORDED_ENDS = frozenset({"broker_outage", "gnss_noise", "gps_loss"})
 
-    def __init__(self, schedule: EventSchedule, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
-        self.schedule, self.fleet, self.gate, self.record = schedule, fleet, gate, record
+    def __init__(self, events: EventDispatcher, fleet: AgentFleet, gate: BrokerGate | None, record: Callable[[dict], None]) -> None:
+        self.schedule, self.fleet, self.gate, self.record = events.schedule, fleet, gate, record
         self.killed: set[int] = set()  # agents stopped on purpose (not a failure to report)
+        events.on("node_failure", self._on_node_failure)
+        events.on("broker_outage", self._on_broker_outage)
+        events.on_every(self._record)
+        events.on_fault_failure(self._on_fault_failure)
 
-    def tick(self, second: int) -> None:
-        for change in self.schedule.changes_at(second):
-            ev = change.event
-            if ev.type == "node_failure" and ev.uav is not None:
-                self.killed.add(ev.uav)
-                if ev.uav in self.fleet.procs:
-                    self.fleet.kill(ev.uav)
-            elif ev.type == "broker_outage" and self.gate is not None:  # lockstep: no gate, the world emulates it
-                self.gate.outage(self.schedule.broker_down(second))  # down while any outage lasts
-            t = float(second)
-            if not change.ends:
-                entry = {"t": t, "type": ev.type,
-                         **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
-                log.warning("event at t=%.0f s: %s", t, entry)
-                self.record(entry)
-            elif ev.type in self.RECORDED_ENDS:
-                self.record({"t": t, "type": f"{ev.type}_end"})
-        for uav, ev in self.schedule.fault_failures_at(second):
+    def _on_node_failure(self, change: Change) -> None:
+        uav = change.event.uav
+        if uav is not None:
             self.killed.add(uav)
             if uav in self.fleet.procs:
-                self.fleet.retire(uav)
-            entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
-            log.warning("event at t=%.0f s: %s", second, entry)
+                self.fleet.kill(uav)
+
+    def _on_broker_outage(self, change: Change) -> None:
+        if self.gate is not None and self.schedule is not None:  # lockstep: no gate, the world emulates it
+            self.gate.outage(self.schedule.broker_down(change.second))  # down while any outage lasts
+
+    def _record(self, change: Change) -> None:
+        ev, t = change.event, float(change.second)
+        if not change.ends:
+            entry = {"t": t, "type": ev.type,
+                     **{k: v for k, v in to_dict(ev).items() if k not in ("type", "at_s") and v not in (None, [])}}
+            log.warning("event at t=%.0f s: %s", t, entry)
             self.record(entry)
+        elif ev.type in self.RECORDED_ENDS:
+            self.record({"t": t, "type": f"{ev.type}_end"})
+
+    def _on_fault_failure(self, uav: int, ev: Event, second: int) -> None:
+        self.killed.add(uav)
+        if uav in self.fleet.procs:
+            self.fleet.retire(uav)
+        entry = {"t": float(second), "type": "uav_failed", "uav": uav, "cause": ev.type}
+        log.warning("event at t=%.0f s: %s", second, entry)
+        self.record(entry)
 
 
 # What each broker we start guarantees, said in one line at start (docs/SECURITY.md).
@@ -222,37 +172,27 @@ async def _start_broker(spec: str, access: BrokerAccess | None, out: Path, bind:
     return None, host, port
 
 
-def _swarm_key(opts: UpOptions, out: Path) -> tuple[Path | None, SwarmKey | None]:
-    """The run's key file and key: the one given, else a fresh one in the run directory."""
+def _swarm_key(opts: UpOptions, out: Path, given: SwarmKey | None) -> tuple[Path | None, SwarmKey | None]:
+    """The run's key file and key: the one given (loaded by `load_inputs`), else a fresh one
+    in the run directory."""
     if not opts.auth:
         log.warning("--no-auth: the swarm's messages are unsigned")
         return None, None
     if opts.swarm_key is not None:
-        return opts.swarm_key, load_key(opts.swarm_key)
+        return opts.swarm_key, given
     path = out / "swarm.key"
     return path, create_key_file(path)
 
 
-def _mavlink_keys(opts: UpOptions, out: Path, n: int) -> tuple[Path | None, list[bytes]]:
-    """The directory of the vehicles' MAVLink keys and the keys: the one given, else fresh
-    ones in RUN_DIR/mavlink; (None, []) for unsigned links."""
+def _mavlink_keys(opts: UpOptions, out: Path, n: int, given: list[bytes] | None) -> tuple[Path | None, list[bytes]]:
+    """The directory of the vehicles' MAVLink keys and the keys: the ones given (loaded by
+    `load_inputs`), else fresh ones in RUN_DIR/mavlink; (None, []) for unsigned links."""
     if not opts.mavlink_sign:
         log.warning("--no-mavlink-sign: the MAVLink links are unsigned")
         return None, []
-    if opts.mavlink_keys is not None:
-        return opts.mavlink_keys, load_key_files(opts.mavlink_keys, n, "--mavlink-keys")
+    if opts.mavlink_keys is not None and given is not None:
+        return opts.mavlink_keys, given
     return out / "mavlink", create_key_files(out / "mavlink", n)
-
-
-def _external_logins(directory: Path | None, n: int) -> dict[str, Path]:
-    """The credentials files an external broker knows this swarm's processes by."""
-    if directory is None:
-        return {}
-    names = ["world", "monitor", *(f"agent{i}" for i in range(n))]
-    paths = {name: directory / f"{name}.cred" for name in names}
-    for path in paths.values():
-        load_credentials(path)  # missing, exposed or malformed: one error before anything starts
-    return paths
 
 
 def _setup_logging(out: Path) -> logging.Handler:
@@ -267,145 +207,166 @@ def _setup_logging(out: Path) -> logging.Handler:
 
 
 async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - rich Console
-    """Run a mission end to end; returns the summary. Raises ComponentFailed/UserError."""
+    """Run a mission end to end; returns the summary. Raises ComponentFailed/UserError.
+
+    Start-up is one async exit stack: each part, once created, registers how it stops, so
+    the mission's end, Ctrl-C, SIGTERM or a failed component stop them in reverse order:
+    the agents first (while the vehicles still answer, each commands hold and exits), then
+    the world, the ArduCopters, the remote hosts, the gate, the broker, the run's files."""
     from rich.console import Console
-    from rich.live import Live
 
     console = console or Console()
-    mission = resolve_mission(opts)
-    real = opts.autopilot != "emulator"
-    copter_parm = None
-    if opts.autopilot == "arducopter":
-        assert opts.arducopter is not None
-        copter_parm = find_copter_parm(check_binary(opts.arducopter), opts.copter_parm)
-    elif opts.autopilot == "px4":
-        assert opts.px4 is not None
-        find_build(opts.px4)  # not a PX4 SITL build: one line before anything starts
-        if opts.mavlink_keys is not None:
-            raise UserError("--mavlink-keys with --autopilot px4: PX4 has no MAVLink signing to give them to")
-    if real and EventSchedule.of(mission).has("gnss_noise"):
-        raise UserError(f"gnss_noise events need emulated autopilots (a real {opts.autopilot} navigates on its own GNSS)")
-    if opts.broker not in ("embedded", "mosquitto"):
-        parse_broker_url(opts.broker)  # a malformed URL fails before anything is created
-    if opts.swarm_key is not None:
-        load_key(opts.swarm_key)  # a missing, exposed or malformed key fails before anything starts
-    if opts.mavlink_keys is not None:
-        if not opts.mavlink_sign:
-            raise UserError("--mavlink-keys with --no-mavlink-sign: choose one")
-        load_key_files(opts.mavlink_keys, mission.n_uavs, "--mavlink-keys")  # fails before anything starts
-    if opts.broker_credentials is not None:
-        if opts.broker in ("embedded", "mosquitto"):
-            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
-        _external_logins(opts.broker_credentials, resolve_mission(opts).n_uavs)
-    if not (opts.policy / "card.yaml").exists():
-        raise UserError(f"--policy {opts.policy}: no card.yaml there (train one with `plmarl train` or use policies/pl-marl)")
-    # Pre-flight: a corrupt or mismatched policy is one line here, not an agent's exit after start-up.
-    card = load_policy(opts.policy, mission).card
-    size_warning = swarm_size_warning(card, mission.n_uavs)
-    if size_warning is not None:
-        console.print(f"[yellow]warning:[/] {size_warning}", highlight=False)
-    hosts = load_hosts(opts.hosts, mission.n_uavs, opts.autopilot, opts.broker) if opts.hosts is not None else None
-    bind = hosts.launcher.address if hosts is not None else "127.0.0.1"
+    inputs = load_inputs(opts)
+    mission = inputs.mission
+    if inputs.size_warning is not None:
+        console.print(f"[yellow]warning:[/] {inputs.size_warning}", highlight=False)
     out = opts.out or default_out_dir()
     run_lock = claim_run_dir(out)  # noqa: F841 - held by this frame until the run ends (sitl/rundir.py)
-    handler = _setup_logging(out)
-    mission_file = out / "mission.yaml"
-    mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
-    duration = opts.duration_s or mission.timing.episode_s
-    n = mission.n_uavs
-    key_path, key = _swarm_key(opts, out)
-    if opts.autopilot == "px4" and opts.mavlink_sign:
-        log.warning("%s", SIGNING_UNSUPPORTED)
-        console.print(f"[bold yellow]{SIGNING_UNSUPPORTED}[/]", highlight=False)
-        opts = replace(opts, mavlink_sign=False)
-    mav_dir, mav_keys = _mavlink_keys(opts, out, n)
-    metrics_f = open(out / "metrics.jsonl", "w")  # noqa: SIM115 - closed in finally
-    events_f = open(out / "events.jsonl", "w")  # noqa: SIM115
-    events: list[dict] = []
-    rows: list[dict] = []
-    monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed, opts.speedup, Wire(key),
-                           mission=None if opts.headless else mission)  # the live view's map
+    run = _Run(opts, inputs, out, console)
+    async with contextlib.AsyncExitStack() as stack:
+        try:
+            await run.start_and_fly(stack)
+        except* ComponentFailed as group:
+            raise group.exceptions[0] from None
+    world = run.world
+    if not run.rows:
+        raise ComponentFailed(f"the mission never started (see {out / 'launcher.log'})")
+    summary = summarize(run.rows, run.events, opts.speedup)
+    t0s = world.t0_by_uav if world is not None and world.t0_by_uav is not None else world.t0 if world else None
+    traces = [ap.trace() for ap in run.fleet.procs.values()]
+    summary["timeliness"] = timeliness(traces, [t0s[i] for i in run.fleet.procs] if isinstance(t0s, list) else t0s)
+    summary["autopilot"] = opts.autopilot if run.real else f"emulator ({opts.personality})"
+    summary["mavlink_signed"] = bool(run.mav_keys)
+    if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
+        summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
+    summary["run_dir"] = str(out)
+    summary["seed"] = mission.seed
+    summary["policy"] = str(opts.policy)  # what `plmarl report` flies in the twin for its reference line
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_metrics_csv(out / "metrics.csv", run.rows)
+    # Wall-clock figures go to the caller only: summary.json stays identical between
+    # lockstep runs of one seed.
+    mission_wall = world.summary.mission_wall_s if world is not None else None
+    return {**summary, "mission_wall_s": mission_wall,
+            "achieved_speedup": summary["duration_s"] / mission_wall if mission_wall else None}
 
-    def record_event(entry: dict) -> None:
-        events.append(entry)
-        events_f.write(json.dumps(entry) + "\n")
-        events_f.flush()
+
+class _Run:
+    """One `swarm up` run: its parts as they start, and what it records."""
+
+    def __init__(self, opts: UpOptions, inputs: RunInputs, out: Path, console) -> None:  # noqa: ANN001 - rich Console
+        self.opts, self.inputs, self.out, self.console = opts, inputs, out, console
+        self.real = opts.autopilot != "emulator"
+        self.n = inputs.mission.n_uavs
+        self.duration = opts.duration_s or inputs.mission.timing.episode_s
+        self.events: list[dict] = []
+        self.rows: list[dict] = []
+        self.world: SitlWorld | None = None
+        self.mav_keys: list[bytes] = []
+        self._last_headless = -10.0
+
+    def record_event(self, entry: dict) -> None:
+        self.events.append(entry)
+        self.events_f.write(json.dumps(entry) + "\n")
+        self.events_f.flush()
         if entry["type"] != "autopilot":  # the vehicle's own reports stay in the recording
-            monitor.on_event(entry)
+            self.monitor.on_event(entry)
 
-    autopilots = {"arducopter": f"ArduCopter SITL {opts.arducopter}", "px4": f"PX4 SITL (SIH) {opts.px4}"}.get(
-        opts.autopilot, f"emulated {opts.personality}")
-    pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
-            "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
-    console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
-                  f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
-    # The security set-up is said in full under -v (and always in launcher.log); what is
-    # unprotected is said always.
-    if key is None or opts.verbose:
-        console.print(f"messages signed with the swarm key {key_path}" if key is not None else
-                      "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
-                      highlight=False)
-    if (mav_dir is None and opts.autopilot != "px4") or opts.verbose:  # px4: said above
-        console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
-                      "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
-                      "command it", highlight=False)
-    t_launch = time.monotonic()  # start-up's steps are logged from here (launcher.log)
-    remote = RemoteHosts(hosts, out / "hosts") if hosts is not None else None
-    fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE, remote=remote.placement if remote else {})
-    if len(fleet.remote) < n:
-        fleet.warm_up(opts.policy, mission_file)  # the agents' imports and policy load on the other core meanwhile
-    # Our own broker: a login per process and an ACL; an external one: its own business.
-    access = BrokerAccess(opts.swarm, n) if opts.broker in ("embedded", "mosquitto") else None
-    creds = access.write_credentials(out / "credentials") if access is not None else _external_logins(opts.broker_credentials, n)
-    world_login = load_credentials(creds["world"]) if creds else None
-    monitor_login = load_credentials(creds["monitor"]) if creds else None
-    broker, up_host, up_port = await _start_broker(opts.broker, access, out, bind,
-                                                   (hosts.launcher.broker_port or 0) if hosts is not None else 0)
-    guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
-                                       "(docs/SECURITY.md has the ACL to give it)")
-    if opts.verbose or access is None:  # an external broker's protection is its own: always said
-        console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
-    log.info("%s; swarm key %s; MAVLink keys %s", guarantees, key_path, mav_dir)
-    # Every byte through the gate costs this process's event loop two hops, which at
-    # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
-    # needs it (a lockstep world emulates the outage: `SitlWorld._outage_emulated`).
-    schedule = EventSchedule.of(mission)
-    gate = BrokerGate(up_host, up_port, host=bind) if schedule.has("broker_outage") and not opts.lockstep else None
-    bus_url = f"mqtt://{up_host}:{up_port}"
-    world: SitlWorld | None = None
-    script: LauncherEvents | None = None
-    copters: ArduCopterFleet | Px4Fleet | None = None
-    last_headless = [-10.0]
-
-    def on_metrics(m: dict) -> None:
-        monitor.on_metrics(m)
+    def on_metrics(self, m: dict) -> None:
+        self.monitor.on_metrics(m)
         if m.get("t") is None:
             return
-        assert script is not None
-        script.tick(int(m["t"]))
-        row = monitor.metrics_row()
+        row = self.monitor.metrics_row()
         if row is not None:
-            rows.append(row)
-            metrics_f.write(json.dumps(row) + "\n")
-            metrics_f.flush()
-        if opts.headless and m["t"] >= last_headless[0] + 10:
-            last_headless[0] = float(m["t"])
-            console.print(headless_line(monitor.view()), highlight=False)
+            self.rows.append(row)
+            self.metrics_f.write(json.dumps(row) + "\n")
+            self.metrics_f.flush()
+        if self.opts.headless and m["t"] >= self._last_headless + 10:
+            self._last_headless = float(m["t"])
+            self.console.print(headless_line(self.monitor.view()), highlight=False)
 
-    try:
+    async def start_and_fly(self, stack: contextlib.AsyncExitStack) -> None:
+        from rich.live import Live
+
+        opts, inputs, out, console, n = self.opts, self.inputs, self.out, self.console, self.n
+        mission, schedule, hosts, real, duration = inputs.mission, inputs.schedule, inputs.hosts, self.real, self.duration
+        bind = hosts.launcher.address if hosts is not None else "127.0.0.1"
+        stack.callback(_teardown_logging, _setup_logging(out))
+        mission_file = out / "mission.yaml"
+        mission_file.write_text(yaml.safe_dump(to_dict(mission), sort_keys=False))
+        key_path, key = _swarm_key(opts, out, inputs.swarm_key)
+        if opts.autopilot == "px4" and opts.mavlink_sign:
+            log.warning("%s", SIGNING_UNSUPPORTED)
+            console.print(f"[bold yellow]{SIGNING_UNSUPPORTED}[/]", highlight=False)
+            self.opts = opts = replace(opts, mavlink_sign=False)
+        mav_dir, self.mav_keys = _mavlink_keys(opts, out, n, inputs.mavlink_keys)
+        mav_keys = self.mav_keys
+        self.metrics_f = stack.enter_context(open(out / "metrics.jsonl", "w"))  # noqa: SIM115 - closed by the stack
+        self.events_f = stack.enter_context(open(out / "events.jsonl", "w"))  # noqa: SIM115
+        self.monitor = monitor = SwarmMonitor(opts.swarm, mission.signalling.tup_s, mission.signalling.drop_after_missed,
+                                              opts.speedup, Wire(key), mission=None if opts.headless else mission)  # the live view's map
+        autopilots = {"arducopter": f"ArduCopter SITL {opts.arducopter}", "px4": f"PX4 SITL (SIH) {opts.px4}"}.get(
+            opts.autopilot, f"emulated {opts.personality}")
+        pace = (f"lockstep (start-up at {opts.speedup:g}x; an agent that owes an answer for {opts.straggler_s:g} s wall is "
+                "declared failed)" if opts.lockstep else f"at {opts.speedup:g}x")
+        console.print(f"[bold]plmarl swarm up[/] {opts.mission_path}: {n} UAVs ({autopilots}), {duration} s {pace}, "
+                      f"seed {mission.seed}, policy {opts.policy}, broker {opts.broker}; recording to {out}")
+        # The security set-up is said in full under -v (and always in launcher.log); what is
+        # unprotected is said always.
+        if key is None or opts.verbose:
+            console.print(f"messages signed with the swarm key {key_path}" if key is not None else
+                          "[bold red]--no-auth[/]: messages are unsigned; anyone who can publish on the broker can steer the swarm",
+                          highlight=False)
+        if (mav_dir is None and opts.autopilot != "px4") or opts.verbose:  # px4: said above
+            console.print(f"MAVLink signed: vehicle i and its agent share {mav_dir}/vehicleI.key" if mav_dir is not None else
+                          "[bold red]--no-mavlink-sign[/]: MAVLink links are unsigned; anyone who reaches an autopilot's port can "
+                          "command it", highlight=False)
+        t_launch = time.monotonic()  # start-up's steps are logged from here (launcher.log)
+        remote = RemoteHosts(hosts, out / "hosts") if hosts is not None else None
+        self.fleet = fleet = AgentFleet(out / "agents", forked=True, nice=SITL_AGENT_NICE,
+                                        remote=remote.placement if remote else {})
+        if len(fleet.remote) < n:
+            fleet.warm_up(opts.policy, mission_file)  # the agents' imports and policy load on the other core meanwhile
+        # Our own broker: a login per process and an ACL; an external one: its own business.
+        access = BrokerAccess(opts.swarm, n) if opts.broker in OWN_BROKERS else None
+        if access is not None:
+            creds = access.write_credentials(out / "credentials")
+            world_login, monitor_login = access["world"].credentials, access["monitor"].credentials
+        else:
+            creds = inputs.login_files
+            world_login, monitor_login = inputs.logins.get("world"), inputs.logins.get("monitor")
+        broker, up_host, up_port = await _start_broker(opts.broker, access, out, bind,
+                                                       (hosts.launcher.broker_port or 0) if hosts is not None else 0)
+        if broker is not None:
+            stack.push_async_callback(asyncio.to_thread, broker.stop)
+        guarantees = BROKER_GUARANTEES.get(opts.broker, f"external broker {opts.broker}: its access control is its own "
+                                           "(docs/SECURITY.md has the ACL to give it)")
+        if opts.verbose or access is None:  # an external broker's protection is its own: always said
+            console.print(guarantees + (f"; logins in {out / 'credentials'}" if access is not None else ""), highlight=False)
+        log.info("%s; swarm key %s; MAVLink keys %s", guarantees, key_path, mav_dir)
+        # Every byte through the gate costs this process's event loop two hops, which at
+        # N = 20 and 15x delays signalling; only a free-running mission with a broker outage
+        # needs it (a lockstep world emulates the outage: `sitl.outbox`).
+        gate = BrokerGate(up_host, up_port, host=bind) if schedule.has("broker_outage") and not opts.lockstep else None
+        bus_url = f"mqtt://{up_host}:{up_port}"
         if gate is not None:
+            stack.push_async_callback(gate.close)
             await gate.start()
             bus_url = gate.url
         if remote is not None:  # every host's companion reaches the broker before any agent starts
+            stack.push_async_callback(remote.close)
             try:
                 for line in await remote.connect(bus_url):
                     console.print(line, highlight=False)
                     log.info("%s", line)
             except HostFailed as exc:
                 raise ComponentFailed(str(exc)) from None
+        copters: ArduCopterFleet | Px4Fleet | None = None
+        start_timeout_s = None  # the world's own vehicle-second bound (WorldConfig's default)
         if opts.autopilot == "px4":
             assert opts.px4 is not None
             copters = Px4Fleet(opts.px4, mission, opts.speedup, out, opts.instance_base)
+            stack.push_async_callback(copters.stop)
             copters.start()
             for line in filter(None, (copters.ports_line(), copters.gcs_warning())):
                 console.print(line, highlight=False)
@@ -416,16 +377,17 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
                 raise ComponentFailed(str(exc)) from exc
             await copters.quiet_gcs_links()
             agent_urls = copters.agent_urls()
+            external = tuple(copters.world_urls())
+            base_port = WorldConfig.base_port  # the vehicles fly elsewhere: no ports of the world's own
             # A PX4's clock runs from its own start, not from its agent's connection (ArduCopter's
             # does): with slow agent forks at --speedup 2 it passed the world's 300 vehicle-second
             # start timeout before any agent had connected, and the mission started on the ground.
             # The launcher's wall-clock start timeout (`_watch`) decides instead.
-            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
-                              events=schedule, external=tuple(copters.world_urls()), swarm_key=key,
-                              broker_credentials=world_login, start_timeout_s=math.inf)
+            start_timeout_s = math.inf
         elif real:
-            assert opts.arducopter is not None and copter_parm is not None
-            copters = ArduCopterFleet(opts.arducopter, copter_parm, mission, opts.speedup, out, opts.instance_base)
+            assert opts.arducopter is not None and inputs.copter_parm is not None
+            copters = ArduCopterFleet(opts.arducopter, inputs.copter_parm, mission, opts.speedup, out, opts.instance_base)
+            stack.push_async_callback(copters.stop)
             copters.start()
             console.print(copters.ports_line(), highlight=False)
             log.info("%s", copters.ports_line())
@@ -436,20 +398,22 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             except RuntimeError as exc:
                 raise ComponentFailed(str(exc)) from exc
             agent_urls = [f"tcpout://127.0.0.1:{p.serial0}" for p in copters.procs]
-            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, speedup=opts.speedup, seed=mission.seed, episode_s=duration,
-                              events=schedule, external=tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs),
-                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys))
+            external = tuple(f"tcpout://127.0.0.1:{p.serial1}" for p in copters.procs)
+            base_port = WorldConfig.base_port  # the vehicles fly elsewhere: no ports of the world's own
         else:
             base_port = (hosts.launcher.vehicle_base_port if hosts is not None else None) or free_udp_ports(n, bind)
             agent_urls = [f"udpout://{bind}:{base_port + i}" for i in range(n)]
-            cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                              speedup=opts.speedup, base_port=base_port, bind_host=bind, seed=mission.seed,
-                              episode_s=duration, events=schedule,
-                              swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
-                              lockstep=opts.lockstep, straggler_s=opts.straggler_s)
-        world = SitlWorld(cfg, on_metrics=on_metrics, on_event=record_event)
+            external = ()
+        cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
+                          speedup=opts.speedup, base_port=base_port, bind_host=bind, seed=mission.seed,
+                          episode_s=duration, events=schedule, external=external,
+                          swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
+                          lockstep=opts.lockstep, straggler_s=opts.straggler_s,
+                          **({} if start_timeout_s is None else {"start_timeout_s": start_timeout_s}))
+        self.world = world = SitlWorld(cfg, on_metrics=self.on_metrics, on_event=self.record_event)
+        stack.callback(_close_world, world)
         world.on_behind = lambda msg: console.print(f"[yellow]world:[/] {msg}", highlight=False)
-        script = LauncherEvents(schedule, fleet, gate, record_event)
+        script = LauncherEvents(world.events, fleet, gate, self.record_event)  # registers its handlers on the world's dispatcher
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()
         log.info("start-up: world started at %.1f s", time.monotonic() - t_launch)
@@ -457,12 +421,14 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
         if opts.lockstep:
             # The world hands the monitor each state as it relays it and each delivery as it
             # sends it, in its own order: overheard on the broker they would race the metrics.
-            world.on_signal = monitor.on_bus
+            world.relay.on_signal = monitor.on_bus
         # An agent that dies is a node failure to record, in both paces, not a lost run.
-        world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, record_event, i, k, why)
+        world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, self.record_event, i, k, why)
         if not opts.lockstep:
             observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                                monitor.on_bus, name="launcher-bus", credentials=monitor_login)
+        # Agents stop first, while the vehicles still answer: each commands hold and exits.
+        stack.push_async_callback(fleet.stop)
         # All at once: one by one, each fork waited for the forkserver and this loop to be
         # scheduled in turn (100 agents: 22-34 s on a loaded 2-core machine).
         await asyncio.gather(*(
@@ -482,46 +448,16 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
             for t in (bus_task, watch, view):
                 if t is not None:
                     t.cancel()
-    except* ComponentFailed as group:
-        raise group.exceptions[0] from None
-    finally:
-        # Agents first, while the vehicles still answer: each commands hold and exits.
-        await fleet.stop()
-        if remote is not None:
-            await remote.close()
-        if world is not None:
-            world.stop()
-            world.vehicles.close()
-        if copters is not None:
-            await copters.stop()
-        if gate is not None:
-            await gate.close()
-        if broker is not None:
-            await asyncio.to_thread(broker.stop)
-        metrics_f.close()
-        events_f.close()
-        logging.getLogger().removeHandler(handler)
-        handler.close()
-    if not rows:
-        raise ComponentFailed(f"the mission never started (see {out / 'launcher.log'})")
-    summary = summarize(rows, events, opts.speedup)
-    t0s = world.t0_by_uav if world is not None and world.t0_by_uav is not None else world.t0 if world else None
-    traces = [ap.trace() for ap in fleet.procs.values()]
-    summary["timeliness"] = timeliness(traces, [t0s[i] for i in fleet.procs] if isinstance(t0s, list) else t0s)
-    summary["autopilot"] = opts.autopilot if real else f"emulator ({opts.personality})"
-    summary["mavlink_signed"] = bool(mav_keys)
-    if world is not None and world.host is not None:  # what each emulated vehicle dropped, by reason
-        summary["vehicle_input"] = [c.drops() for c in world.host.counters()]
-    summary["run_dir"] = str(out)
-    summary["seed"] = mission.seed
-    summary["policy"] = str(opts.policy)  # what `plmarl report` flies in the twin for its reference line
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    write_metrics_csv(out / "metrics.csv", rows)
-    # Wall-clock figures go to the caller only: summary.json stays identical between
-    # lockstep runs of one seed.
-    mission_wall = world.summary.mission_wall_s if world is not None else None
-    return {**summary, "mission_wall_s": mission_wall,
-            "achieved_speedup": summary["duration_s"] / mission_wall if mission_wall else None}
+
+
+def _close_world(world: SitlWorld) -> None:
+    world.stop()
+    world.vehicles.close()
+
+
+def _teardown_logging(handler: logging.Handler) -> None:
+    logging.getLogger().removeHandler(handler)
+    handler.close()
 
 
 async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, start_timeout_s: float,
@@ -544,7 +480,7 @@ async def _watch(fleet: AgentFleet, script: LauncherEvents, world: SitlWorld, st
             if rc is None or i in script.killed:
                 continue
             tail = ([ln for ln in ap.log().splitlines() if ln.strip()][-1:] or ["(empty log)"])[0][-160:]
-            if world.barrier is None and world.t0 is None:  # free-running, before the mission: a start-up failure
+            if not world.lockstep and world.t0 is None:  # free-running, before the mission: a start-up failure
                 raise ComponentFailed(f"agent {i} exited with code {rc} before the mission started: {tail} (log: {ap.log_path})")
             # In flight (or in lockstep): the mission goes on without it, its vehicle to its failsafe.
             world.agent_failed(i, f"exited with code {rc}" + (f" ({tail})" if rc not in (-9, 137) else " (killed)"))
@@ -578,7 +514,7 @@ def _host_lost(host: Host, fleet: AgentFleet, script: LauncherEvents, world: Sit
         entry = {"t": t, "type": "node_failure", "uav": u, "cause": "host_lost", "host": host.name}
         log.warning("host %s silent for %g s: %s", host.name, silence_s, entry)
         script.record(entry)
-        if world.barrier is not None:
+        if world.lockstep:
             world.agent_failed(u, f"host {host.name} lost")
         if u in fleet.procs:
             fleet.kill(u)

@@ -216,11 +216,11 @@ def test_world_delivers_an_instant_in_one_message_per_receiver_then_closes_it():
                 async with asyncio.timeout(10):
                     await world.bus.connected.wait()
                     await listener.connected.wait()
-                    world._on_message(*tx(0))
-                    world._on_message(*tx(1))
+                    world.relay.on_message(*tx(0))
+                    world.relay.on_message(*tx(1))
                     await asyncio.sleep(0.3)
                     assert seen == []  # held until the instant closes
-                    world._on_message(*tx(2))  # the last live vehicle signals
+                    world.relay.on_message(*tx(2))  # the last live vehicle signals
                     await until(lambda: closings())
                     batch = seen[:-1]
                     assert [t for t, _ in seen[-1:]] == [topics.closed] and closings() == [15.0]
@@ -228,23 +228,23 @@ def test_world_delivers_an_instant_in_one_message_per_receiver_then_closes_it():
                     assert len(rx) == len(batch) == 3  # one message per receiver (all within 80 m)
                     assert all(sorted(v) == sorted({0, 1, 2} - {i}) for i, v in rx.items())
                     # The same message again is a replay: counted, not relayed.
-                    world._on_message(*tx(0))
+                    world.relay.on_message(*tx(0))
                     assert world.links.counters.replayed == 1
                     # Late for instant 15: delivered alone, and no second closing.
                     n = len(seen)
-                    world._on_message(*tx(0, seq=2))
+                    world.relay.on_message(*tx(0, seq=2))
                     await until(lambda: len(seen) == n + 2)
                     assert all(senders(p) == [0] for _, p in seen[n:]) and closings() == [15.0]
                     # Vehicle 2 stays silent at instant 30: closed once the bound has passed.
-                    world.t0, n = 0.0, len(seen)
-                    world._on_message(*tx(0, 30, seq=3))
-                    world._on_message(*tx(1, 30, seq=2))
+                    world.time.t0, n = 0.0, len(seen)
+                    world.relay.on_message(*tx(0, 30, seq=3))
+                    world.relay.on_message(*tx(1, 30, seq=2))
                     world.host.now = 30.0 + 0.5 * INSTANT_WAIT_MIN_S
-                    world._close_overdue()
+                    world.relay.close_overdue()
                     await asyncio.sleep(0.3)
                     assert len(seen) == n
                     world.host.now = 30.0 + INSTANT_WAIT_MIN_S
-                    world._close_overdue()
+                    world.relay.close_overdue()
                     await until(lambda: closings() == [15.0, 30.0])
                     late = {topics.id_of(t): sorted(senders(p)) for t, p in seen[n:] if t != topics.closed}
                     assert late == {0: [1], 1: [0], 2: [0, 1]}

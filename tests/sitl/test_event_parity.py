@@ -113,14 +113,13 @@ def _sitl_seconds(mission: Mission, positions: list[torch.Tensor]) -> list[tuple
     schedule = EventSchedule.of(mission)
     world = SitlWorld(WorldConfig(mission, "mqtt://127.0.0.1:1", events=schedule))
     gate, fleet, log = _Gate(), _Fleet(world.n), []
-    launcher = LauncherEvents(schedule, fleet, gate, log.append)  # type: ignore[arg-type]
+    LauncherEvents(world.events, fleet, gate, log.append)  # type: ignore[arg-type]  # registers on the world's dispatcher
     out = []
     for t, pos in enumerate(positions):
         if t > 0:
             world.host.advance(1.0)  # mission second t is boot second t here (t0 = 0)
-        tup = world.tup_s  # the instant of second t follows T_up before its events (SitlWorld._instant_tup)
-        world.apply_events(t)  # what SitlWorld does at every mission second, then the launcher:
-        launcher.tick(t)
+        tup = world.tup_s  # the instant of second t follows T_up before its events (LockstepPacer._instant_tup)
+        world.events.dispatch(t)  # what SitlWorld does at every mission second: its handlers, then the launcher's
         alive = world.alive()
         dead = {i for i in range(world.n) if not alive[i]}
         assert set(fleet.killed) == dead  # the agent goes with its vehicle

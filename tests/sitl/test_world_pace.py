@@ -55,7 +55,7 @@ def test_a_world_that_falls_behind_says_so_once(caplog: pytest.LogCaptureFixture
     assert len(said) == 1 and said[0].startswith("running behind --speedup 1000 (achieving ")
     assert said[0].endswith("x); lower --speedup or use --lockstep")
     assert [r.getMessage() for r in caplog.records if "running behind" in r.getMessage()] == said
-    assert world.pace.lost_s > 2.0
+    assert world.pacer.pace.lost_s > 2.0
 
 
 @pytest.mark.integration

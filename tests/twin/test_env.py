@@ -150,7 +150,7 @@ def test_tup_change_moves_the_signalling_instants():
 
 def test_tup_change_counts_from_the_next_second_as_in_sitl():
     """T_up 15 -> 5 at t = 10: 10 is a multiple of the new interval, yet the change's own second
-    follows the old one, as the SITL world and agent do (SitlWorld._instant_tup,
+    follows the old one, as the SITL world and agent do (LockstepPacer._instant_tup,
     tests/deploy/test_clock.py), so the instants are 0, 15, 20, 25."""
     m = _events_mission({"type": "tup_change", "at_s": 10, "tup_s": 5}).with_tup(15)
     env = CoverageEnv(m, 1, seed=0)
