@@ -418,6 +418,7 @@ class SitlWorld:
         if self.barrier is not None and msg.t_s > self._closed_upto:
             # Lockstep: relayed when the instant closes, in sender order (the loss draws too).
             self._held.setdefault(msg.t_s, {})[sender] = payload
+            self._tx_wait_since = None  # progress: the wait for the rest restarts (`_instant_closed`)
             self.host.fleet.answers.set()  # type: ignore[union-attr]  # wake the barrier
             return
         pos = self.vehicles.positions()
@@ -721,8 +722,13 @@ class SitlWorld:
             if self._tick_due is not None and self._instant_closed(alive, wall):
                 self.bus.publish(self.topics.tick, self.wire.json("tick", {"boot_s": self._tick_due}), sticky=True)
                 self._tick_due = None
+                b.restart(wall)  # the answers held for this tick can come only now
             owing = b.owing(alive)
             late = b.overdue(owing, wall)
+            if late:  # answers may be unread behind a stall of this process: read them first
+                await asyncio.sleep(0)
+                owing = b.owing(alive)
+                late = b.overdue(owing, time.perf_counter())
             for i in late:
                 self.agent_failed(i, f"no answer to its telemetry for {b.straggler_s:g} s")
             if late:  # a failed agent owes nothing any more
