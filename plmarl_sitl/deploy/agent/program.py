@@ -41,6 +41,7 @@ DESCRIPTION = __doc__.split("\n\n")[1].replace("\n", " ")
 DEFAULT_MISSION = PAPER_MISSION
 DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
 BOUNDS = StartupBounds()
+LOCKSTEP_COMMAND_TIMEOUT_S = 5.0  # per COMMAND_LONG try with --lockstep (3 tries; 1 s against a real autopilot)
 
 EPILOG = """\
 examples:
@@ -217,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
     bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),
                   lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus", credentials=credentials)
     link = connect(args.connect, signing_key=mavlink_key)
+    if cfg.lockstep:  # the emulated autopilots' world may be starved while 100 agents start (issue 25)
+        link.command_timeout_s = LOCKSTEP_COMMAND_TIMEOUT_S
     link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)
     agent = Agent(cfg, lp, bus, link)
     if args.rt_priority is not None:
