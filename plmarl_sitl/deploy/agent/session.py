@@ -261,8 +261,9 @@ class VehicleSession:
     async def _armed(self) -> bool:
         """The ARMED flag of the autopilot's next heartbeat (another component's does not count).
         Lockstep: heartbeats follow the vehicle clock, which the world holds until it has
-        forked every agent (minutes for 100 agents on a loaded machine: issue 25)."""
-        return (await self.view.next_state(LOCKSTEP_TELEMETRY_TIMEOUT_S if self.cfg.lockstep else 3.0)).armed
+        forked every agent (minutes for 100 agents on a loaded machine: issue 25), so the
+        heartbeat bound applies (`program.LOCKSTEP_STARTUP_WAIT_S`)."""
+        return (await self.view.next_state(self.cfg.bounds.heartbeat_s if self.cfg.lockstep else 3.0)).armed
 
     async def _until_ready(self, what: str, step: Callable[[], Awaitable[None]]) -> None:
         """Run `step` until the autopilot accepts it: a refusal other than UNSUPPORTED means
