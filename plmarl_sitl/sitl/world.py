@@ -254,6 +254,9 @@ class SitlWorld:
         self._held_retained: dict[str, bytes] = {}  # retained messages held by it (topic -> newest)
         self.on_signal: Callable[[str, bytes], None] | None = None  # lockstep: tx relayed and rx sent, in order
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
+        # Lockstep: which of these agents are still computing (`AgentFleet.working`); one that
+        # is, is not a straggler yet (None: every agent overdue is one).
+        self.agents_working: Callable[[list[int]], list[int]] | None = None
         self.bus.on_connection = self._on_bus_connection
         self.failed_agents: set[int] = set()  # agents declared failed (agent_failed), in either pace
         self.pace = Pace(cfg.speedup)  # free-running: mission time lost to the bounded catch-up
@@ -729,6 +732,9 @@ class SitlWorld:
                 await asyncio.sleep(0)
                 owing = b.owing(alive)
                 late = b.overdue(owing, time.perf_counter())
+            if late and self.agents_working is not None and self.agents_working(late):
+                b.restart(time.perf_counter())  # still computing: a starved machine, not a straggler
+                late = []
             for i in late:
                 self.agent_failed(i, f"no answer to its telemetry for {b.straggler_s:g} s")
             if late:  # a failed agent owes nothing any more
