@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import psutil
+
 from plmarl_sitl.proc import agent_child_setup
 from plmarl_sitl.sitl.forked import ForkedProcess, fork_agent, warm_up
 from plmarl_sitl.sitl.remote import RemoteAgent
@@ -69,6 +71,13 @@ def _signal(p: asyncio.subprocess.Process | ForkedProcess | RemoteAgent, sig: in
             os.kill(p.pid, sig)
 
 
+# CPU s an agent must have used since the world last asked to count as still computing: an
+# agent idling in its event loop (heartbeat, bus keep-alive, link checks: ~3 wake-ups a
+# second) uses a few ms in a 10 s straggler bound; one of 100 deciding on a starved machine
+# (a quarter of a core between them) about 25 ms.
+WORKING_CPU_S = 0.01
+
+
 @dataclass
 class AgentFleet:
     """Children started by `spawn`; `stop()` (SIGTERM, then SIGKILL) in any case.
@@ -84,6 +93,29 @@ class AgentFleet:
     nice: int = 0
     procs: dict[int, AgentProc] = field(default_factory=dict)
     remote: dict[int, RemoteHost] = field(default_factory=dict)  # UAVs whose agent runs on another host
+    _cpu_seen: dict[int, float] = field(default_factory=dict)  # CPU s of each agent at the last `working`
+
+    def working(self, uav_ids: list[int]) -> list[int]:
+        """The agents among `uav_ids` that used WORKING_CPU_S of CPU or more since the last
+        call that asked about them (first asked: counted as working). A lockstep world asks before it declares an
+        agent that owes an answer failed: on a machine so loaded that 100 agents deciding at
+        once take longer than the straggler bound between them, every one of them is still
+        computing, where a stopped or hung one is not (issue 25). Agents on other hosts and
+        exited ones are not working."""
+        busy = []
+        for i in uav_ids:
+            ap = self.procs.get(i)
+            if ap is None or i in self.remote or ap.proc.returncode is not None:
+                continue
+            try:
+                t = psutil.Process(ap.proc.pid).cpu_times()
+            except psutil.Error:
+                continue
+            cpu = t.user + t.system
+            if cpu >= self._cpu_seen.get(i, -1.0) + WORKING_CPU_S:
+                busy.append(i)
+            self._cpu_seen[i] = cpu
+        return busy
 
     def warm_up(self, policy: str | Path | None = None, mission: str | Path | None = None) -> None:
         """Forked fleets: get the forkserver importing (and loading `policy` for `mission`)

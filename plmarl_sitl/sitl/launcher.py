@@ -424,6 +424,7 @@ class _Run:
             world.relay.on_signal = monitor.on_bus
         # An agent that dies is a node failure to record, in both paces, not a lost run.
         world.on_agent_failed = lambda i, k, why: _agent_failed(fleet, script, self.record_event, i, k, why)
+        world.agents_working = fleet.working
         if not opts.lockstep:
             observer = MqttBus(bus_url, f"plmarl-launcher-{opts.swarm}", [monitor.topics.tx("+"), monitor.topics.rx("+")],
                                monitor.on_bus, name="launcher-bus", credentials=monitor_login)

@@ -11,7 +11,12 @@ member yet: start-up is a wall-clock command exchange and is not lockstepped.
 
 A member that owes an answer for `straggler_s` of wall time (stopped, crashed, hung) is
 declared failed: the world stops waiting for it, its vehicle gets no more setpoints and
-its own setpoint-loss failsafe holds it, as with any companion computer that dies.
+its own setpoint-loss failsafe holds it, as with any companion computer that dies. The
+bound counts only time in which the swarm made no progress: it restarts at every answer
+from any member (`Fleet.answered_wall`) and when the world sends the tick the answers wait
+for (`restart`). A straggler is the one left owing once the others are done; a machine so
+loaded that 100 agents take more than the bound to get through a map instant between them
+(issue 25: every agent was declared failed at once at t = 0, 30 or 60 at load 30-60) is not.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ class Barrier:
         self.failed: dict[int, str] = {}  # vehicle -> why its agent was declared failed
         self._failed_mask = np.zeros(len(fleet.answered_ms), dtype=bool)
         self._owed_since: dict[int, tuple[int, float]] = {}  # vehicle -> (telemetry ms owed, wall s first seen owing)
+        self._restarted = -math.inf  # wall s the world last made answering possible (a tick out)
 
     def _member_mask(self, alive: Sequence[bool]) -> np.ndarray:
         return np.asarray(alive, dtype=bool) & (self.fleet.answered_ms > 0) & ~self._failed_mask
@@ -68,24 +74,37 @@ class Barrier:
         f = self.fleet
         return np.flatnonzero(self._member_mask(alive) & (f.answered_ms < f.telemetry_ms)).tolist()
 
+    def restart(self, wall_s: float) -> None:
+        """The world has just made answering possible again (it sent the tick the first
+        telemetry of a second waits for): what the members owed before counts from now."""
+        self._restarted = wall_s
+
+    def _progress(self) -> float:
+        """Wall s of the swarm's last progress: an answer from any member, or a restart."""
+        return max(self._restarted, self.fleet.answered_wall)
+
     def overdue(self, owing: Sequence[int], wall_s: float) -> list[int]:
-        """Members that have owed the same answer for straggler_s or more."""
+        """Members that have owed the same answer for straggler_s or more, with no answer
+        from any member and no restart in that time."""
         late = []
+        progress = self._progress()
         for i in owing:
             ms = int(self.fleet.telemetry_ms[i])
             since = self._owed_since.get(i)
             if since is None or since[0] != ms:
                 self._owed_since[i] = (ms, wall_s)
-            elif wall_s - since[1] >= self.straggler_s:
+            elif wall_s - max(since[1], progress) >= self.straggler_s:
                 late.append(i)
         return late
 
     def wait_left(self, owing: Sequence[int], wall_s: float) -> float:
         """Wall seconds until the first of `owing` would be overdue (inf: none owes)."""
         left = math.inf
+        progress = self._progress()
         for i in owing:
             since = self._owed_since.get(i)
-            left = min(left, self.straggler_s - (wall_s - since[1]) if since is not None else self.straggler_s)
+            t = wall_s if since is None else max(since[1], progress)
+            left = min(left, self.straggler_s - (wall_s - t))
         return max(0.0, left)
 
     def fail(self, i: int, why: str) -> None:

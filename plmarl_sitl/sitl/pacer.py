@@ -24,6 +24,7 @@ import contextlib
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Protocol
 
 import torch
@@ -56,6 +57,7 @@ class PacedWorld(Protocol):
     topics: Topics
     stopping: asyncio.Event
     takeoff_alt: float
+    agents_working: Callable[[list[int]], list[int]] | None
 
     @property
     def now(self) -> float: ...
@@ -187,6 +189,12 @@ class LockstepPacer(Pacer):
         self.barrier.fail(i, why)
         self.host.fleet.answers.set()  # the barrier stops waiting for it
 
+    def state_held(self) -> None:
+        """The relay holds a new state of an open instant: progress, so the wait for the rest
+        restarts (`_instant_closed`), and the barrier wakes."""
+        self._tx_wait_since = None
+        self.host.fleet.answers.set()
+
     async def run(self) -> None:
         """One physics substep at a time, each once the barrier is met (`_settle`). Until
         every live vehicle's agent has joined (start-up), also paced at wall x speedup:
@@ -237,8 +245,16 @@ class LockstepPacer(Pacer):
             if self._tick_due is not None and self._instant_closed(alive, wall):
                 w.outbox.publish_sticky(w.topics.tick, w.wire.json("tick", {"boot_s": self._tick_due}))
                 self._tick_due = None
+                b.restart(wall)  # the answers held for this tick can come only now
             owing = b.owing(alive)
             late = b.overdue(owing, wall)
+            if late:  # answers may be unread behind a stall of this process: read them first
+                await asyncio.sleep(0)
+                owing = b.owing(alive)
+                late = b.overdue(owing, time.perf_counter())
+            if late and w.agents_working is not None and w.agents_working(late):
+                b.restart(time.perf_counter())  # still computing: a starved machine, not a straggler
+                late = []
             for i in late:
                 w.agent_failed(i, f"no answer to its telemetry for {b.straggler_s:g} s")
             if late:  # a failed agent owes nothing any more

@@ -151,6 +151,9 @@ class SitlWorld:
         self.on_event = on_event
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
         self.on_behind: Callable[[str], None] | None = None  # free-running: the once-per-run "running behind"
+        # Lockstep: which of these agents are still computing (`AgentFleet.working`); one that
+        # is, is not a straggler yet (None: every agent overdue is one).
+        self.agents_working: Callable[[list[int]], list[int]] | None = None
         self.topics = Topics(cfg.swarm)
         vm = m.vehicle_model()
         self.takeoff_alt = min(max(vm.takeoff_alt_m, vm.min_alt_m), vm.max_alt_m)  # the twin's start altitude
@@ -170,7 +173,7 @@ class SitlWorld:
         self.ground = Ground(m, seed, self.outbox, self.wire, self.topics, cfg.publish_sense)
         self.relay = Relay(self.links, self.vehicles, self.outbox, self.wire, self.topics, self.time,
                            latency_s=cfg.latency_s, speedup=cfg.speedup,
-                           lockstep_wake=self.host.fleet.answers.set if cfg.lockstep and self.host else None)
+                           lockstep_wake=self._state_held if cfg.lockstep and self.host else None)
         self.start_gate = StartGate(self.vehicles, self.takeoff_alt, cfg.start_timeout_s,
                                     max(cfg.start_margin_s, cfg.start_margin_wall_s * cfg.speedup))
         self.pacer: Pacer = self._pacer()
@@ -182,6 +185,10 @@ class SitlWorld:
         self.stopping = asyncio.Event()
         self.started_wall: float | None = None
         self.failed_agents: set[int] = set()  # agents declared failed (agent_failed), in either pace
+
+    def _state_held(self) -> None:
+        assert isinstance(self.pacer, LockstepPacer)
+        self.pacer.state_held()
 
     def _vehicles(self) -> WorldVehicles:
         cfg, m = self.cfg, self.mission

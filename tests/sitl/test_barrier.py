@@ -1,5 +1,6 @@
 """The lockstep barrier's rule (`sitl.lockstep.Barrier`) on the fleet's stamp arrays."""
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -9,9 +10,9 @@ from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, Barrier, speedup_
 
 
 def _fleet(telemetry_ms, answered_ms):
-    # The barrier reads only these two arrays of `autopilot.fleet.Fleet`.
+    # The barrier reads only these of `autopilot.fleet.Fleet`.
     return SimpleNamespace(telemetry_ms=np.array(telemetry_ms, dtype=np.int64),
-                           answered_ms=np.array(answered_ms, dtype=np.int64))
+                           answered_ms=np.array(answered_ms, dtype=np.int64), answered_wall=-math.inf)
 
 
 def test_members_are_live_joined_and_not_failed():
@@ -49,6 +50,29 @@ def test_straggler_is_overdue_only_after_the_bound_on_the_same_answer():
     f.telemetry_ms[0] = 200  # a new sample restarts the clock
     assert b.overdue([0], wall_s=12.5) == []
     assert b.overdue([0], wall_s=14.5) == [0]
+
+
+def test_straggler_bound_counts_only_time_without_progress():
+    # A slow machine: the others' answers trickle in; the one left owing fails only once
+    # nobody has answered for the bound (issue 25: N = 100 at load 30-60).
+    f = _fleet([100, 100, 100], [50, 50, 50])
+    b = Barrier(f, straggler_s=2.0)
+    assert b.overdue([0, 1, 2], wall_s=10.0) == []
+    f.answered_ms[1], f.answered_wall = 100, 11.5  # member 1 answers late
+    assert b.overdue([0, 2], wall_s=12.5) == []
+    assert b.wait_left([0, 2], wall_s=12.5) == pytest.approx(1.0)
+    f.answered_ms[2], f.answered_wall = 100, 13.0
+    assert b.overdue([0], wall_s=14.9) == []
+    assert b.overdue([0], wall_s=15.0) == [0]  # 2 s after the last answer
+
+
+def test_a_restart_gives_the_held_answers_the_whole_bound():
+    f = _fleet([100, 100], [50, 50])
+    b = Barrier(f, straggler_s=2.0)
+    assert b.overdue([0, 1], wall_s=10.0) == []  # held for the tick, which the world sends late
+    b.restart(11.8)
+    assert b.overdue([0, 1], wall_s=13.0) == []
+    assert b.overdue([0, 1], wall_s=13.8) == [0, 1]
 
 
 def test_start_up_pace_defaults():

@@ -223,7 +223,8 @@ class Decision:
     def command(self) -> tuple[float, float, float]:
         """The acceleration to send now (NED, m/s^2)."""
         vm = self.vm
-        alt, v_up = -float(self.ego[2]), -float(self.ego[5])
+        ego = self.ego.numpy()  # once per sample: numpy scalars, not two torch indexings
+        alt, v_up = -float(ego[2]), -float(ego[5])
         if not self.clock.in_mission():
             # Before the mission: hold where offboard control began (PD on position).
             tgt = self.hold_target if self.hold_target is not None and not self.hold_damping_only else self.ego[:3]

@@ -41,6 +41,12 @@ DESCRIPTION = __doc__.split("\n\n")[1].replace("\n", " ")
 DEFAULT_MISSION = PAPER_MISSION
 DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
 BOUNDS = StartupBounds()
+LOCKSTEP_COMMAND_TIMEOUT_S = 5.0  # per COMMAND_LONG try with --lockstep (3 tries; 1 s against a real autopilot)
+# --lockstep: the least start-up wait for what the vehicle clock brings (its heartbeat, home,
+# position stream). `swarm up` runs that clock only once it has forked every agent: 100
+# agents on a loaded 2-core machine took 96-210 s to fork (issue 25), and the agents forked
+# first waited out the default bounds, sized for a running autopilot, before it started.
+LOCKSTEP_STARTUP_WAIT_S = 600.0
 
 EPILOG = """\
 examples:
@@ -206,7 +212,8 @@ def run(args: argparse.Namespace) -> int:
         bus_mode=args.bus,
         takeoff=not args.no_takeoff,
         wait_start=start == "wait",
-        bounds=StartupBounds(args.wait_heartbeat, args.wait_home, args.wait_position, args.wait_arm),
+        bounds=_lockstep_bounds(StartupBounds(args.wait_heartbeat, args.wait_home, args.wait_position, args.wait_arm),
+                                args.lockstep),
         trace_path=_output_path("--trace", args.trace),
         stats_path=_output_path("--stats-json", args.stats_json),
         swarm_key=swarm_key,
@@ -217,6 +224,8 @@ def run(args: argparse.Namespace) -> int:
     bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),
                   lambda topic, payload: agent.inbox.on_message(topic, payload), name=f"agent{me}-bus", credentials=credentials)
     link = connect(args.connect, signing_key=mavlink_key)
+    if cfg.lockstep:  # the emulated autopilots' world may be starved while 100 agents start (issue 25)
+        link.command_timeout_s = LOCKSTEP_COMMAND_TIMEOUT_S
     link.stamp_arrivals = cfg.stats_path is not None  # only when measuring (one ioctl per datagram)
     agent = Agent(cfg, lp, bus, link)
     if args.rt_priority is not None:
@@ -235,6 +244,14 @@ def run(args: argparse.Namespace) -> int:
         # launcher stopping its fleet) would turn a clean exit into "killed by a signal".
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+
+
+def _lockstep_bounds(b: StartupBounds, lockstep: bool) -> StartupBounds:
+    """Lockstep: the vehicle-clock waits at least LOCKSTEP_STARTUP_WAIT_S (see there)."""
+    if not lockstep:
+        return b
+    w = LOCKSTEP_STARTUP_WAIT_S
+    return StartupBounds(max(b.heartbeat_s, w), max(b.home_s, w), max(b.position_s, w), b.arm_s)
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGUSR1)  # stop (hold the vehicle); SIGUSR1: release it

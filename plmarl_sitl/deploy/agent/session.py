@@ -16,6 +16,7 @@ brake). Every mode name comes from the personality.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import logging
 import math
@@ -46,7 +47,10 @@ TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 # Lockstep: the world may hold the clock (and so the telemetry) while it waits out a
 # straggling agent; the vehicle is lost only if silent much longer than that bound.
 LOCKSTEP_TELEMETRY_TIMEOUT_S = 120.0
-FLY_CHECK_S = 0.1  # wall: a lockstep agent checks this often for a failure, a lost link or silence
+# Wall: a lockstep agent looks for a lost link or silence this often (a failure of its
+# sample handler wakes it at once). Not faster: under load a run's wall time stretches and a
+# 10 Hz wall-clock poll in 20 agents cost as many loop turns as the samples (issue 25).
+FLY_CHECK_S = 1.0
 WATCHDOG_S = 0.1  # wall: re-send the setpoint if telemetry stalls (>= 10 Hz)
 UNUSED_STREAMS = {"ATTITUDE": 0.0, "POSITION_TARGET_LOCAL_NED": 0.0, "GLOBAL_POSITION_INT": 1.0}
 REENGAGE_EVERY_S = 2.0  # wall: how often to ask for the offboard mode back after a failsafe
@@ -87,7 +91,7 @@ class Link(Protocol):
     def close(self) -> None: ...
     def subscribe(self, mtype: str, pred: Callable[[Any], bool] | None = ...) -> Subscription: ...
     async def recv(self, mtype: str, timeout: float = ..., pred: Callable[[Any], bool] | None = ...) -> Any: ...
-    async def request_message(self, msgid: int, timeout: float = ...) -> None: ...
+    async def request_message(self, msgid: int, timeout: float | None = ...) -> None: ...
     async def set_message_interval(self, message: str | int, hz: float) -> None: ...
     async def set_mode(self, name: str) -> None: ...
     async def arm(self, force: bool = ...) -> None: ...
@@ -268,8 +272,11 @@ class VehicleSession:
             raise VehicleTimeout(self.link.sysid, "LOCAL_POSITION_NED (the autopilot has no position estimate)", bound) from None
 
     async def _armed(self) -> bool:
-        """The ARMED flag of the autopilot's next heartbeat (another component's does not count)."""
-        return (await self.view.next_state(3.0)).armed
+        """The ARMED flag of the autopilot's next heartbeat (another component's does not count).
+        Lockstep: heartbeats follow the vehicle clock, which the world holds until it has
+        forked every agent (minutes for 100 agents on a loaded machine: issue 25), so the
+        heartbeat bound applies (`program.LOCKSTEP_STARTUP_WAIT_S`)."""
+        return (await self.view.next_state(self.cfg.bounds.heartbeat_s if self.cfg.lockstep else 3.0)).armed
 
     async def _until_ready(self, what: str, step: Callable[[], Awaitable[None]]) -> None:
         """Run `step` until the autopilot accepts it: a refusal other than UNSUPPORTED means
@@ -398,10 +405,12 @@ class VehicleSession:
         timeout per sample (issue 25: that round trip was a fixed cost of every answer).
         The world waits for each answer before it sends the next sample, so there is never
         a backlog to skip, and what the agent does is the same. This task only watches for
-        silence, a broken link and a failure of the handler, every FLY_CHECK_S."""
+        a failure of the handler (woken by it), and for silence and a broken link every
+        FLY_CHECK_S."""
         positions = self.positions
         assert positions is not None
         failed: list[BaseException] = []
+        woken = asyncio.Event()
         last = time.perf_counter()
 
         def on_position(m: Any) -> None:
@@ -414,6 +423,7 @@ class VehicleSession:
                 self._check_mode()
             except Exception as exc:  # noqa: BLE001 - raised by the task below, as the loop did
                 failed.append(exc)
+                woken.set()
 
         if positions.queued:
             on_position(await positions.newest(0.0))
@@ -427,7 +437,9 @@ class VehicleSession:
                 silent = time.perf_counter() - last
                 if silent > LOCKSTEP_TELEMETRY_TIMEOUT_S:
                     raise VehicleLost(VehicleTimeout(self.link.sysid, "LOCAL_POSITION_NED", LOCKSTEP_TELEMETRY_TIMEOUT_S))
-                await asyncio.sleep(FLY_CHECK_S)
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(FLY_CHECK_S):
+                        await woken.wait()
         finally:
             positions.handle_with(None)
 

@@ -185,6 +185,10 @@ class VehicleLink:
         # Stamp each message with its datagram's kernel arrival time (`m.rx_ns`, UDP
         # links only): one ioctl per datagram, for latency measurements.
         self.stamp_arrivals = False
+        # How long a COMMAND_LONG waits for its ACK before it is sent again (3 tries). A
+        # real autopilot answers in milliseconds; a lockstep SITL world starting 100
+        # vehicles on a loaded machine may not run for seconds (`plmarl agent --lockstep`).
+        self.command_timeout_s = 1.0
         # Every message received and sent, as a .tlog (8-byte big-endian unix time in us,
         # then the frame: the format pymavlink and MAVExplorer read); None: not recorded.
         self.tlog: BinaryIO | None = None
@@ -341,13 +345,16 @@ class VehicleLink:
         self._setpoint(POSITION_ONLY, pos=(north, east, down))
 
     # ------------------------------------------------------------------ commands
-    async def command(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3) -> None:
+    async def command(self, command: int, *params: float, timeout: float | None = None, retries: int = 3) -> None:
         """COMMAND_LONG with retries (confirmation counts up); raises unless ACCEPTED.
+        `timeout`: per try (None: `command_timeout_s`).
 
         Params not given are 0, as the MAVLink spec asks for reserved and unused params
         (ArduPilot DENIES e.g. SET_MESSAGE_INTERVAL with NaN in its reserved param 3).
         Pass NaN explicitly only where the command defines NaN ("current yaw/position")."""
         p = list(params) + [0.0] * (7 - len(params))
+        if timeout is None:
+            timeout = self.command_timeout_s
         with self.subscribe("COMMAND_ACK", lambda m: m.command == command) as acks:
             for attempt in range(retries):
                 self.send(self.codec.mav.command_long_encode(self.sysid, d.MAV_COMP_ID_AUTOPILOT1, command, attempt, *p))
@@ -405,7 +412,7 @@ class VehicleLink:
         # response target, 0: the flight stack's default (the link that asked).
         await self.command(d.MAV_CMD_SET_MESSAGE_INTERVAL, float(msgid), interval, 0, 0, 0, 0, 0)
 
-    async def request_message(self, msgid: int, timeout: float = 1.0) -> None:
+    async def request_message(self, msgid: int, timeout: float | None = None) -> None:
         """MAV_CMD_REQUEST_MESSAGE: ask for one `msgid` message (raises unless ACCEPTED; an
         autopilot may accept and still send nothing while it has no such data, as ArduPilot
         does for HOME_POSITION before its home is set)."""

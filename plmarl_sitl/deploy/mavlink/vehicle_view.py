@@ -45,7 +45,7 @@ class ViewedLink(Protocol):
     @property
     def sysid(self) -> int: ...
     async def recv(self, mtype: str, timeout: float = ..., pred: Callable[[Any], bool] | None = ...) -> Any: ...
-    async def request_message(self, msgid: int, timeout: float = ...) -> None: ...
+    async def request_message(self, msgid: int, timeout: float | None = ...) -> None: ...
     async def set_message_interval(self, message: str | int, hz: float) -> None: ...
 
 
@@ -95,6 +95,7 @@ class VehicleView:
 
     def __init__(self, link: ViewedLink) -> None:
         self.link = link
+        self._latest: tuple[Any, VehicleState | None] = (None, None)  # (heartbeat, its state): read per sample
 
     def from_autopilot(self, m: Any) -> bool:
         """Whether `m` comes from the vehicle's autopilot (not a GCS's or companion's)."""
@@ -107,9 +108,13 @@ class VehicleView:
     def latest_state(self) -> VehicleState | None:
         """The latest heartbeat's state, if the latest heartbeat came from the autopilot."""
         hb = self.link.latest.get("HEARTBEAT")
-        if hb is None or not self.from_autopilot(hb):
+        if hb is None:
             return None
-        return self.state(hb)
+        seen, state = self._latest
+        if hb is not seen:  # a new heartbeat (1 Hz): decode it once, not at every sample
+            state = self.state(hb) if self.from_autopilot(hb) else None
+            self._latest = (hb, state)
+        return state
 
     async def next_state(self, timeout: float = 3.0) -> VehicleState:
         """The state of the autopilot's next heartbeat (VehicleTimeout, LinkLost)."""

@@ -58,6 +58,7 @@ class Fleet:
         self.telemetry_ms = np.full(count, -1, dtype=np.int64)
         self.answered_ms = np.full(count, -1, dtype=np.int64)
         self.answers = asyncio.Event()  # set when a stamped setpoint arrives (see `answered`)
+        self.answered_wall = -math.inf  # perf_counter s of the latest stamped setpoint (the barrier's progress)
         # The vehicles a lockstep world is waiting for (None: wake on every answer). Twenty
         # answers trickle in per telemetry round; waking the barrier for each one cost the
         # world's loop a full barrier check per answer instead of one per round (issue 25).
@@ -70,6 +71,7 @@ class Fleet:
         """Vehicle i got a setpoint stamped with the telemetry time it answers (lockstep):
         wake the barrier once the last awaited vehicle has answered."""
         self.answered_ms[i] = telemetry_ms
+        self.answered_wall = time.perf_counter()
         awaited = self.awaited
         if awaited is not None:
             awaited.discard(i)
