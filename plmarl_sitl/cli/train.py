@@ -97,6 +97,9 @@ def run(args: argparse.Namespace) -> int:
         fits_engine = args.method in ("pl-marl", "gru") and args.predictor is None
         engine = (bar.add_task("inference engine fit", total=engine_iters("mlp" if args.method == "pl-marl" else "gru",
                                                                           args.predictor_iters)) if fits_engine else None)
+        teacher = {"plan": "the plan follower", "react": "re-plans at each failure with true states"}[args.teacher]
+        imitation = (bar.add_task(f"imitation (DAgger; teacher: {teacher})", total=args.imitation_rounds)
+                     if args.imitation_rounds > 0 else None)
         task = bar.add_task(f"{args.method} (seed {args.seed})", total=total)
 
         def on_iter(episodes: int, row: dict) -> None:
@@ -119,6 +122,7 @@ def run(args: argparse.Namespace) -> int:
             threads=args.threads,
             on_iter=on_iter,
             on_engine_iter=None if engine is None else lambda done: bar.update(engine, completed=done),
+            on_imitation_round=None if imitation is None else lambda done: bar.update(imitation, completed=done),
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",

@@ -90,6 +90,7 @@ def run_training(
     log: Callable[[str], None] = print,
     args_overrides: dict | None = None,
     on_engine_iter: Callable[[int], None] | None = None,
+    on_imitation_round: Callable[[int], None] | None = None,
 ) -> dict:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -106,7 +107,7 @@ def run_training(
         card["predictor"] = info
     args = Args(method=method, mission=mission_path, predictor_state=predictor_state, seed=seed, episodes=episodes,
                 num_envs=num_envs, out=str(work / "mappo"), threads=threads, **(args_overrides or {}))
-    res = train(args, progress=on_iter)
+    res = train(args, progress=on_iter, on_imitation_round=on_imitation_round)
     if res.get("imitation"):
         card["training"]["imitation_wall_s"] = res["imitation"]["wall_s"]
         card["imitation"] = res["imitation"]

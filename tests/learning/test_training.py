@@ -67,8 +67,10 @@ def test_imitation_tup_chunks_cover_the_choices() -> None:
     torch.manual_seed(0)
     tracker = BeliefTracker(make_predictor("hold"), 10, 1.0)
     args = ImitationArgs(rounds=2, episodes_per_round=3, epochs=1, tup_choices=(5, 10, 50), tup_chunks=3, seed=1)
-    res = imitate_oracle(Actor(), tracker, mission, args, log=lambda s: None)
+    rounds: list[int] = []  # what the imitation progress bar is fed (issue 26)
+    res = imitate_oracle(Actor(), tracker, mission, args, log=lambda s: None, on_round=rounds.append)
     assert res["episodes"] == 6 and sorted(res["tups"][:3]) == [5, 10, 50] and sorted(res["tups"][3:]) == [5, 10, 50]
+    assert rounds == [1, 2]
 
 
 @pytest.mark.parametrize("method", ["pl-marl", "gru", "tag-mappo"])

@@ -87,9 +87,11 @@ def cat_slots(parts: list[torch.Tensor]) -> torch.Tensor:
 
 
 def imitate_oracle(
-    actor: Actor, tracker: BeliefTracker, mission: Mission, args: ImitationArgs, log: Callable[[str], None] = print
+    actor: Actor, tracker: BeliefTracker, mission: Mission, args: ImitationArgs, log: Callable[[str], None] = print,
+    on_round: Callable[[int], None] | None = None,
 ) -> dict:
-    """Train `actor` in place; returns {"episodes", "samples", "wall_s", "final_mse"}."""
+    """Train `actor` in place; returns {"episodes", "samples", "wall_s", "final_mse"}.
+    `on_round(done)` after each round (a progress bar)."""
     scales = FeatureScales.from_mission(mission)
     rng = np.random.default_rng(args.seed)
     opt = torch.optim.Adam(actor.parameters(), lr=args.lr)
@@ -152,5 +154,7 @@ def imitate_oracle(
                 opt.step()
                 mse = float(loss.detach())
         log(f"imitation round {rnd}: beta {beta:.2f}, T_up {[b[0] for b in batches]}, {n} samples, mse {mse:.4f} ({time.time() - t0:.0f} s)")
+        if on_round is not None:
+            on_round(rnd + 1)
     return {"episodes": episodes, "samples": int(ds["u"].shape[0]), "wall_s": time.time() - t0, "final_mse": mse, "tups": tups,
             "args": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(args).items()}}

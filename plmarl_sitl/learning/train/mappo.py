@@ -228,7 +228,7 @@ def linear(start: float, end: float, frac: float) -> float:
     return start + (end - start) * min(max(frac, 0.0), 1.0)
 
 
-def train(args: Args, progress=None) -> dict:
+def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: ANN001 - callbacks
     # ------------------------------------------------------------------ seeding, setup
     random.seed(args.seed)
     np.random.seed(args.seed)
@@ -255,6 +255,7 @@ def train(args: Args, progress=None) -> dict:
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
                           tup_chunks=args.imitation_tup_chunks, general=args.general, teacher=args.imitation_teacher,
                           failures=args.imitation_failures),
+            on_round=on_imitation_round,
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
     opt_c = torch.optim.Adam(critic.parameters(), lr=args.lr_critic, eps=1e-5)
