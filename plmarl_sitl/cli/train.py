@@ -80,7 +80,8 @@ def _check_out(out: Path, force: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from plmarl_sitl.learning.pipeline import engine_iters, run_training  # heavy imports only when used
+    from plmarl_sitl.learning.pipeline import EVAL_TUPS, engine_iters, run_training  # heavy imports only when used
+    from plmarl_sitl.mission import load_mission
 
     if args.episodes < 1:
         raise UserError("--episodes must be >= 1")
@@ -101,6 +102,12 @@ def run(args: argparse.Namespace) -> int:
         imitation = (bar.add_task(f"imitation (DAgger; teacher: {teacher})", total=args.imitation_rounds)
                      if args.imitation_rounds > 0 else None)
         task = bar.add_task(f"{args.method} (seed {args.seed})", total=total)
+        evaluation = None
+        if args.eval_episodes > 0:
+            timing = load_mission(args.mission).timing
+            decisions = math.ceil(timing.episode_s / timing.decision_every_s)
+            evaluation = bar.add_task(f"evaluation: {args.eval_episodes} episodes at T_up {', '.join(map(str, EVAL_TUPS))} s",
+                                      total=decisions * args.eval_episodes * len(EVAL_TUPS))
 
         def on_iter(episodes: int, row: dict) -> None:
             bar.update(
@@ -123,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
             on_iter=on_iter,
             on_engine_iter=None if engine is None else lambda done: bar.update(engine, completed=done),
             on_imitation_round=None if imitation is None else lambda done: bar.update(imitation, completed=done),
+            on_eval_decision=None if evaluation is None else lambda b: bar.advance(evaluation, b),
             log=bar.console.print,
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",

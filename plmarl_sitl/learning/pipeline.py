@@ -75,6 +75,9 @@ def fit_predictor(kind: str, mission, seed: int, iters: int | None, out: Path, l
                        "args": args}
 
 
+EVAL_TUPS = (5, 15, 50)  # the T_up a trained policy's card is evaluated at
+
+
 def run_training(
     method: str,
     mission_path: str,
@@ -91,6 +94,7 @@ def run_training(
     args_overrides: dict | None = None,
     on_engine_iter: Callable[[int], None] | None = None,
     on_imitation_round: Callable[[int], None] | None = None,
+    on_eval_decision: Callable[[int], None] | None = None,
 ) -> dict:
     torch.set_num_threads(threads)
     out.mkdir(parents=True, exist_ok=True)
@@ -139,7 +143,7 @@ def run_training(
         from plmarl_sitl.learning.nn.io import load_policy
 
         loaded = load_policy(out, mission)
-        ev = evaluate_methods(mission, {method: loaded}, [method], [5, 15, 50], eval_episodes, seed=10_000 + seed)
+        ev = evaluate_methods(mission, {method: loaded}, [method], list(EVAL_TUPS), eval_episodes, seed=10_000 + seed, on_decision=on_eval_decision)
         card["eval"] = {"episodes": eval_episodes, "seed": 10_000 + seed, "coverage": ev["results"]}
         export_policy(out, tracker, policy, card)  # rewrite the card with the numbers
     return card
