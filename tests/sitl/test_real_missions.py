@@ -22,6 +22,8 @@ from pathlib import Path
 
 import psutil
 import pytest
+import real_autopilots
+from real_autopilots import ROOT, cli, env, rows
 
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import load_mission
@@ -29,12 +31,10 @@ from plmarl_sitl.sitl.arducopter import instance_free, launch_homes
 from plmarl_sitl.sitl.network.broker import free_port, free_udp_ports
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]
-ROOT = Path(__file__).resolve().parents[2]
 BINARY = os.environ.get("ARDUCOPTER", "")
 needs_arducopter = pytest.mark.skipif(not BINARY, reason="set ARDUCOPTER=/path/to/arducopter (a real ArduCopter SITL "
                                       "binary built from ArduPilot's source) to run")
 INSTANCES = range(60, 70)
-NICE = ["nice", "-n", "10"]
 
 
 def short_mission(tmp_path: Path, episode_s: int = 60) -> Path:
@@ -46,23 +46,8 @@ def short_mission(tmp_path: Path, episode_s: int = 60) -> Path:
     return p
 
 
-def cli(*args: str) -> list[str]:
-    return [*NICE, sys.executable, "-m", "plmarl_sitl.cli", *args]
-
-
-def env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
-
-
 def free_base(n: int) -> int:
-    for base in INSTANCES:
-        if base + n <= INSTANCES.stop and all(instance_free(base + i) for i in range(n)):
-            return base
-    pytest.skip(f"no {n} free ArduPilot SITL instances in -I {INSTANCES.start}..{INSTANCES.stop - 1}")
-
-
-def rows(out: Path) -> list[dict]:
-    return [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    return real_autopilots.free_base(n, INSTANCES, instance_free, "ArduPilot SITL instances (-I)")
 
 
 def trace(out: Path, i: int) -> list[dict]:

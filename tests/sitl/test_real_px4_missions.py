@@ -23,40 +23,25 @@ from pathlib import Path
 
 import psutil
 import pytest
+import real_autopilots
+from real_autopilots import ROOT, cli, env, rows
 
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.sitl.arducopter import launch_homes
 from plmarl_sitl.sitl.px4 import Px4Fleet, check_count, find_build, instance_free, int32_wire, wire_int32
 
-ROOT = Path(__file__).resolve().parents[2]
 BUILD = os.environ.get("PX4_SITL", "")
 needs_px4 = pytest.mark.skipif(not BUILD, reason="set PX4_SITL=/path/to/PX4-Autopilot/build/px4_sitl_default "
                                "(PX4's SITL build output: make px4_sitl_default) to run")
 INSTANCES = range(0, 10)  # PX4 gives an instance an offboard port of its own only up to 9
-NICE = ["nice", "-n", "10"]
 # PX4_SIM_SPEED_FACTOR. Four instances held 2x at load 20-40 on 2 cores, but at load 50 an
 # agent once waited more than its 3 s for the ACK of its first command: 1x by default.
 SPEEDUP = os.environ.get("PX4_SPEEDUP", "1")
 
 
-def cli(*args: str) -> list[str]:
-    return [*NICE, sys.executable, "-m", "plmarl_sitl.cli", *args]
-
-
-def env() -> dict[str, str]:
-    return dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")])))
-
-
 def free_base(n: int) -> int:
-    for base in INSTANCES:
-        if base + n <= INSTANCES.stop and all(instance_free(base + i) for i in range(n)):
-            return base
-    pytest.skip(f"no {n} free PX4 SITL instances in -i {INSTANCES.start}..{INSTANCES.stop - 1}")
-
-
-def rows(out: Path) -> list[dict]:
-    return [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines() if x.strip()]
+    return real_autopilots.free_base(n, INSTANCES, instance_free, "PX4 SITL instances (-i)")
 
 
 def events(out: Path) -> list[dict]:
