@@ -12,6 +12,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import psutil
 import pytest
 
 from plmarl_sitl.cli import main
@@ -78,9 +79,10 @@ def test_full_disk_is_refused_at_once(tmp_path):
 
 def test_sigkilled_owners_broker_folder_is_removed(tmp_path):
     code = ("import time; from plmarl_sitl.sitl.network.broker import MosquittoBroker; "
-            "m = MosquittoBroker(); m.start(); print(m._dir.name, flush=True); time.sleep(60)")
+            "m = MosquittoBroker(); m.start(); print(m._dir.name, m.proc.pid, flush=True); time.sleep(60)")
     owner = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    workdir = Path(owner.stdout.readline().strip())
+    name, broker_pid = owner.stdout.readline().split()
+    workdir = Path(name)
     assert workdir.name.startswith(f"{WORKDIR_PREFIX}mosquitto-{owner.pid}-") and workdir.is_dir()
     assert workdir not in remove_stale_workdirs()  # its owner lives
     os.kill(owner.pid, signal.SIGKILL)
@@ -89,3 +91,9 @@ def test_sigkilled_owners_broker_folder_is_removed(tmp_path):
     assert workdir in remove_stale_workdirs()  # ... the next broker's start does
     assert not workdir.exists()
     assert not any(Path(tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*-{owner.pid}-*"))
+    # ... and the broker itself dies with its owner (as root it dropped privileges, which
+    # cleared its parent-death signal, and outlived every SIGKILLed owner).
+    deadline = time.time() + 10
+    while psutil.pid_exists(int(broker_pid)) and psutil.Process(int(broker_pid)).status() != psutil.STATUS_ZOMBIE:
+        assert time.time() < deadline, "the owner's mosquitto outlived it"
+        time.sleep(0.1)

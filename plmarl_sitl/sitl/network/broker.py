@@ -208,10 +208,12 @@ class MosquittoBroker(_BrokerChild):
             auth = "allow_anonymous true\n"
         else:
             passwd, acl = self.access.write_mosquitto(workdir)
-            auth = (f"allow_anonymous false\npassword_file {passwd}\nacl_file {acl}\nuse_username_as_clientid true\n"
-                    # As root, mosquitto would drop to the `mosquitto` user, which cannot read our 0600 files.
-                    f"user {getpass.getuser()}\n")
-        conf.write_text(f"listener {self.port} {self.host}\n{auth}persistence false\nlog_dest stderr\nlog_type error\n"
+            auth = f"allow_anonymous false\npassword_file {passwd}\nacl_file {acl}\nuse_username_as_clientid true\n"
+        # As root, mosquitto would drop to the `mosquitto` user, which cannot read our 0600
+        # files, and a change of credentials clears its parent-death signal (die_with_parent):
+        # a SIGKILLed launcher would leave it running. It stays the launcher's own user.
+        conf.write_text(f"listener {self.port} {self.host}\n{auth}user {getpass.getuser()}\n"
+                        "persistence false\nlog_dest stderr\nlog_type error\n"
                         # Nagle's algorithm on the broker's side holds small deliveries for the
                         # subscriber's delayed ACK (40 ms): a signalling hop must not wait.
                         "set_tcp_nodelay true\n")
