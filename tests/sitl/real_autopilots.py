@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -33,3 +35,16 @@ def free_base(n: int, instances: range, instance_free: Callable[[int], bool], wh
 
 def rows(out: Path) -> list[dict]:
     return [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines() if x.strip()]
+
+
+def interrupt_all(procs: list[subprocess.Popen]) -> None:
+    """Ctrl-C every process still running, then SIGKILL the process group of any that has
+    not exited 15 s later (each was started in a session of its own)."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            os.killpg(p.pid, signal.SIGKILL)

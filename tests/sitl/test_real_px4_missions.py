@@ -291,14 +291,7 @@ def test_world_external_runs_a_mission_on_two_px4s_started_by_hand(tmp_path: Pat
             agent_log = (tmp_path / f"agent{i}.log").read_text()
             assert "in OFFBOARD at" in agent_log and "mission clock: t0 = boot" in agent_log, agent_log
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs:
-            try:
-                p.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                os.killpg(p.pid, signal.SIGKILL)
+        real_autopilots.interrupt_all(procs)
         import asyncio
 
         asyncio.run(fleet.stop())
