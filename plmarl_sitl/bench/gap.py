@@ -37,20 +37,28 @@ START_WALL_S = 120.0
 
 
 def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[float]:
+    return twin_series(mission, policy_dir, seed)[0]
+
+
+def twin_series(mission: Mission, policy_dir: str | Path, seed: int, *, lambda2: bool = False) -> tuple[list[float], list[float]]:
+    """C(t) and (with `lambda2`) lambda_2(t) of one twin episode, mission seconds 1..episode_s."""
     from plmarl_sitl.learning.eval.controllers import LearnedController
     from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.twin.env import CoverageEnv
 
     lp = load_policy(policy_dir, mission)
-    env = CoverageEnv(mission, 1, seed)
+    env = CoverageEnv(mission, 1, seed, track_lambda2=lambda2)
     ctl = LearnedController(lp.tracker, lp.policy, mission)
     ctl.reset()
     obs = env.observe()
-    trace: list[torch.Tensor] = []
+    cov: list[torch.Tensor] = []
+    lam: list[torch.Tensor] = []
     while not env.done:
         obs, _, info = env.step(ctl.act(obs))
-        trace.append(info.coverage[0])
-    return torch.cat(trace).tolist()
+        cov.append(info.coverage[0])
+        if info.lambda2 is not None:
+            lam.append(info.lambda2[0])
+    return torch.cat(cov).tolist(), (torch.cat(lam).tolist() if lam else [])
 
 
 async def sitl_coverage(
@@ -84,7 +92,7 @@ async def sitl_coverage(
         finally:
             await world.shutdown(fleet)
     stats = {i: ap.stats() for i, ap in fleet.procs.items()}
-    return summary.coverage, {"wall_s": summary.wall_s, "links": summary.links, "agents": stats}
+    return summary.coverage, {"wall_s": summary.wall_s, "links": summary.links, "agents": stats, "lambda2": summary.lambda2}
 
 
 def main(argv: list[str] | None = None) -> int:
