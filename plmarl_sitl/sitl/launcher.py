@@ -70,11 +70,11 @@ from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
-from plmarl_sitl.sitl.options import UpOptions, swarm_options
+from plmarl_sitl.sitl.options import OWN_BROKERS, UpOptions, swarm_options
 from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.report_csv import write_metrics_csv
-from plmarl_sitl.sitl.run_inputs import OWN_BROKERS, RunInputs, load_inputs
+from plmarl_sitl.sitl.run_inputs import RunInputs, load_inputs
 from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig

@@ -32,6 +32,7 @@ from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER
 
 DEFAULT_POLICY = PROJECT_POLICIES / "pl-marl"
 AUTOPILOTS = ("emulator", "arducopter", "px4")
+OWN_BROKERS = ("embedded", "mosquitto")  # brokers swarm up starts itself (fresh logins)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -233,6 +234,12 @@ class UpOptions(SwarmOptions):
             raise UserError("--duration must be >= 1 s")
         if self.lockstep and self.autopilot != "emulator":
             raise UserError(f"--lockstep needs the emulated autopilots (a {self.autopilot} SITL runs a clock of its own)")
+        if self.mavlink_keys is not None and not self.mavlink_sign:
+            raise UserError("--mavlink-keys with --no-mavlink-sign: choose one")
+        if self.mavlink_keys is not None and self.autopilot == "px4":
+            raise UserError("--mavlink-keys with --autopilot px4: PX4 has no MAVLink signing to give them to")
+        if self.broker_credentials is not None and self.broker in OWN_BROKERS:
+            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
 
     @property
     def arducopter(self) -> Path | None:

@@ -23,10 +23,8 @@ from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.arducopter import check_binary, find_copter_parm
 from plmarl_sitl.sitl.hosts import HostsFile, load_hosts
-from plmarl_sitl.sitl.options import UpOptions
+from plmarl_sitl.sitl.options import OWN_BROKERS, UpOptions
 from plmarl_sitl.sitl.px4 import find_build
-
-OWN_BROKERS = ("embedded", "mosquitto")  # brokers swarm up starts itself (fresh logins)
 
 
 @dataclass(frozen=True)
@@ -57,8 +55,6 @@ def load_inputs(opts: UpOptions) -> RunInputs:
     elif opts.autopilot == "px4":
         assert opts.px4 is not None
         find_build(opts.px4)  # not a PX4 SITL build: one line before anything starts
-        if opts.mavlink_keys is not None:
-            raise UserError("--mavlink-keys with --autopilot px4: PX4 has no MAVLink signing to give them to")
     if opts.autopilot != "emulator" and schedule.has("gnss_noise"):
         raise UserError(f"gnss_noise events need emulated autopilots (a real {opts.autopilot} navigates on its own GNSS)")
     if opts.broker not in OWN_BROKERS:
@@ -66,13 +62,9 @@ def load_inputs(opts: UpOptions) -> RunInputs:
     swarm_key = load_key(opts.swarm_key) if opts.swarm_key is not None else None
     mavlink_keys = None
     if opts.mavlink_keys is not None:
-        if not opts.mavlink_sign:
-            raise UserError("--mavlink-keys with --no-mavlink-sign: choose one")
         mavlink_keys = load_key_files(opts.mavlink_keys, n, "--mavlink-keys")
     login_files: dict[str, Path] = {}
     if opts.broker_credentials is not None:
-        if opts.broker in OWN_BROKERS:
-            raise UserError("--broker-credentials is for an external broker (the brokers swarm up starts get fresh logins)")
         names = ["world", "monitor", *(f"agent{i}" for i in range(n))]
         login_files = {name: opts.broker_credentials / f"{name}.cred" for name in names}
     logins = {name: load_credentials(path) for name, path in login_files.items()}  # missing, exposed or malformed: one error

@@ -70,6 +70,8 @@ def test_flags_reach_their_fields() -> None:
     (lambda: UpOptions(MISSION, lockstep=True, autopilot="arducopter", autopilot_path=Path("ac")), "--lockstep needs"),
     (lambda: UpOptions(MISSION, autopilot="px4"), "expected emulator"),
     (lambda: UpOptions(MISSION, duration_s=0), "--duration must be >= 1 s"),
+    (lambda: UpOptions(MISSION, mavlink_keys=Path("k"), mavlink_sign=False), "choose one"),
+    (lambda: UpOptions(MISSION, broker="mosquitto", broker_credentials=Path("c")), "is for an external broker"),
 ])
 def test_impossible_options_are_one_user_error_whoever_builds_them(build, says: str) -> None:  # noqa: ANN001
     with pytest.raises(UserError) as exc:
