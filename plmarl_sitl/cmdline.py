@@ -1,14 +1,16 @@
-"""Argument types and the progress bar shared by the `plmarl` commands and the benchmarks
-(a module of its own so that `bench/` need not import the CLI package above it)."""
+"""Argument types, options declared once, and the progress bar shared by the `plmarl`
+commands and the benchmarks (a module of its own so that `bench/` and `sitl/` need not
+import the CLI package above them)."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import re
 import sys
-from collections.abc import Callable, Collection
-from typing import TypeVar
+from collections.abc import Callable, Collection, Iterable
+from typing import Any, TypeVar
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -112,6 +114,66 @@ def rt_priority_arg(low: int = 1) -> Callable[[str], int]:
         return value
 
     return parse
+
+
+# --- options declared once ------------------------------------------------------------------
+# An option is a field of a frozen dataclass that carries its default, its flag(s) and its
+# help (`flag`); a command adds those fields to its parser (`add_flags`) and builds the
+# dataclass from what was parsed (`from_flags`), and a program builds the same dataclass
+# directly. So an option's name, default and meaning are written once.
+
+FLAG = "plmarl.flag"  # the dataclass field metadata key
+
+
+@dataclasses.dataclass(frozen=True)
+class Flag:
+    names: tuple[str, ...]  # "--name" first, then aliases; () for a positional argument
+    help: str
+    group: str | None  # flags of one mutually exclusive group share a name
+    also: tuple[str, ...]  # other fields its action sets (one flag, two fields)
+    argparse: dict[str, Any]  # type, metavar, choices, action, required
+
+
+def flag(*names: str, help: str, default: Any = dataclasses.MISSING, group: str | None = None,  # noqa: A002
+         also: tuple[str, ...] = (), **argparse_kw: Any) -> Any:
+    """A dataclass field that is also a command-line argument: `names` (none: positional,
+    named after the field), `help`, `default` (none: required), argparse's keywords."""
+    return dataclasses.field(default=default, metadata={FLAG: Flag(names, help, group, also, argparse_kw)})
+
+
+def flagged_fields(cls: type) -> list[dataclasses.Field]:
+    return [f for f in dataclasses.fields(cls) if FLAG in f.metadata]
+
+
+def add_flags(parser: Any, cls: type, *, skip: Iterable[str] = ()) -> None:
+    """Add `cls`'s flagged fields (but `skip`) to `parser` (an ArgumentParser or one of its
+    argument groups), each with its field's default."""
+    skipped = set(skip)
+    groups: dict[str, Any] = {}
+    for f in flagged_fields(cls):
+        if f.name in skipped:
+            continue
+        spec: Flag = f.metadata[FLAG]
+        target: Any = parser
+        if spec.group:
+            if spec.group not in groups:
+                groups[spec.group] = parser.add_mutually_exclusive_group()
+            target = groups[spec.group]
+        kw = dict(spec.argparse)
+        if f.default is not dataclasses.MISSING:
+            kw["default"] = f.default
+        if spec.names:
+            target.add_argument(*spec.names, dest=f.name, help=spec.help, **kw)
+        else:
+            target.add_argument(f.name, help=spec.help, **kw)
+
+
+def from_flags(cls: type[T], args: argparse.Namespace, **given: Any) -> T:
+    """`cls` from its parsed flags (those `args` has: a command may skip some), `given`
+    taking precedence (what the command loaded or decided itself)."""
+    names = [n for f in flagged_fields(cls) for n in (f.name, *f.metadata[FLAG].also)]
+    found = {n: getattr(args, n) for n in names if hasattr(args, n)}
+    return cls(**{**found, **given})
 
 
 def progress(disable: bool = False) -> Progress:

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import torch
 
-from plmarl_sitl.cmdline import speedup_arg
+from plmarl_sitl.cmdline import seed_arg, speedup_arg
 from plmarl_sitl.config import PROJECT_POLICIES
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
-from plmarl_sitl.errors import run_reporting
+from plmarl_sitl.errors import PlmarlError, UserError, run_reporting
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
@@ -34,6 +34,10 @@ from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
 
 PROG = "python -m plmarl_sitl.bench.gap"
 START_WALL_S = 120.0
+
+
+class GapRunFailed(PlmarlError):
+    """A SITL run that cannot give the gap: a vehicle missed the start, or the run never ended."""
 
 
 def twin_coverage(mission: Mission, policy_dir: str | Path, seed: int) -> list[float]:
@@ -85,10 +89,15 @@ async def sitl_coverage(
             for i in range(n):
                 await fleet.spawn(i, f"udpout://127.0.0.1:{base + i}", broker.url, mission=mission_path, policy=policy_dir,
                                   swarm_key=tmp / "swarm.key", extra=["--lockstep"] if lockstep else None)
-            async with asyncio.timeout(start_wall_s + 3 * mission.timing.episode_s / speedup + 60):
-                summary = await world.run()
+            limit_s = start_wall_s + 3 * mission.timing.episode_s / speedup + 60
+            try:
+                async with asyncio.timeout(limit_s):
+                    summary = await world.run()
+            except TimeoutError:
+                raise GapRunFailed(f"seed {seed}: the SITL run did not end within {limit_s:.0f} s wall") from None
             if summary.not_ready_at_start:  # a gap measured without every vehicle means nothing
-                raise RuntimeError(f"seed {seed}: the mission started without {'; '.join(summary.not_ready_at_start)}")
+                raise GapRunFailed(f"seed {seed}: the mission started without {'; '.join(summary.not_ready_at_start)} "
+                                   f"(more --start-wall-s than {start_wall_s:g} on a loaded machine)")
         finally:
             await world.shutdown(fleet)
     stats = {i: ap.stats() for i, ap in fleet.procs.items()}
@@ -99,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     p.add_argument("mission")
     p.add_argument("--policy", default=str(PROJECT_POLICIES / "pl-marl"), help="policy directory (default: the project's policies/pl-marl)")
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=seed_arg, nargs="+", default=[0, 1, 2], help="the seeds to fly (default 0 1 2)")
     p.add_argument("--speedup", type=speedup_arg, default=10.0)
     p.add_argument("--lockstep", action="store_true", help="fly the SITL side in lockstep (deterministic, load-independent)")
     p.add_argument("--start-wall-s", type=float, default=START_WALL_S,
@@ -110,17 +119,17 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def measure(args: argparse.Namespace) -> int:
+    """Every failure is one line on stderr (`run_reporting`): a user's mistake exit 2, a SITL
+    run that could not measure the gap (`GapRunFailed`) 3."""
+    if not args.start_wall_s > 0:
+        raise UserError("--start-wall-s must be > 0")
     mission = load_mission(args.mission)
     rows = []
     for seed in args.seeds:
         t = time.perf_counter()
         twin = twin_coverage(mission, args.policy, seed)
-        try:
-            sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
-                                                     lockstep=args.lockstep, start_wall_s=args.start_wall_s))
-        except RuntimeError as exc:
-            print(f"{PROG}: error: {exc}", file=sys.stderr)
-            return 1
+        sitl, info = asyncio.run(sitl_coverage(args.mission, args.policy, seed, speedup=args.speedup,
+                                                 lockstep=args.lockstep, start_wall_s=args.start_wall_s))
         tw, st = sum(twin) / len(twin), (sum(sitl) / len(sitl) if sitl else float("nan"))
         rows.append({"seed": seed, "twin": tw, "sitl": st, "gap": st - tw, "sitl_seconds": len(sitl), "wall_s": time.perf_counter() - t})
         print(f"seed {seed}: twin {tw:.4f}  sitl {st:.4f}  gap {st - tw:+.4f}  ({len(sitl)} s, {rows[-1]['wall_s']:.0f} s wall)",

@@ -67,7 +67,7 @@ def _fly(mission_path: str, policy: str, speedup: float, seed: int, lockstep: bo
     from rich.console import Console
 
     from plmarl_sitl.sitl.launcher import swarm_up
-    from plmarl_sitl.sitl.run_inputs import UpOptions
+    from plmarl_sitl.sitl.options import UpOptions
 
     out = Path(tempfile.mkdtemp(prefix="plmarl-bench-swarm-"))
     opts = UpOptions(Path(mission_path), speedup=speedup, headless=True, out=out, seed=seed, policy=Path(policy),

@@ -11,15 +11,22 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import json
 import logging
 import signal
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from plmarl_sitl.cmdline import add_seed, speedup_arg, swarm_name_arg
+from plmarl_sitl.cmdline import add_flags, from_flags
 from plmarl_sitl.errors import UserError
-from plmarl_sitl.sitl.lockstep import DEFAULT_STARTUP_SPEEDUP, DEFAULT_STRAGGLER_S, speedup_or_default
+from plmarl_sitl.sitl.options import SwarmOptions, WorldOptions
+
+if TYPE_CHECKING:
+    from plmarl_sitl.sitl.world import WorldConfig
+
+SWARM_FIELDS = [f.name for f in dataclasses.fields(SwarmOptions)]  # flags of their own group
 
 EPILOG = """\
 examples:
@@ -27,11 +34,12 @@ examples:
   plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:18830 --embedded-broker --no-auth --episode 200
 then one agent per vehicle, with the same key:
   plmarl agent --id 0 --connect udpout://127.0.0.1:14540 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key
+in lockstep (deterministic, as fast as the agents compute; each agent with --lockstep too):
+  plmarl world missions/paper_urban.yaml --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key --lockstep --episode 200
 vehicles that run elsewhere (each flown by its own agent; here two ArduCopter SITLs, SERIAL1):
   plmarl world missions/paper_urban.yaml --n-uavs 2 --broker mqtt://127.0.0.1:1883 --swarm-key swarm.key \\
       --external tcpout://127.0.0.1:5762,tcpout://127.0.0.1:5772 --speedup 5
 a key file (0600): plmarl swarm keygen swarm.key"""
-
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,111 +60,43 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "closed, sensing and demand (docs/SECURITY.md). Required unless --no-auth")
     a.add_argument("--no-auth", action="store_true", help="unsigned version-1 messages (anyone on the broker can steer)")
     p.add_argument("--embedded-broker", action="store_true", help="host an amqtt broker in this process on the --broker port")
-    p.add_argument("--swarm", type=swarm_name_arg, default="sitl", help="swarm name in the topic tree plmarl/<swarm>/... (default sitl)")
-    p.add_argument("--external", default=None, metavar="URL[,URL...]",
-                   help="vehicles that run elsewhere, one MAVLink URL per UAV in order (tcpout://HOST:PORT, "
-                   "udpin://BIND:PORT, udpout://HOST:PORT): no emulated autopilots; positions, modes and clocks "
-                   "from these links (a link of the world's own: ArduPilot SITL SERIAL1, a MAVLink router output)")
-    p.add_argument("--personality", choices=["px4", "ardupilot"], default="px4")
-    p.add_argument("--boot", choices=["instant", "real"], default="instant",
-                   help="autopilot start-up: instant (home and position at once, default) or real "
-                   "(ArduCopter's measured timeline: home after ~19 s, position after ~40 s of sim time)")
-    p.add_argument("--speedup", type=speedup_arg, default=None, help="sim seconds per wall second (default 1; with --lockstep: "
-                   f"the pace of the start-up only, default {DEFAULT_STARTUP_SPEEDUP:g})")
-    p.add_argument("--lockstep", action="store_true",
-                   help="lockstep: vehicle time waits for every agent's answer to each telemetry sample (agents run with "
-                        "--lockstep), as fast as they compute; same mission and seed, same outputs (emulated vehicles only)")
-    p.add_argument("--straggler", type=float, default=DEFAULT_STRAGGLER_S, metavar="S",
-                   help=f"with --lockstep: an agent that owes an answer for S wall seconds is declared failed and its "
-                        f"vehicle left to its failsafe (default {DEFAULT_STRAGGLER_S:g})")
     p.add_argument("--mavlink-keys", type=Path, default=None, metavar="DIR",
                    help="MAVLink 2 signing: vehicle i signs with DIR/vehicleI.key (0600; `plmarl swarm up` writes them "
                    "to RUN/mavlink) and drops unsigned commands and setpoints; with --external the world's links sign "
                    "with them (default: unsigned)")
-    p.add_argument("--base-port", type=int, default=14540, help="UDP port of vehicle 0 (default 14540)")
-    p.add_argument("--n-uavs", type=int, default=None, help="override the mission's number of UAVs")
-    p.add_argument("--loss", type=float, default=0.0, help="extra per-delivery loss probability (default 0)")
-    p.add_argument("--latency", type=float, default=0.0, metavar="S", help="delivery latency, sim seconds (default 0)")
-    p.add_argument("--episode", type=int, default=None, metavar="S",
-                   help="stop after S mission seconds and print the mean coverage (default: run until Ctrl-C)")
     p.add_argument("--summary-json", default=None, metavar="PATH", help="write the run summary (coverage trace) here")
-    p.add_argument("-v", "--verbose", action="store_true")
-    add_seed(p, default=None)
+    p.add_argument("-v", "--verbose", action="store_true", help="log the world's progress (start-up, events) on stderr")
+    add_flags(p.add_argument_group("the world"), WorldOptions, skip=SWARM_FIELDS)
+    add_flags(p.add_argument_group("the vehicles and their clock (as in `plmarl swarm up`)"), SwarmOptions)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from plmarl_sitl.mission import load_mission
-    from plmarl_sitl.sitl.autopilot.boot import check_boot
-
-    args.speedup = speedup_or_default(args.speedup, args.lockstep)
-    if not args.speedup > 0:
-        raise UserError("--speedup must be > 0")
-    check_boot(args.personality, args.boot)
-    if not 0 <= args.loss <= 1:
-        raise UserError("--loss must be in [0, 1]")
-    if args.lockstep and args.external:
-        raise UserError("--lockstep needs the emulated vehicles (external autopilots run clocks of their own)")
-    if not args.straggler > 0:
-        raise UserError("--straggler must be > 0 s")
     from plmarl_sitl.deploy.mqtt.auth import key_from_flags
     from plmarl_sitl.deploy.mqtt.credentials import load_credentials
+    from plmarl_sitl.mission import load_mission
+    from plmarl_sitl.sitl.world import WorldConfig
 
-    args.key = key_from_flags(args.swarm_key, args.no_auth)
-    args.credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
+    key = key_from_flags(args.swarm_key, args.no_auth)
+    credentials = load_credentials(args.broker_credentials) if args.broker_credentials else None
     mission = load_mission(args.mission)
+    mavlink_keys: list[bytes] = []
     if args.mavlink_keys is not None:
         from plmarl_sitl.deploy.mavlink.keys import load_key_files
 
-        args.mavlink_keys = load_key_files(args.mavlink_keys, args.n_uavs or mission.n_uavs, "--mavlink-keys")
-    args.external = _external_urls(args.external)
-    if args.external:
-        n = args.n_uavs or mission.n_uavs
-        if len(args.external) != n:
-            raise UserError(f"--external: {len(args.external)} URL(s) for {n} UAVs (one per UAV; or set --n-uavs)")
-        from plmarl_sitl.deploy.mavlink.connect import parse_url
-
-        for url in args.external:
-            parse_url(url)
+        mavlink_keys = load_key_files(args.mavlink_keys, args.n_uavs or mission.n_uavs, "--mavlink-keys")
+    cfg = from_flags(WorldConfig, args, mission=mission, broker_url=args.broker, swarm_key=key,
+                     broker_credentials=credentials, mavlink_keys=tuple(mavlink_keys))
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
-    return asyncio.run(_main(args, mission))
+    return asyncio.run(_main(args, cfg))
 
 
-def _external_urls(text: str | None) -> tuple[str, ...]:
-    if text is None:
-        return ()
-    urls = tuple(u.strip() for u in text.split(",") if u.strip())
-    if not urls:
-        raise UserError("--external: expected URL[,URL...]")
-    return urls
-
-
-async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
+async def _main(args: argparse.Namespace, cfg: WorldConfig) -> int:
     from plmarl_sitl.deploy.mqtt.url import parse_broker_url
     from plmarl_sitl.sitl.network.broker import EmbeddedBroker
-    from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
+    from plmarl_sitl.sitl.world import SitlWorld
 
-    cfg = WorldConfig(
-        mission=mission,
-        broker_url=args.broker,
-        swarm=args.swarm,
-        personality=args.personality,
-        boot=args.boot,
-        speedup=args.speedup,
-        base_port=args.base_port,
-        seed=args.seed,
-        loss=args.loss,
-        latency_s=args.latency,
-        episode_s=args.episode,
-        n_uavs=args.n_uavs,
-        external=args.external,
-        swarm_key=args.key,
-        broker_credentials=args.credentials,
-        mavlink_keys=tuple(args.mavlink_keys or ()),
-        lockstep=args.lockstep,
-        straggler_s=args.straggler,
-    )
     broker = None
     if args.embedded_broker:
         host, port = parse_broker_url(args.broker)
@@ -168,19 +108,19 @@ async def _main(args: argparse.Namespace, mission) -> int:  # noqa: ANN001
     except OSError as exc:
         if broker is not None:
             await broker.stop()
-        raise UserError(f"cannot bind UDP ports from {args.base_port}: {exc.strerror}") from exc
+        raise UserError(f"cannot bind UDP ports from {cfg.base_port}: {exc.strerror}") from exc
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, world.stop)
     if world.host is not None:
         ports = world.host.ports
-        vehicles = f"{world.n} {args.personality} vehicle(s) on udp 127.0.0.1:{ports[0]}-{ports[-1]}"
+        vehicles = f"{world.n} {cfg.personality} vehicle(s) on udp 127.0.0.1:{ports[0]}-{ports[-1]}"
     else:
-        vehicles = f"{world.n} external vehicle(s) on {', '.join(args.external)} (waiting for their telemetry)"
+        vehicles = f"{world.n} external vehicle(s) on {', '.join(cfg.external)} (waiting for their telemetry)"
     print(
-        f"plmarl world: {vehicles}, broker {args.broker}{' (embedded)' if broker else ''}, swarm {args.swarm!r}, "
-        f"speedup {args.speedup:g}" + (f", lockstep (an agent silent for {args.straggler:g} s wall is declared failed)"
-                                       if args.lockstep else ""),
+        f"plmarl world: {vehicles}, broker {args.broker}{' (embedded)' if broker else ''}, swarm {cfg.swarm!r}, "
+        f"speedup {cfg.speedup:g}" + (f", lockstep (an agent silent for {cfg.straggler_s:g} s wall is declared failed)"
+                                      if cfg.lockstep else ""),
         flush=True,
     )
     try:

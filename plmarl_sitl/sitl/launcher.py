@@ -70,10 +70,11 @@ from plmarl_sitl.sitl.monitor import SwarmMonitor
 from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
+from plmarl_sitl.sitl.options import OWN_BROKERS, UpOptions, swarm_options
 from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.report_csv import write_metrics_csv
-from plmarl_sitl.sitl.run_inputs import OWN_BROKERS, RunInputs, UpOptions, load_inputs
+from plmarl_sitl.sitl.run_inputs import RunInputs, load_inputs
 from plmarl_sitl.sitl.rundir import claim_run_dir
 from plmarl_sitl.sitl.summary import summarize, timeliness
 from plmarl_sitl.sitl.world import SitlWorld, WorldConfig
@@ -404,11 +405,9 @@ class _Run:
             base_port = (hosts.launcher.vehicle_base_port if hosts is not None else None) or free_udp_ports(n, bind)
             agent_urls = [f"udpout://{bind}:{base_port + i}" for i in range(n)]
             external = ()
-        cfg = WorldConfig(mission, bus_url, swarm=opts.swarm, personality=opts.personality, boot=opts.boot,
-                          speedup=opts.speedup, base_port=base_port, bind_host=bind, seed=mission.seed,
+        cfg = WorldConfig(mission, bus_url, **swarm_options(opts), base_port=base_port, bind_host=bind,
                           episode_s=duration, events=schedule, external=external,
                           swarm_key=key, broker_credentials=world_login, mavlink_keys=tuple(mav_keys),
-                          lockstep=opts.lockstep, straggler_s=opts.straggler_s,
                           **({} if start_timeout_s is None else {"start_timeout_s": start_timeout_s}))
         self.world = world = SitlWorld(cfg, on_metrics=self.on_metrics, on_event=self.record_event)
         stack.callback(_close_world, world)

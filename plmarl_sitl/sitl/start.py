@@ -52,7 +52,7 @@ class StartGate:
         emulated = self.vehicles.owns_clock
         if int(second) % WAIT_LOG_EVERY_S == 0:
             log.info("waiting for every vehicle to fly under its agent (armed, %s, at %.0f m%s): not yet %s",
-                     "in the offboard mode" if emulated else "in its offboard mode (ArduPilot GUIDED)",
+                     "in the offboard mode" if emulated else "in its offboard mode: PX4 OFFBOARD, ArduPilot GUIDED",
                      self.takeoff_alt, "" if emulated else ", climb over", ", ".join(self.not_ready()) or "none")
         if self.not_ready() and now < self.timeout_s:
             return None

@@ -48,16 +48,17 @@ from plmarl_sitl.deploy.mqtt.auth import SwarmKey
 from plmarl_sitl.deploy.mqtt.schema import Topics, encode_json
 from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.wire import Wire
+from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.events import Change, EventSchedule, end_second
 from plmarl_sitl.sitl.autopilot.host import AutopilotHost
 from plmarl_sitl.sitl.external import ExternalVehicles
 from plmarl_sitl.sitl.fault_watch import FaultWatch
 from plmarl_sitl.sitl.ground import Ground
-from plmarl_sitl.sitl.lockstep import DEFAULT_STRAGGLER_S
 from plmarl_sitl.sitl.mission_events import EventDispatcher
 from plmarl_sitl.sitl.network.link_emulator import LinkEmulator
 from plmarl_sitl.sitl.network.relay import Relay
+from plmarl_sitl.sitl.options import WorldOptions
 from plmarl_sitl.sitl.outbox import Outbox
 from plmarl_sitl.sitl.pacer import FollowPacer, FreePacer, LockstepPacer, Pacer
 from plmarl_sitl.sitl.start import MissionTime, StartGate
@@ -71,29 +72,19 @@ log = logging.getLogger("plmarl.world")
 
 
 @dataclass(frozen=True)
-class WorldConfig:
+class WorldConfig(WorldOptions):
+    """A world's options (`sitl.options`: declared once, with the `plmarl world` flags) and
+    what the program that builds it loads or decides."""
+
     mission: Mission
     broker_url: str
-    swarm: str = "sitl"
-    personality: str = "px4"
-    boot: str = "instant"  # autopilot start-up: instant, or real (the personality's measured timeline)
-    speedup: float = 1.0
-    base_port: int = 14540
     bind_host: str = "127.0.0.1"  # the vehicles' UDP ports listen here (a swarm over hosts: the launcher's address)
-    seed: int | None = None  # users' seed; None: mission.seed
-    loss: float = 0.0  # per-delivery loss probability
-    latency_s: float = 0.0  # sim seconds between a tx and its deliveries
     tick_hz: float = 50.0
     start_margin_s: float = 2.0  # t0 is at least this far ahead of the announcement (sim s) ...
     start_margin_wall_s: float = 0.5  # ... and at least this much wall time (x speedup) ahead
     start_timeout_s: float = 300.0  # sim s: start anyway with whoever is ready
-    episode_s: int | None = None  # stop after this many mission seconds (None: run until stopped)
-    n_uavs: int | None = None  # override mission.n_uavs (tests)
     publish_sense: bool = True  # False: no sensing publisher (a vehicle without the sensor)
     events: EventSchedule | None = None  # mission events to apply (the launcher's run); None: none
-    # MAVLink URLs of vehicles that fly elsewhere, one per UAV (then no emulated autopilots:
-    # personality, boot and base_port do not apply); empty: the emulator in this process.
-    external: tuple[str, ...] = ()
     # The swarm key: the world relays only states that authenticate and signs what it
     # sends the agents (start, ctl, closed, sense, demand); None: the unsigned wire.
     swarm_key: SwarmKey | None = None
@@ -102,12 +93,12 @@ class WorldConfig:
     # i signs with key i and drops unsigned or badly signed input; with external vehicles
     # the world's own link to vehicle i signs with it.
     mavlink_keys: tuple[bytes, ...] = ()
-    # Lockstep (emulated vehicles only, `sitl.lockstep`): vehicle time waits for every
-    # member agent's answer to each telemetry sample and for the tx of each instant; the
-    # speedup then paces only the start-up. An agent that owes an answer for straggler_s
-    # of wall time is declared failed.
-    lockstep: bool = False
-    straggler_s: float = DEFAULT_STRAGGLER_S
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        n = self.n_uavs or self.mission.n_uavs
+        if self.external and len(self.external) != n:
+            raise UserError(f"--external: {len(self.external)} URL(s) for {n} UAVs (one per UAV; or set --n-uavs)")
 
 
 @dataclass
@@ -139,8 +130,6 @@ def blackout_pairs(ev: Event, n: int) -> list[tuple[int, int]] | None:
 class SitlWorld:
     def __init__(self, cfg: WorldConfig, on_metrics: Callable[[dict], None] | None = None,
                  on_event: Callable[[dict], None] | None = None) -> None:
-        if cfg.lockstep and cfg.external:
-            raise ValueError("lockstep needs emulated vehicles (external autopilots keep clocks of their own)")
         self.cfg = cfg
         m = cfg.mission
         self.n = cfg.n_uavs or m.n_uavs

@@ -31,6 +31,13 @@ def test_lockstep_gap_on_a_short_mission_from_any_directory(tmp_path: Path) -> N
 def test_user_errors_are_one_line_and_exit_2(tmp_path: Path) -> None:
     for args, says in ((["nosuch.yaml"], "cannot read file"),
                        ([str(ROOT / "missions" / "paper_urban.yaml"), "--policy", str(tmp_path / "none")],
-                        "missing policy directory")):
+                        "missing policy directory"),
+                      ([str(ROOT / "missions" / "paper_urban.yaml"), "--start-wall-s", "0"], "--start-wall-s must be > 0")):
         r = _gap(tmp_path, *args)
         assert r.returncode == 2 and says in r.stderr and r.stderr.strip().count("\n") == 0, r.stderr
+
+
+def test_a_bad_seed_is_argparse_s_one_error_line(tmp_path: Path) -> None:
+    r = _gap(tmp_path, str(ROOT / "missions" / "paper_urban.yaml"), "--seeds", "0", "-1")
+    assert r.returncode == 2 and "seed -1 is outside" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert sum("error:" in line for line in r.stderr.splitlines()) == 1, r.stderr
