@@ -34,6 +34,7 @@ import torch
 
 from plmarl_sitl.mission import Channel
 from plmarl_sitl.model.channel import db_to_lin, u2u_sinr
+from plmarl_sitl.model.knowledge import NOTHING, Knowledge, Known
 
 MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte mask: ids 0..255)
 
@@ -110,82 +111,94 @@ def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Te
     return heard_prev & moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
-def may_predict(heard_failed: torch.Tensor, heard_epoch: torch.Tensor, failed: torch.Tensor,
+def may_predict(heard_key: torch.Tensor, heard_epoch: torch.Tensor, key: torch.Tensor,
                 epoch: torch.Tensor, newest_instant: int) -> torch.Tensor:
     """(..., M) bool: the receiver's plan-aware prediction of each neighbour is the plan the
     neighbour flew at the instants it missed (the newest `newest_instant`): its last message
-    (knowledge heard_failed (..., M, N), heard_epoch (..., M)) carried the receiver's own
-    knowledge (failed (..., N), epoch (...)); or knowledge the receiver has since extended
-    by a re-plan at an epoch not before those instants (the prediction up to the epoch is
-    still the plan both knew)."""
-    same = (heard_failed == failed.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
-    older = (heard_failed <= failed.unsqueeze(-2)).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
+    (knowledge heard_key (..., M, N), heard_epoch (..., M)) carried the receiver's own
+    knowledge (key (..., N), epoch (...)); or knowledge the receiver has since extended
+    (`extends`) by a re-plan at an epoch not before those instants (the prediction up to the
+    epoch is still the plan both knew)."""
+    same = (heard_key == key.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
+    older = extends(key.unsqueeze(-2), heard_key).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
     return same | (older & (epoch >= newest_instant).unsqueeze(-1))
 
 
-def merge(failed: torch.Tensor, epoch: torch.Tensor, other_failed: torch.Tensor,
+def extends(key: torch.Tensor, heard_key: torch.Tensor) -> torch.Tensor:
+    """Per identity: knowledge `key` is `heard_key` grown, never undone: at least as large,
+    and a declaration the sender knew (odd) is still the receiver's. A declaration the
+    receiver has since seen refuted rolled its plan back (`TeamPlans.replan`), so its
+    prediction is no longer the plan a sender that acted on the declaration flew."""
+    return (heard_key <= key) & ((heard_key % 2 == 0) | (heard_key == key))
+
+
+def merge(key: torch.Tensor, epoch: torch.Tensor, other_key: torch.Tensor,
           other_epoch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Knowledge merge: (union of the failed sets, max of the epochs)."""
-    return failed | other_failed, torch.maximum(epoch, other_epoch)
+    """Knowledge merge: (per identity the larger key, max of the epochs). A key is
+    2 x incarnation + failed (`key_of`): a newer incarnation beats any declaration of an
+    older one, and at one incarnation "failed" beats "alive"."""
+    return torch.maximum(key, other_key), torch.maximum(epoch, other_epoch)
+
+
+def key_of(failed: torch.Tensor | bool, incarnation: torch.Tensor | int = 0):  # noqa: ANN201 - tensor or int
+    """The merge key of identity knowledge: 2 x incarnation + (1 if declared failed)."""
+    if isinstance(failed, torch.Tensor):
+        return 2 * torch.as_tensor(incarnation, dtype=torch.int64) + failed.long()
+    return 2 * int(incarnation) + int(bool(failed))
+
+
+def alive_again(key: torch.Tensor, epoch: torch.Tensor, heard: torch.Tensor, t: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The refutation rule, after the merge of signalling instant t: an identity heard at t
+    (heard (..., N): a message of it arrived, or it is the receiver itself) is alive, so a
+    declaration of it (an odd key) gives way to the next incarnation (key + 1), and the
+    knowledge's epoch becomes at least t (the re-plan that takes it back). Every merged
+    declaration was made at a decision before instant t (a decision follows its instant's
+    messages), so the message proves life after it."""
+    refuted = heard & (key % 2 == 1)
+    return key + refuted.long(), torch.where(refuted.any(-1), torch.clamp(epoch, min=t), epoch)
 
 
 class Gossip:
-    """Every twin agent's knowledge, (B, N, N) failed [i, j] (i knows j failed) and (B, N)
-    epoch, exchanged at the signalling instants with the states.
+    """Every twin agent's knowledge, (B, N, N) key [i, j] (what i knows of j: `key_of`) and
+    (B, N) epoch, exchanged at the signalling instants with the states.
 
     A controller adds its agents' own declarations (`declare`) at its decisions; at the
     next signalling instant each live agent's knowledge goes out with its state, and each
-    receiver merges what it got (`receive`), as the deployed agent's inbox does with the
-    knowledge of each state message it accepts. `sent` keeps what went out at the last
-    instant (the knowledge field of each sender's state message)."""
+    receiver merges what it got and applies the refutation rule (`receive`), as the
+    deployed agent's `Knowledge` does with the knowledge of each state message it accepts.
+    `sent` keeps what went out at the last instant (the knowledge field of each sender's
+    state message)."""
 
     def __init__(self, batch: int, n: int, device: str = "cpu") -> None:
-        self.failed = torch.zeros(batch, n, n, dtype=torch.bool, device=device)
+        self.key = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
         self.epoch = torch.zeros(batch, n, dtype=torch.int64, device=device)
-        self.sent = (self.failed.clone(), self.epoch.clone())
+        self.sent = (self.key.clone(), self.epoch.clone())
         # [i, j]: the knowledge j's last message to i carried
-        self.heard_failed = torch.zeros(batch, n, n, n, dtype=torch.bool, device=device)
+        self.heard_key = torch.zeros(batch, n, n, n, dtype=torch.int64, device=device)
         self.heard_epoch = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
+
+    @property
+    def failed(self) -> torch.Tensor:
+        """(B, N, N) bool [i, j]: i knows j failed (at j's newest incarnation i knows)."""
+        return self.key % 2 == 1
 
     def declare(self, failed: torch.Tensor, epoch: torch.Tensor) -> None:
         """Agents' own findings: failed (B, N, N) [i, j] i declares j failed at its epoch (B, N)."""
-        self.failed, self.epoch = merge(self.failed, self.epoch, failed, epoch)
+        self.key, self.epoch = merge(self.key, self.epoch, self.key | failed.long(), epoch)
 
-    def receive(self, got: torch.Tensor) -> None:
-        """A signalling instant: got (B, N, N) bool [i, j], i received j's state message now.
+    def receive(self, got: torch.Tensor, t: int) -> None:
+        """Signalling instant t: got (B, N, N) bool [i, j], i received j's state message now.
         Everyone sends the knowledge it held before the instant (the broadcast is simultaneous)."""
-        self.sent = (self.failed.clone(), self.epoch.clone())
-        self.heard_failed = torch.where(got.unsqueeze(-1), self.failed.unsqueeze(-3), self.heard_failed)
+        self.sent = (self.key.clone(), self.epoch.clone())
+        self.heard_key = torch.where(got.unsqueeze(-1), self.key.unsqueeze(-3), self.heard_key)
         self.heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), self.heard_epoch)
-        heard_failed = (got.unsqueeze(-1) & self.failed.unsqueeze(-3)).any(-2)  # [i, k]: some j heard by i knows k
+        heard_key = torch.where(got.unsqueeze(-1), self.key.unsqueeze(-3), torch.zeros_like(self.key).unsqueeze(-3)).amax(-2)
         heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), torch.zeros_like(self.epoch).unsqueeze(-2)).amax(-1)
-        self.failed, self.epoch = merge(self.failed, self.epoch, heard_failed, heard_epoch)
+        key, epoch = merge(self.key, self.epoch, heard_key, heard_epoch)
+        itself = torch.eye(got.shape[-1], dtype=torch.bool, device=got.device)
+        self.key, self.epoch = alive_again(key, epoch, got | itself, int(t))
 
 
-class Knowledge:
-    """One deployed agent's knowledge, with the second each piece arrived at: its state
-    message for instant k carries what the twin's does, everything learnt before k (the
-    twin's agents send at the instant what they knew before it), and its decision at k
-    uses everything learnt up to k. Failed sets are bitmasks (wire format)."""
-
-    def __init__(self) -> None:
-        self.parts: dict[float, tuple[int, int]] = {}  # second learnt -> (failed mask, epoch) merged, non-empty only
-        self.heard: dict[int, tuple[int, int]] = {}  # sender -> the knowledge its last message carried
-
-    def learn(self, t: float, failed: int, epoch: int, sender: int | None = None) -> None:
-        if sender is not None:
-            self.heard[sender] = (failed, epoch)
-        if failed or epoch:  # one entry per second: at most one per signalling instant and decision
-            f, e = self.parts.get(t, (0, 0))
-            self.parts[t] = (f | failed, max(e, epoch))
-
-    def view(self, before: float) -> tuple[int, int]:
-        """(failed mask, epoch) of everything learnt before second `before`."""
-        failed, epoch = 0, 0
-        for t, (f, e) in self.parts.items():
-            if t < before:
-                failed, epoch = failed | f, max(epoch, e)
-        return failed, epoch
-
-
-__all__ = ["DECLARE_AFTER_MISSED", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M", "steady", "Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]
+__all__ = ["DECLARE_AFTER_MISSED", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
+           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "Known", "Knowledge", "alive_again", "extends", "key_of", "may_predict",
+           "merge", "steady", "suspects"]

@@ -268,6 +268,9 @@ class TeamPlans:
         self.failed: np.ndarray | None = None  # (B, A, n) bool: the failed set the copy was re-planned for
         self.epoch: np.ndarray | None = None  # (B, A) the epoch of that re-plan (0: none)
         self.maps: list[tuple[int, np.ndarray]] = []  # (second, counts (B, K)) of every map the plan took
+        # (b, a) -> the copy's plans before each of its failure re-plans, oldest first:
+        # (failed, epoch, points, slot, second saved, epoch of the re-plan that left it)
+        self.before: dict[tuple[int, int], list[tuple[np.ndarray, int, np.ndarray, np.ndarray, int, int]]] = {}
 
     def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
@@ -278,6 +281,7 @@ class TeamPlans:
         self.failed = np.zeros((b, a, self.n), dtype=bool)
         self.epoch = np.zeros((b, a), dtype=np.int64)
         self.maps = [(t, counts)]
+        self.before = {}
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -318,8 +322,19 @@ class TeamPlans:
         survivor on the map in force at the epoch and assign them by least travel from the
         survivors' plan-aware predicted positions at the epoch; then the maps taken since.
         The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources` (n, 2)
-        replaces the predicted positions (the constant-velocity ablation)."""
+        replaces the predicted positions (the constant-velocity ablation).
+
+        A failed set that takes an identity back (a declared UAV heard again at a newer
+        incarnation, model/gossip.py) first rolls the copy back to its newest plan made
+        without that declaration (`_roll_back`), so a copy that acted on the false
+        declaration re-plans from the same plan and prediction as one that never heard it."""
         assert self.motion is not None and self.points is not None and self.slot is not None
+        if (self.failed[b, a] & ~failed).any():
+            self._roll_back(b, a, failed)
+            if (self.failed[b, a] == failed).all() and self.epoch[b, a] == epoch:
+                return
+        self.before.setdefault((b, a), []).append((self.failed[b, a].copy(), int(self.epoch[b, a]), self.points[b, a].copy(),
+                                                   self.slot[b, a].copy(), self.motion.t, int(epoch)))
         alive = np.flatnonzero(~failed)
         if alive.size == 0:  # only false declarations get here (the copy's own agent is alive): keep the plan
             self.failed[b, a], self.epoch[b, a] = failed, epoch
@@ -332,12 +347,31 @@ class TeamPlans:
         src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
         self.slot[b, a, alive] = assign(src, pts)
         self.failed[b, a], self.epoch[b, a] = failed, epoch
-        for s, later in self.maps:
-            if s > epoch:
-                new, served = self.grid.place(later[b : b + 1], len(alive))
-                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, : len(alive)])[0] + REPLAN_MARGIN:
-                    self._move_to(b, [a], new[0])
+        self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
+
+    def _follow_maps(self, b: int, a: int, after: int) -> None:
+        """Copy (b, a) takes the maps of seconds after `after`, as `on_map` would have."""
+        k = int((self.slot[b, a] >= 0).sum())
+        for s, later in self.maps:
+            if s > after:
+                new, served = self.grid.place(later[b : b + 1], k)
+                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0] + REPLAN_MARGIN:
+                    self._move_to(b, [a], new[0])
+
+    def _roll_back(self, b: int, a: int, failed: np.ndarray) -> None:
+        """Copy (b, a) returns to its newest plan whose failed set is within `failed`, with the
+        maps taken since it was left, and its prediction re-flown from the re-plan that left it."""
+        assert self.motion is not None and self.points is not None and self.slot is not None
+        stack = self.before.get((b, a), [])
+        while stack:
+            was_failed, was_epoch, points, slot, saved_t, left = stack.pop()
+            if not (was_failed & ~failed).any():
+                self.failed[b, a], self.epoch[b, a] = was_failed, was_epoch
+                self.points[b, a], self.slot[b, a] = points, slot
+                self._follow_maps(b, a, saved_t)
+                self.motion.replay(b, a, left, self.all_targets()[b, a])
+                return
 
     def targets(self, idents: np.ndarray) -> np.ndarray:
         """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy

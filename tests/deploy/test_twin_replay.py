@@ -71,9 +71,10 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 continue  # a failed node's agent is gone
             h = env.holdings
             got = [j for j in range(n) if float(h.t_rx[0, i, j]) == t and j != i]
-            failed, epoch = env.gossip.sent  # what each sender knew before this instant: its message carries it
+            key, epoch = env.gossip.sent  # what each sender knew before this instant: its message carries it
             msgs = [encode_state(StateMsg(j, 1, t, t * 1000, tuple(h.state[0, i, j].tolist()),
-                                          failed_mask(np.flatnonzero(failed[0, j].numpy())), int(epoch[0, j])))
+                                          failed_mask(np.flatnonzero(key[0, j].numpy() % 2)), int(epoch[0, j]),
+                                          tuple((c, x // 2) for c, x in enumerate(key[0, j].tolist()) if x >= 2)))
                     for j in got]
             if msgs:
                 inbox.on_message(topics.rx(i), b"".join(msgs))

@@ -24,24 +24,24 @@ def test_merge_is_a_union_and_a_max_whatever_the_order() -> None:
 
 
 def test_gossip_crosses_a_line_one_hop_per_instant() -> None:
-    """Agents 0-1-2-3 in a line, each hearing only its neighbours: agent 0's declaration
-    reaches agent 3, which never hears agent 0, three instants later; nobody learns
-    anything it was not sent."""
-    n = 4
+    """Agents 0-1-2-3 in a line, each hearing only its neighbours, and a silent identity 4:
+    agent 0's declaration of 4 reaches agent 3, which never hears agent 0, three instants
+    later; nobody learns anything it was not sent."""
+    n = 5
     g = Gossip(1, n)
     hears = torch.zeros(1, n, n, dtype=torch.bool)
-    for i in range(n - 1):
+    for i in range(n - 2):
         hears[0, i, i + 1] = hears[0, i + 1, i] = True
     mine = torch.zeros(1, n, n, dtype=torch.bool)
-    mine[0, 0, 3] = True  # agent 0 declares agent 3... (knowledge only; the rule is elsewhere)
-    g.declare(mine, torch.tensor([[60, 0, 0, 0]]))
+    mine[0, 0, 4] = True  # agent 0 declares identity 4 (knowledge only; the rule is elsewhere)
+    g.declare(mine, torch.tensor([[60, 0, 0, 0, 0]]))
     known = []
-    for _ in range(3):
-        g.receive(hears)
-        known.append(g.failed[0, :, 3].tolist())
+    for t in (75, 90, 105):
+        g.receive(hears, t)
+        known.append(g.failed[0, :4, 4].tolist())
     assert known == [[True, True, False, False], [True, True, True, False], [True, True, True, True]]
-    assert g.epoch[0].tolist() == [60, 60, 60, 60]
-    assert not g.failed[0, :, :3].any()
+    assert g.epoch[0, :4].tolist() == [60, 60, 60, 60]
+    assert not g.failed[0, :, :4].any()
 
 
 def run(mission_path: str, replan: bool, seed: int = 1_000_000_123, batch: int = 4):

@@ -1,9 +1,11 @@
-"""The signalling wire format (schema version 3): compact binary state and sensing messages.
+"""The signalling wire format (schema version 4): compact binary state and sensing messages.
 
 docs/SIGNALLING.md is the contract. All integers little-endian. A state message is the
-sparse signalling update of Algorithm 1: kind 'S' (38 bytes, schema 1-2) or, since schema
-version 3, kind 'G' (74 bytes: the same fields, then the sender's knowledge of failures,
-model/gossip.py: its plan epoch and failed-set bitmask); a sensing message lists the users a
+sparse signalling update of Algorithm 1: kind 'S' (38 bytes, schema 1-2), kind 'G' (74
+bytes, schema 3: the same fields, then the sender's knowledge of failures, model/gossip.py:
+its plan epoch and failed-set bitmask) or, since schema version 4, kind 'I' (75 + 3 x count
+bytes: kind 'G''s fields, then the incarnations the sender knows, count and (identity,
+incarnation) pairs, only those above 0); a sensing message lists the users a
 vehicle's payload sensor sees. Decoders never raise anything but `Malformed`, whose
 `reason` feeds the receive counters.
 
@@ -19,17 +21,23 @@ import math
 import struct
 from dataclasses import dataclass, field
 
+from plmarl_sitl.model.knowledge import Known
+
 # The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12) and
 # signed messages (issue 14: version byte / "v" 2 and an authentication trailer, `auth.py`,
 # `wire.py`); the messages of version 1 are unchanged and keep their version byte, VERSION.
 # 3 adds the state message with gossip, kind 'G' (issue 24): a new kind, not a changed one,
 # so a receiver of schema 2 counts it as malformed_kind and one of schema 3 still reads 'S'
-# (as knowing no failure). Agents of schema 3 send 'G'.
-SCHEMA_VERSION = 3
+# (as knowing no failure). 4 adds kind 'I' (issue 24: a declared UAV heard again is taken
+# back at a newer incarnation, model/gossip.py): again a new kind, so a receiver of schema 3
+# counts it as malformed_kind (a clear, counted drop), and one of schema 4 still reads 'G'
+# and 'S' (every incarnation 0). Agents of schema 4 send 'I'.
+SCHEMA_VERSION = 4
 VERSION = 1
 SIGNED_VERSION = 2
 KIND_STATE = ord("S")
 KIND_GOSSIP_STATE = ord("G")
+KIND_INCARNATION_STATE = ord("I")
 FAILED_MASK_BYTES = 32  # the failed set: bit j of byte j // 8 = identity j (ids 0..255)
 KIND_SENSE = ord("U")
 MAX_ABS_POS_M = 1.0e6
@@ -49,12 +57,28 @@ WINDOW_SLACK_S = 5.0
 
 # version, kind, sender, session, seq, t_ms, p_n, p_e, p_d, v_n, v_e, v_d
 _STATE = struct.Struct("<BBHHIi6f")
-# then (kind 'G'): epoch_s (u32), failed mask (32 bytes)
+# then (kind 'G' and 'I'): epoch_s (u32), failed mask (32 bytes)
 _GOSSIP = struct.Struct(f"<I{FAILED_MASK_BYTES}s")
+# then (kind 'I'): count (u8), then count x (identity u8, incarnation u16), identities ascending
+_INC_COUNT = struct.Struct("<B")
+_INC = struct.Struct("<BH")
+MAX_INCARNATION = 0xFFFF
 # version, kind, receiver, t_ms, count; then count x (north, east) float32
 _SENSE_HEAD = struct.Struct("<BBHiH")
-STATE_SIZE = _STATE.size + _GOSSIP.size  # what a schema-3 agent sends (kind 'G')
-STATE_SIZES = {KIND_STATE: _STATE.size, KIND_GOSSIP_STATE: STATE_SIZE}
+STATE_SIZE = _STATE.size + _GOSSIP.size + _INC_COUNT.size  # what a schema-4 agent sends (kind 'I'), no incarnation above 0
+STATE_SIZES = {KIND_STATE: _STATE.size, KIND_GOSSIP_STATE: _STATE.size + _GOSSIP.size, KIND_INCARNATION_STATE: STATE_SIZE}
+
+
+def state_size(payload: bytes, at: int = 0) -> int:
+    """The length of the state message starting at byte `at` (0: not a state kind, or too
+    short to tell): fixed for 'S' and 'G', 75 + 3 x count for 'I'."""
+    kind = payload[at + 1] if at + 1 < len(payload) else -1
+    size = STATE_SIZES.get(kind, 0)
+    if kind == KIND_INCARNATION_STATE:
+        if at + size > len(payload):
+            return size
+        size += _INC.size * payload[at + size - 1]
+    return size
 
 
 class Malformed(ValueError):
@@ -74,6 +98,15 @@ class StateMsg:
     state: tuple[float, float, float, float, float, float]  # mission frame NED [p, v]
     failed: int = 0  # the sender's known failed set, bit j = identity j (a kind 'S' message: none)
     epoch_s: int = 0  # the sender's plan epoch: the mission second of its newest failure re-plan
+    inc: tuple[tuple[int, int], ...] = ()  # (identity, incarnation) it knows, incarnation > 0, ascending
+
+    @classmethod
+    def with_knowledge(cls, sender: int, session: int, seq: int, t_ms: int, state: tuple[float, ...], known: Known) -> StateMsg:
+        return cls(sender, session, seq, t_ms, state, known.failed, known.epoch, tuple(sorted(known.inc.items())))  # type: ignore[arg-type]
+
+    def known(self) -> Known:
+        """The sender's knowledge (model/gossip.py) this message carries."""
+        return Known(self.failed, self.epoch_s, dict(self.inc))
 
     @property
     def t_s(self) -> float:
@@ -92,9 +125,11 @@ def failed_mask(ids: object) -> int:
 
 
 def encode_state(m: StateMsg) -> bytes:
-    """A kind 'G' state message (schema version 3): the state and the sender's knowledge."""
-    head = _STATE.pack(VERSION, KIND_GOSSIP_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
-    return head + _GOSSIP.pack(m.epoch_s & 0xFFFFFFFF, m.failed.to_bytes(FAILED_MASK_BYTES, "little"))
+    """A kind 'I' state message (schema version 4): the state and the sender's knowledge."""
+    head = _STATE.pack(VERSION, KIND_INCARNATION_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
+    incs = sorted((j, c) for j, c in m.inc if c > 0)
+    return (head + _GOSSIP.pack(m.epoch_s & 0xFFFFFFFF, m.failed.to_bytes(FAILED_MASK_BYTES, "little"))
+            + _INC_COUNT.pack(len(incs)) + b"".join(_INC.pack(j, min(c, MAX_INCARNATION)) for j, c in incs))
 
 
 def _head(payload: bytes, kind: int, size: int) -> None:
@@ -109,33 +144,38 @@ def _head(payload: bytes, kind: int, size: int) -> None:
 
 
 def decode_state(payload: bytes) -> StateMsg:
-    """A state message of kind 'G' or (schema 1-2) 'S', which carries no knowledge."""
+    """A state message of kind 'I', or 'G' (schema 3, every incarnation 0), or 'S' (schema
+    1-2), which carries no knowledge."""
     kind = payload[1] if len(payload) >= 2 and payload[1] in STATE_SIZES else KIND_STATE
     _head(payload, kind, STATE_SIZES[kind])
-    if len(payload) != STATE_SIZES[kind]:
+    if len(payload) != state_size(payload):
         raise Malformed("length")
     _, _, sender, session, seq, t_ms, *s = _STATE.unpack_from(payload)
-    failed, epoch_s = 0, 0
-    if kind == KIND_GOSSIP_STATE:
+    failed, epoch_s, inc = 0, 0, ()
+    if kind in (KIND_GOSSIP_STATE, KIND_INCARNATION_STATE):
         epoch_s, mask = _GOSSIP.unpack_from(payload, _STATE.size)
         failed = int.from_bytes(mask, "little")
+    if kind == KIND_INCARNATION_STATE:
+        at = STATE_SIZES[kind]
+        inc = tuple(_INC.unpack_from(payload, at + _INC.size * i) for i in range(payload[at - 1]))
+        if any(c == 0 for _, c in inc) or [j for j, _ in inc] != sorted({j for j, _ in inc}):
+            raise Malformed("incarnations")  # zeros are left out, identities ascend once each
     if not all(math.isfinite(x) for x in s):
         raise Malformed("not_finite")
     if any(abs(x) > MAX_ABS_POS_M for x in s[:3]) or any(abs(x) > MAX_ABS_VEL_MPS for x in s[3:]):
         raise Malformed("out_of_range")
-    return StateMsg(sender, session, seq, t_ms, tuple(s), failed, epoch_s)  # type: ignore[arg-type]
+    return StateMsg(sender, session, seq, t_ms, tuple(s), failed, epoch_s, inc)  # type: ignore[arg-type]
 
 
 def split_states(payload: bytes, trailer: int = 0) -> list[bytes]:
     """The state messages of an rx payload: one, or several back to back (the SITL link
     emulator delivers an instant's updates to a receiver in one message), each as long as
-    its kind says (byte 1: 'S' or 'G'; a signed one `trailer` bytes longer). Raises
+    its kind says (byte 1: 'S', 'G' or 'I', `state_size`; a signed one `trailer` bytes longer). Raises
     Malformed("length") when the payload is not whole messages; each part is then decoded
     (and counted if malformed) on its own."""
     parts, i, n = [], 0, len(payload)
     while i < n:
-        kind = payload[i + 1] if i + 1 < n else -1
-        size = STATE_SIZES.get(kind, 0) + trailer
+        size = state_size(payload, i) + trailer
         if i == 0 and (size == trailer or size >= n):
             return [payload]  # one message (or not a state): its decoder says what is wrong
         if size == trailer or i + size > n:

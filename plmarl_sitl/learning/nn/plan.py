@@ -170,7 +170,7 @@ class ServiceTargets:
         missed = recent[: self.declare_after]  # the instants j must have missed, newest first
         silent = (t_rx >= 0) & (t_rx < missed[-1]) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
         silent &= (t_rx == missed[0]).any(-1, keepdim=True)  # someone was heard at the newest instant
-        silent &= may_predict(gossip.heard_failed, gossip.heard_epoch, gossip.failed, gossip.epoch, self.instants.last(t))
+        silent &= may_predict(gossip.heard_key, gossip.heard_epoch, gossip.key, gossip.epoch, self.instants.last(t))
         if len(missed) == self.declare_after and missed[-1] > 0 and bool(silent.any()):
             # Silent at the instants it missed, at each of which the plan-aware prediction
             # says it should have been heard (the tracker's beliefs, 30 s after the last
