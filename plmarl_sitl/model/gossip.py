@@ -111,56 +111,57 @@ def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Te
     return heard_prev & moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
-def may_predict(heard_key: torch.Tensor, heard_epoch: torch.Tensor, key: torch.Tensor,
-                epoch: torch.Tensor, newest_instant: int) -> torch.Tensor:
+# A knowledge entry, one int per (knower, identity): the rank 2^32 x key + (2^32 - 1 - since),
+# key = 2 x incarnation + (1 if declared failed), since = the signalling instant the
+# declaration names (0 when not failed). The merge is the max of ranks: a newer incarnation
+# beats any declaration of an older one, at one incarnation "failed" beats "alive", and of
+# two declarations of the same incarnation the earlier instant wins. A max is commutative,
+# associative and idempotent, so knowledge converges whatever the order of delivery.
+SINCE_MASK = (1 << 32) - 1
+
+
+def rank_of(key: torch.Tensor, since: torch.Tensor) -> torch.Tensor:
+    return (key << 32) | (SINCE_MASK - since)
+
+
+def key_of(rank: torch.Tensor) -> torch.Tensor:
+    """2 x incarnation + (1 if declared failed)."""
+    return rank >> 32
+
+
+def since_of(rank: torch.Tensor) -> torch.Tensor:
+    """The instant a failed identity was declared at (0 for one not failed)."""
+    return SINCE_MASK - (rank & SINCE_MASK)
+
+
+def may_predict(heard_rank: torch.Tensor, rank: torch.Tensor, newest_instant: int) -> torch.Tensor:
     """(..., M) bool: the receiver's plan-aware prediction of each neighbour is the plan the
-    neighbour flew at the instants it missed (the newest `newest_instant`): its last message
-    (knowledge heard_key (..., M, N), heard_epoch (..., M)) carried the receiver's own
-    knowledge (key (..., N), epoch (...)); or knowledge the receiver has since extended
-    (`extends`) by a re-plan at an epoch not before those instants (the prediction up to the
-    epoch is still the plan both knew)."""
-    same = (heard_key == key.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
-    older = extends(key.unsqueeze(-2), heard_key).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
-    return same | (older & (epoch >= newest_instant).unsqueeze(-1))
+    neighbour flew at the instants it missed (up to `newest_instant`). A plan is a function
+    of the declarations (identity, instant) alone (`TeamPlans.settle`), and a declaration
+    at instant s changes the prediction only after s; so the neighbour's last message
+    (heard_rank (..., M, N)) and the receiver's knowledge (rank (..., N)) must differ only
+    in declarations not before the newest instant."""
+    hf, f = key_of(heard_rank) % 2 == 1, (key_of(rank) % 2 == 1).unsqueeze(-2)
+    hs, s = since_of(heard_rank), since_of(rank).unsqueeze(-2)
+    differ = (hf != f) | (hf & f & (hs != s))
+    early = (hf & (hs < newest_instant)) | (f & (s < newest_instant))
+    return ~(differ & early).any(-1)
 
 
-def extends(key: torch.Tensor, heard_key: torch.Tensor) -> torch.Tensor:
-    """Per identity: knowledge `key` is `heard_key` grown, never undone: at least as large,
-    and a declaration the sender knew (odd) is still the receiver's. A declaration the
-    receiver has since seen refuted rolled its plan back (`TeamPlans.replan`), so its
-    prediction is no longer the plan a sender that acted on the declaration flew."""
-    return (heard_key <= key) & ((heard_key % 2 == 0) | (heard_key == key))
-
-
-def merge(key: torch.Tensor, epoch: torch.Tensor, other_key: torch.Tensor,
-          other_epoch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Knowledge merge: (per identity the larger key, max of the epochs). A key is
-    2 x incarnation + failed (`key_of`): a newer incarnation beats any declaration of an
-    older one, and at one incarnation "failed" beats "alive"."""
-    return torch.maximum(key, other_key), torch.maximum(epoch, other_epoch)
-
-
-def key_of(failed: torch.Tensor | bool, incarnation: torch.Tensor | int = 0):  # noqa: ANN201 - tensor or int
-    """The merge key of identity knowledge: 2 x incarnation + (1 if declared failed)."""
-    if isinstance(failed, torch.Tensor):
-        return 2 * torch.as_tensor(incarnation, dtype=torch.int64) + failed.long()
-    return 2 * int(incarnation) + int(bool(failed))
-
-
-def alive_again(key: torch.Tensor, epoch: torch.Tensor, heard: torch.Tensor, t: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The refutation rule, after the merge of signalling instant t: an identity heard at t
+def alive_again(rank: torch.Tensor, heard: torch.Tensor) -> torch.Tensor:
+    """The refutation rule, after the merge of a signalling instant: an identity heard then
     (heard (..., N): a message of it arrived, or it is the receiver itself) is alive, so a
-    declaration of it (an odd key) gives way to the next incarnation (key + 1), and the
-    knowledge's epoch becomes at least t (the re-plan that takes it back). Every merged
-    declaration was made at a decision before instant t (a decision follows its instant's
+    declaration of it (an odd key) gives way to the next incarnation, alive. Every merged
+    declaration was made at a decision before the instant (a decision follows its instant's
     messages), so the message proves life after it."""
+    key = key_of(rank)
     refuted = heard & (key % 2 == 1)
-    return key + refuted.long(), torch.where(refuted.any(-1), torch.clamp(epoch, min=t), epoch)
+    return torch.where(refuted, rank_of(key + 1, torch.zeros_like(key)), rank)
 
 
 class Gossip:
-    """Every twin agent's knowledge, (B, N, N) key [i, j] (what i knows of j: `key_of`) and
-    (B, N) epoch, exchanged at the signalling instants with the states.
+    """Every twin agent's knowledge, (B, N, N) rank [i, j] (what i knows of j, above),
+    exchanged at the signalling instants with the states.
 
     A controller adds its agents' own declarations (`declare`) at its decisions; at the
     next signalling instant each live agent's knowledge goes out with its state, and each
@@ -170,35 +171,45 @@ class Gossip:
     state message)."""
 
     def __init__(self, batch: int, n: int, device: str = "cpu") -> None:
-        self.key = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
-        self.epoch = torch.zeros(batch, n, dtype=torch.int64, device=device)
-        self.sent = (self.key.clone(), self.epoch.clone())
-        # [i, j]: the knowledge j's last message to i carried
-        self.heard_key = torch.zeros(batch, n, n, n, dtype=torch.int64, device=device)
-        self.heard_epoch = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
+        self.rank = rank_of(torch.zeros(batch, n, n, dtype=torch.int64, device=device), torch.zeros(batch, n, n, dtype=torch.int64, device=device))
+        self.sent = self.rank.clone()
+        self.heard_rank = self.rank.unsqueeze(-2).repeat(1, 1, n, 1)  # [i, j]: the knowledge j's last message to i carried
+
+    @property
+    def key(self) -> torch.Tensor:
+        return key_of(self.rank)
 
     @property
     def failed(self) -> torch.Tensor:
         """(B, N, N) bool [i, j]: i knows j failed (at j's newest incarnation i knows)."""
         return self.key % 2 == 1
 
+    @property
+    def since(self) -> torch.Tensor:
+        """(B, N, N) [i, j]: the instant of the declaration of j that i knows (0: not failed)."""
+        return since_of(self.rank)
+
+    @property
+    def epoch(self) -> torch.Tensor:
+        """(B, N) each agent's plan epoch: its newest declaration's instant (0: none)."""
+        return self.since.amax(-1)
+
     def declare(self, failed: torch.Tensor, epoch: torch.Tensor) -> None:
         """Agents' own findings: failed (B, N, N) [i, j] i declares j failed at its epoch (B, N)."""
-        self.key, self.epoch = merge(self.key, self.epoch, self.key | failed.long(), epoch)
+        key = self.key
+        new = failed & (key % 2 == 0)
+        self.rank = torch.where(new, rank_of(key + 1, epoch.unsqueeze(-1).expand_as(key)), self.rank)
 
-    def receive(self, got: torch.Tensor, t: int) -> None:
-        """Signalling instant t: got (B, N, N) bool [i, j], i received j's state message now.
+    def receive(self, got: torch.Tensor) -> None:
+        """A signalling instant: got (B, N, N) bool [i, j], i received j's state message now.
         Everyone sends the knowledge it held before the instant (the broadcast is simultaneous)."""
-        self.sent = (self.key.clone(), self.epoch.clone())
-        self.heard_key = torch.where(got.unsqueeze(-1), self.key.unsqueeze(-3), self.heard_key)
-        self.heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), self.heard_epoch)
-        heard_key = torch.where(got.unsqueeze(-1), self.key.unsqueeze(-3), torch.zeros_like(self.key).unsqueeze(-3)).amax(-2)
-        heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), torch.zeros_like(self.epoch).unsqueeze(-2)).amax(-1)
-        key, epoch = merge(self.key, self.epoch, heard_key, heard_epoch)
+        self.sent = self.rank.clone()
+        self.heard_rank = torch.where(got.unsqueeze(-1), self.rank.unsqueeze(-3), self.heard_rank)
+        heard = torch.where(got.unsqueeze(-1), self.rank.unsqueeze(-3), torch.zeros_like(self.rank).unsqueeze(-3)).amax(-2)
         itself = torch.eye(got.shape[-1], dtype=torch.bool, device=got.device)
-        self.key, self.epoch = alive_again(key, epoch, got | itself, int(t))
+        self.rank = alive_again(torch.maximum(self.rank, heard), got | itself)
 
 
 __all__ = ["DECLARE_AFTER_MISSED", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
-           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "Known", "Knowledge", "alive_again", "extends", "key_of", "may_predict",
-           "merge", "steady", "suspects"]
+           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
+           "steady", "suspects"]

@@ -1,68 +1,76 @@
 """One deployed agent's knowledge of failures, as plain ints (the wire's form, no torch):
-the failed set, the plan epoch and the identities' incarnations (model/gossip.py has the
-rules and the twin's batched form; this module applies the same rules to one agent)."""
+per identity its incarnation and, if declared failed, the signalling instant the
+declaration names. model/gossip.py has the rules and the twin's batched form (one rank
+per entry); this module applies the same rules to one agent."""
 
 from __future__ import annotations
 
 
-def _key(failed: int, inc: dict[int, int], j: int) -> int:
-    return 2 * inc.get(j, 0) + (failed >> j & 1)
-
-
 class Known:
-    """One agent's knowledge as a value (the wire's form): the failed set (bitmask), the
-    plan epoch, and the identities' incarnations (identity -> incarnation, only those > 0).
-    Merged per identity by `key_of` and refuted by `alive_again`'s rule, on ints."""
+    """One agent's knowledge as a value: `failed` identity -> the instant it was declared
+    at, `inc` identity -> incarnation (only those > 0). Per identity the merge keeps the
+    larger key (2 x incarnation + failed), and of equal keys the earlier instant, as the
+    twin's max of ranks (model/gossip.py)."""
 
-    __slots__ = ("epoch", "failed", "inc")
+    __slots__ = ("failed", "inc")
 
-    def __init__(self, failed: int = 0, epoch: int = 0, inc: dict[int, int] | None = None) -> None:
-        self.failed, self.epoch = int(failed), int(epoch)
+    def __init__(self, failed: dict[int, int] | None = None, inc: dict[int, int] | None = None) -> None:
+        self.failed = dict(failed or {})
         self.inc = {j: c for j, c in (inc or {}).items() if c > 0}
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, Known) and (self.failed, self.epoch, self.inc) == (other.failed, other.epoch, other.inc)
+        return isinstance(other, Known) and (self.failed, self.inc) == (other.failed, other.inc)
 
     def __repr__(self) -> str:
-        return f"Known(failed={self.failed:#x}, epoch={self.epoch}, inc={self.inc})"
+        return f"Known(failed={self.failed}, inc={self.inc})"
+
+    @property
+    def epoch(self) -> int:
+        """The plan epoch: the newest declaration's instant (0: none)."""
+        return max(self.failed.values(), default=0)
+
+    @property
+    def mask(self) -> int:
+        """The failed set as a bitmask (bit j = identity j)."""
+        return sum(1 << j for j in self.failed)
 
     def key(self, j: int) -> int:
-        return _key(self.failed, self.inc, j)
+        return 2 * self.inc.get(j, 0) + (j in self.failed)
 
-    def ids(self) -> set[int]:
-        """Identities with anything known (failed or a newer incarnation)."""
-        out = set(self.inc)
-        f, j = self.failed, 0
-        while f:
-            if f & 1:
-                out.add(j)
-            f, j = f >> 1, j + 1
-        return out
+    def entry(self, j: int) -> tuple[int, int]:
+        """(key, -instant): larger wins the merge."""
+        return self.key(j), -self.failed.get(j, 0)
 
     def merged(self, other: Known) -> Known:
-        failed, inc = 0, {}
-        for j in self.ids() | other.ids():
-            k = max(self.key(j), other.key(j))
-            failed |= (k & 1) << j
-            inc[j] = k >> 1
-        return Known(failed, max(self.epoch, other.epoch), inc)
+        if not other.failed and not other.inc:
+            return self
+        failed, inc = {}, {}
+        for j in set(self.failed) | set(self.inc) | set(other.failed) | set(other.inc):
+            key, neg = max(self.entry(j), other.entry(j))
+            inc[j] = key >> 1
+            if key & 1:
+                failed[j] = -neg
+        return Known(failed, inc)
 
-    def refuted(self, heard: list[int] | set[int], t: int) -> Known:
-        """`alive_again` on this knowledge: the identities heard at instant t are alive."""
-        back = [j for j in heard if self.failed >> j & 1]
+    def declared(self, ids: list[int], at: int) -> Known:
+        """This knowledge with identities `ids` (not failed here) declared failed at instant `at`."""
+        return Known(self.failed | {j: at for j in ids if j not in self.failed}, self.inc)
+
+    def refuted(self, heard: set[int]) -> Known:
+        """model/gossip.py::alive_again: the identities heard at an instant are alive."""
+        back = [j for j in heard if j in self.failed]
         if not back:
             return self
-        inc = dict(self.inc)
-        failed = self.failed
-        for j in back:
-            inc[j] = inc.get(j, 0) + 1
-            failed &= ~(1 << j)
-        return Known(failed, max(self.epoch, t), inc)
+        return Known({j: s for j, s in self.failed.items() if j not in back},
+                     self.inc | {j: self.inc.get(j, 0) + 1 for j in back})
 
-    def extends(self, other: Known) -> bool:
-        """model/gossip.py::extends for every identity: this is other's knowledge grown,
-        never a declaration other knew refuted."""
-        return all(self.key(j) >= other.key(j) and (other.key(j) % 2 == 0 or self.key(j) == other.key(j)) for j in other.ids())
+    def predicts_alike(self, heard: Known, newest: int) -> bool:
+        """model/gossip.py::may_predict: the two differ only in declarations not before `newest`."""
+        for j in set(self.failed) | set(heard.failed):
+            s, hs = self.failed.get(j), heard.failed.get(j)
+            if s != hs and ((s is not None and s < newest) or (hs is not None and hs < newest)):
+                return False
+        return True
 
 
 NOTHING = Known()
@@ -86,7 +94,7 @@ class Knowledge:
         if sender is not None:
             self.heard[sender] = known
             self.heard_at.setdefault(t, set()).add(sender)
-        if known.failed or known.epoch or known.inc:  # one entry per second: at most one per signalling instant and decision
+        if known.failed or known.inc:  # one entry per second: at most one per signalling instant and decision
             self.parts[t] = self.parts.get(t, NOTHING).merged(known)
 
     def view(self, before: float) -> Known:
@@ -97,7 +105,7 @@ class Knowledge:
                 break
             if t in self.parts:
                 out = out.merged(self.parts[t])
-            out = out.refuted(self.heard_at.get(t, set()) | {self.me}, int(t))
+            out = out.refuted(self.heard_at.get(t, set()) | {self.me})
         return out
 
 

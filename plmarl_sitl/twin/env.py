@@ -170,7 +170,7 @@ class CoverageEnv:
             rx = rx & ~(mask.unsqueeze(-1) | mask.unsqueeze(-2))
         sent = torch.cat([self._gnss(self.pos), self.vel], -1)
         self.holdings = signalling_update(self.holdings, float(t), rx, sent, m.signalling.drop_after_missed)
-        self.gossip.receive(rx & ~torch.eye(self.n, dtype=torch.bool, device=self.device), t)  # each state brings its sender's knowledge
+        self.gossip.receive(rx & ~torch.eye(self.n, dtype=torch.bool, device=self.device))  # each state brings its sender's knowledge
 
     def _selected(self, uavs: tuple[int, ...]) -> torch.Tensor:
         """(N,) bool mask of the listed UAVs."""

@@ -31,7 +31,7 @@ import torch
 
 from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, Known, steady, suspects
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, steady, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
 
 
@@ -102,15 +102,14 @@ class AgentPlan:
         newest = self.instants.last(k)
 
         def may_predict(j: int) -> bool:  # model.gossip.may_predict, on Known values
-            heard = self.knowledge.heard.get(j, NOTHING)
-            return heard == known or (known.extends(heard) and heard.epoch < known.epoch and known.epoch >= newest)
+            return known.predicts_alike(self.knowledge.heard.get(j, NOTHING), newest)
 
         recent = self.instants.recent(closed, self.declare_after + 1)
         missed = recent[: self.declare_after]  # newest first
         rx = t_rx.tolist()
         heard = any(rx[j] >= missed[0] for j in range(self.n) if j != self.me)  # someone at the newest instant
         silent = [j for j in range(self.n) if j != self.me and 0 <= rx[j] < missed[-1]
-                  and not known.failed >> j & 1 and may_predict(j)] \
+                  and j not in known.failed and may_predict(j)] \
             if heard and len(missed) == self.declare_after and missed[-1] > 0 else []
         if silent:
             silent_t = torch.zeros(1, 1, self.n, dtype=torch.bool)
@@ -128,13 +127,13 @@ class AgentPlan:
                 sus = sus | st
             ids = np.flatnonzero(sus[0, 0].numpy())
             if len(ids):
-                self.knowledge.learn(k, Known(sum(1 << int(j) for j in ids), self.instants.last(k), known.inc))
+                self.knowledge.learn(k, known.declared([int(j) for j in ids], self.instants.last(k)))
                 known = self.knowledge.view(before=k + 1)
-        failed = np.array([bool(known.failed >> j & 1) for j in range(self.n)])
-        if (failed == self.plans.failed[0, 0]).all() and known.epoch == self.plans.epoch[0, 0]:
-            return False
-        self.plans.replan(0, 0, failed, known.epoch)
-        return True
+        failed = np.zeros(self.n, dtype=bool)
+        since = np.zeros(self.n, dtype=np.int64)
+        for j, s in known.failed.items():
+            failed[j], since[j] = True, s
+        return self.plans.settle(0, 0, failed, since)
 
     def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
         """Add the neighbours whose state of the first instant is now held and refit the launch
