@@ -1,31 +1,35 @@
-"""What a survivor knows about failures, and how it spreads: the failed set and the plan epoch.
+"""What a survivor knows about failures, and how it spreads: per identity, its incarnation
+and whether (and at which signalling instant) it was declared failed.
 
 Why: a node failure is seen only by the failed UAV's neighbours (they miss its updates);
 survivors out of its range would keep flying the old plan, and a plan re-solved from
 different knowledge in different agents is no plan at all. So every signed state message
-carries the sender's knowledge (docs/SIGNALLING.md, schema version 3):
+carries the sender's knowledge (docs/SIGNALLING.md, schema version 4, kind 'I').
 
-* `failed`: the identities the sender knows to have failed (a bitmask, swarm <= 250);
-* `epoch`: the mission second of the newest failure re-plan it knows (0: none), the
-  signalling instant at which the failure was declared, not the second it was learnt.
+A receiver merges what it hears per identity: the larger key 2 x incarnation + failed,
+and of two declarations of one incarnation the earlier instant (one max of a rank per
+entry, below). The merge is commutative, associative and idempotent, so knowledge reaches
+every survivor the signalling graph connects, within one hop per signalling instant,
+whatever the order of delivery, and agents that heard the same things hold the same
+knowledge. The plan (`model/service.py::TeamPlans.settle`) is a function of the
+declarations (identity, instant) and of common knowledge only.
 
-A receiver merges what it hears: failed sets by union, epochs by max. Both merges are
-commutative, associative and idempotent, so knowledge reaches every survivor the
-signalling graph connects, within one hop per signalling instant, whatever the order of
-delivery, and agents that heard the same things hold the same knowledge (the re-plan in
-`model/service.py::TeamPlans.replan` is a function of it and of common knowledge only).
+A declaration is not for good (schema 4, session 14): after merging an instant's states,
+every identity heard at that instant, and the receiver itself, is alive, so a declaration
+of it gives way to its next incarnation (`alive_again`), which spreads and beats the
+declaration everywhere. A UAV whose radio alone was cut across an instant, or a survivor
+declared by a copy that mispredicted it, is taken back once heard; a dead UAV sends nothing.
 
 A failure is declared by a neighbour from missed signalling instants: at each decision
 while j has missed the `DECLARE_AFTER_MISSED` newest instants (1 since session 13; the
 neighbour table still drops j from N_i after `drop_after_missed`), j is *suspected failed*
-when it was predicted in clear hearing at each of them (`suspects`): a neighbour that flew
-out of range is predicted out of range and is not declared. And only
-when the plan that predicts j is the plan j flew (`may_predict`: j's last message carried
-the receiver's knowledge), and by a receiver that still hears someone (an agent alone
-cannot tell a dead neighbour from its own isolation). Two UAVs failing at once are learnt a few instants
-apart in different agents, and while knowledge spreads, copies fly interim plans; a copy
-that predicts j by its own interim plan while j flies another once declared a live j failed. The twin holds every agent's
-knowledge in one `Gossip`; the deployed agent holds its own (`deploy/agent/plan.py`).
+when it was predicted in clear hearing at each of them (`suspects`) or on a steady link
+(`steady`): a neighbour that flew out of range is predicted out of range and is not
+declared. And only when the plan that predicts j is the plan j flew (`may_predict`: j's
+last message knew the receiver's declarations before that instant), and by a receiver that
+still hears someone (an agent alone cannot tell a dead neighbour from its own isolation).
+The twin holds every agent's knowledge in one `Gossip`; the deployed agent holds its own
+(`model/knowledge.py::Knowledge`, `deploy/agent/plan.py`).
 """
 
 from __future__ import annotations

@@ -17,10 +17,11 @@ that map: the plan the twin, which hears them at once, started with.
 Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
 decision, a neighbour silent at the `DECLARE_AFTER_MISSED` newest instants whose misses
 are booked (the table's `closed`; in lockstep the newest instant, as in the twin), that the
-plan-aware prediction put in clear hearing at each, and whose last message carried this
-agent's knowledge, is declared failed at the newest signalling instant (the epoch);
-the knowledge the table merged from received states and these declarations, as of the
-decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
+plan-aware prediction put in clear hearing at each (or on a steady link), and whose last
+message knew this agent's declarations before then, is declared failed at the newest
+signalling instant; the knowledge the table merged from received states and these
+declarations (with the refutations of identities heard again, model/knowledge.py), as of
+the decision, is what the plan settles to (`TeamPlans.settle`) whenever it changes.
 The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
 """
 

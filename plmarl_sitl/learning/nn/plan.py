@@ -79,9 +79,9 @@ class ServiceTargets:
     With the twin's `Gossip` (`update(..., gossip=obs.gossip)`) the plan also re-plans at
     failures (model/gossip.py, `TeamPlans.replan`): each agent declares failed a neighbour
     out of N_i that the plan-aware prediction puts in clear hearing at the instants it
-    missed and whose last message carried the agent's own knowledge, and each copy re-plans
-    whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
-    made for."""
+    missed and whose last message knew the agent's declarations before then, and each copy
+    settles its plan (`TeamPlans.settle`) whenever its agent's declarations (identity,
+    instant) differ from the ones its plan was made for."""
 
     def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
                  declare_after: int = DECLARE_AFTER_MISSED) -> None:
