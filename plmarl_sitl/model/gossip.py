@@ -46,7 +46,7 @@ MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte ma
 # A silent neighbour is declared failed only where it should clearly be heard: predicted
 # within this fraction of R_comm, with a predicted SINR this far above the threshold. The
 # U2U links fail inside R_comm under interference (two UAVs on one cluster jam a third at
-# 300 m), and a prediction is some metres off in transit; a false declaration is for good.
+# 300 m), and a prediction is some metres off in transit; a false declaration lasts until the UAV is heard again.
 SUSPECT_RANGE_FRAC = 0.8
 SUSPECT_MARGIN_DB = 6.0
 # Missed signalling instants in a row, each predicted in clear hearing, before a silent
