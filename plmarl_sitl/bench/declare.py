@@ -2,7 +2,7 @@
 
 A silent teammate is declared failed after `DECLARE_AFTER_MISSED` missed signalling
 instants at which the plan-aware prediction put it in clear hearing (model/gossip.py). A
-false declaration is for good (knowledge only grows), so this counts them over many
+false declaration lasts until the UAV is heard again (schema 4), so this counts them over many
 episodes of missions without failures, and with the link losses the missions carry
 (link blackouts, broker outages, GNSS noise) and those the controller's own flight
 causes (a learnt policy does not fly the plan exactly).

@@ -1,31 +1,35 @@
-"""What a survivor knows about failures, and how it spreads: the failed set and the plan epoch.
+"""What a survivor knows about failures, and how it spreads: per identity, its incarnation
+and whether (and at which signalling instant) it was declared failed.
 
 Why: a node failure is seen only by the failed UAV's neighbours (they miss its updates);
 survivors out of its range would keep flying the old plan, and a plan re-solved from
 different knowledge in different agents is no plan at all. So every signed state message
-carries the sender's knowledge (docs/SIGNALLING.md, schema version 3):
+carries the sender's knowledge (docs/SIGNALLING.md, schema version 4, kind 'I').
 
-* `failed`: the identities the sender knows to have failed (a bitmask, swarm <= 250);
-* `epoch`: the mission second of the newest failure re-plan it knows (0: none), the
-  signalling instant at which the failure was declared, not the second it was learnt.
+A receiver merges what it hears per identity: the larger key 2 x incarnation + failed,
+and of two declarations of one incarnation the earlier instant (one max of a rank per
+entry, below). The merge is commutative, associative and idempotent, so knowledge reaches
+every survivor the signalling graph connects, within one hop per signalling instant,
+whatever the order of delivery, and agents that heard the same things hold the same
+knowledge. The plan (`model/service.py::TeamPlans.settle`) is a function of the
+declarations (identity, instant) and of common knowledge only.
 
-A receiver merges what it hears: failed sets by union, epochs by max. Both merges are
-commutative, associative and idempotent, so knowledge reaches every survivor the
-signalling graph connects, within one hop per signalling instant, whatever the order of
-delivery, and agents that heard the same things hold the same knowledge (the re-plan in
-`model/service.py::TeamPlans.replan` is a function of it and of common knowledge only).
+A declaration is not for good (schema 4, session 14): after merging an instant's states,
+every identity heard at that instant, and the receiver itself, is alive, so a declaration
+of it gives way to its next incarnation (`alive_again`), which spreads and beats the
+declaration everywhere. A UAV whose radio alone was cut across an instant, or a survivor
+declared by a copy that mispredicted it, is taken back once heard; a dead UAV sends nothing.
 
 A failure is declared by a neighbour from missed signalling instants: at each decision
 while j has missed the `DECLARE_AFTER_MISSED` newest instants (1 since session 13; the
 neighbour table still drops j from N_i after `drop_after_missed`), j is *suspected failed*
-when it was predicted in clear hearing at each of them (`suspects`): a neighbour that flew
-out of range is predicted out of range and is not declared. And only
-when the plan that predicts j is the plan j flew (`may_predict`: j's last message carried
-the receiver's knowledge), and by a receiver that still hears someone (an agent alone
-cannot tell a dead neighbour from its own isolation). Two UAVs failing at once are learnt a few instants
-apart in different agents, and while knowledge spreads, copies fly interim plans; a copy
-that predicts j by its own interim plan while j flies another once declared a live j failed. The twin holds every agent's
-knowledge in one `Gossip`; the deployed agent holds its own (`deploy/agent/plan.py`).
+when it was predicted in clear hearing at each of them (`suspects`) or on a steady link
+(`steady`): a neighbour that flew out of range is predicted out of range and is not
+declared. And only when the plan that predicts j is the plan j flew (`may_predict`: j's
+last message knew the receiver's declarations before that instant), and by a receiver that
+still hears someone (an agent alone cannot tell a dead neighbour from its own isolation).
+The twin holds every agent's knowledge in one `Gossip`; the deployed agent holds its own
+(`model/knowledge.py::Knowledge`, `deploy/agent/plan.py`).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import torch
 
 from plmarl_sitl.mission import Channel
 from plmarl_sitl.model.channel import db_to_lin, u2u_sinr
+from plmarl_sitl.model.knowledge import NOTHING, Knowledge, Known
 
 MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte mask: ids 0..255)
 
@@ -41,7 +46,7 @@ MAX_SWARM = 250  # identities a failed-set bitmask covers (the wire's 32-byte ma
 # A silent neighbour is declared failed only where it should clearly be heard: predicted
 # within this fraction of R_comm, with a predicted SINR this far above the threshold. The
 # U2U links fail inside R_comm under interference (two UAVs on one cluster jam a third at
-# 300 m), and a prediction is some metres off in transit; a false declaration is for good.
+# 300 m), and a prediction is some metres off in transit; a false declaration lasts until the UAV is heard again.
 SUSPECT_RANGE_FRAC = 0.8
 SUSPECT_MARGIN_DB = 6.0
 # Missed signalling instants in a row, each predicted in clear hearing, before a silent
@@ -110,82 +115,105 @@ def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Te
     return heard_prev & moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
-def may_predict(heard_failed: torch.Tensor, heard_epoch: torch.Tensor, failed: torch.Tensor,
-                epoch: torch.Tensor, newest_instant: int) -> torch.Tensor:
+# A knowledge entry, one int per (knower, identity): the rank 2^32 x key + (2^32 - 1 - since),
+# key = 2 x incarnation + (1 if declared failed), since = the signalling instant the
+# declaration names (0 when not failed). The merge is the max of ranks: a newer incarnation
+# beats any declaration of an older one, at one incarnation "failed" beats "alive", and of
+# two declarations of the same incarnation the earlier instant wins. A max is commutative,
+# associative and idempotent, so knowledge converges whatever the order of delivery.
+SINCE_MASK = (1 << 32) - 1
+
+
+def rank_of(key: torch.Tensor, since: torch.Tensor) -> torch.Tensor:
+    return (key << 32) | (SINCE_MASK - since)
+
+
+def key_of(rank: torch.Tensor) -> torch.Tensor:
+    """2 x incarnation + (1 if declared failed)."""
+    return rank >> 32
+
+
+def since_of(rank: torch.Tensor) -> torch.Tensor:
+    """The instant a failed identity was declared at (0 for one not failed)."""
+    return SINCE_MASK - (rank & SINCE_MASK)
+
+
+def may_predict(heard_rank: torch.Tensor, rank: torch.Tensor, newest_instant: int) -> torch.Tensor:
     """(..., M) bool: the receiver's plan-aware prediction of each neighbour is the plan the
-    neighbour flew at the instants it missed (the newest `newest_instant`): its last message
-    (knowledge heard_failed (..., M, N), heard_epoch (..., M)) carried the receiver's own
-    knowledge (failed (..., N), epoch (...)); or knowledge the receiver has since extended
-    by a re-plan at an epoch not before those instants (the prediction up to the epoch is
-    still the plan both knew)."""
-    same = (heard_failed == failed.unsqueeze(-2)).all(-1) & (heard_epoch == epoch.unsqueeze(-1))
-    older = (heard_failed <= failed.unsqueeze(-2)).all(-1) & (heard_epoch < epoch.unsqueeze(-1))
-    return same | (older & (epoch >= newest_instant).unsqueeze(-1))
+    neighbour flew at the instants it missed (up to `newest_instant`). A plan is a function
+    of the declarations (identity, instant) alone (`TeamPlans.settle`), and a declaration
+    at instant s changes the prediction only after s; so the neighbour's last message
+    (heard_rank (..., M, N)) and the receiver's knowledge (rank (..., N)) must differ only
+    in declarations not before the newest instant."""
+    hf, f = key_of(heard_rank) % 2 == 1, (key_of(rank) % 2 == 1).unsqueeze(-2)
+    hs, s = since_of(heard_rank), since_of(rank).unsqueeze(-2)
+    differ = (hf != f) | (hf & f & (hs != s))
+    early = (hf & (hs < newest_instant)) | (f & (s < newest_instant))
+    return ~(differ & early).any(-1)
 
 
-def merge(failed: torch.Tensor, epoch: torch.Tensor, other_failed: torch.Tensor,
-          other_epoch: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Knowledge merge: (union of the failed sets, max of the epochs)."""
-    return failed | other_failed, torch.maximum(epoch, other_epoch)
+def alive_again(rank: torch.Tensor, heard: torch.Tensor) -> torch.Tensor:
+    """The refutation rule, after the merge of a signalling instant: an identity heard then
+    (heard (..., N): a message of it arrived, or it is the receiver itself) is alive, so a
+    declaration of it (an odd key) gives way to the next incarnation, alive. Every merged
+    declaration was made at a decision before the instant (a decision follows its instant's
+    messages), so the message proves life after it."""
+    key = key_of(rank)
+    refuted = heard & (key % 2 == 1)
+    return torch.where(refuted, rank_of(key + 1, torch.zeros_like(key)), rank)
 
 
 class Gossip:
-    """Every twin agent's knowledge, (B, N, N) failed [i, j] (i knows j failed) and (B, N)
-    epoch, exchanged at the signalling instants with the states.
+    """Every twin agent's knowledge, (B, N, N) rank [i, j] (what i knows of j, above),
+    exchanged at the signalling instants with the states.
 
     A controller adds its agents' own declarations (`declare`) at its decisions; at the
     next signalling instant each live agent's knowledge goes out with its state, and each
-    receiver merges what it got (`receive`), as the deployed agent's inbox does with the
-    knowledge of each state message it accepts. `sent` keeps what went out at the last
-    instant (the knowledge field of each sender's state message)."""
+    receiver merges what it got and applies the refutation rule (`receive`), as the
+    deployed agent's `Knowledge` does with the knowledge of each state message it accepts.
+    `sent` keeps what went out at the last instant (the knowledge field of each sender's
+    state message)."""
 
     def __init__(self, batch: int, n: int, device: str = "cpu") -> None:
-        self.failed = torch.zeros(batch, n, n, dtype=torch.bool, device=device)
-        self.epoch = torch.zeros(batch, n, dtype=torch.int64, device=device)
-        self.sent = (self.failed.clone(), self.epoch.clone())
-        # [i, j]: the knowledge j's last message to i carried
-        self.heard_failed = torch.zeros(batch, n, n, n, dtype=torch.bool, device=device)
-        self.heard_epoch = torch.zeros(batch, n, n, dtype=torch.int64, device=device)
+        self.rank = rank_of(torch.zeros(batch, n, n, dtype=torch.int64, device=device), torch.zeros(batch, n, n, dtype=torch.int64, device=device))
+        self.sent = self.rank.clone()
+        self.heard_rank = self.rank.unsqueeze(-2).repeat(1, 1, n, 1)  # [i, j]: the knowledge j's last message to i carried
+
+    @property
+    def key(self) -> torch.Tensor:
+        return key_of(self.rank)
+
+    @property
+    def failed(self) -> torch.Tensor:
+        """(B, N, N) bool [i, j]: i knows j failed (at j's newest incarnation i knows)."""
+        return self.key % 2 == 1
+
+    @property
+    def since(self) -> torch.Tensor:
+        """(B, N, N) [i, j]: the instant of the declaration of j that i knows (0: not failed)."""
+        return since_of(self.rank)
+
+    @property
+    def epoch(self) -> torch.Tensor:
+        """(B, N) each agent's plan epoch: its newest declaration's instant (0: none)."""
+        return self.since.amax(-1)
 
     def declare(self, failed: torch.Tensor, epoch: torch.Tensor) -> None:
         """Agents' own findings: failed (B, N, N) [i, j] i declares j failed at its epoch (B, N)."""
-        self.failed, self.epoch = merge(self.failed, self.epoch, failed, epoch)
+        key = self.key
+        new = failed & (key % 2 == 0)
+        self.rank = torch.where(new, rank_of(key + 1, epoch.unsqueeze(-1).expand_as(key)), self.rank)
 
     def receive(self, got: torch.Tensor) -> None:
         """A signalling instant: got (B, N, N) bool [i, j], i received j's state message now.
         Everyone sends the knowledge it held before the instant (the broadcast is simultaneous)."""
-        self.sent = (self.failed.clone(), self.epoch.clone())
-        self.heard_failed = torch.where(got.unsqueeze(-1), self.failed.unsqueeze(-3), self.heard_failed)
-        self.heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), self.heard_epoch)
-        heard_failed = (got.unsqueeze(-1) & self.failed.unsqueeze(-3)).any(-2)  # [i, k]: some j heard by i knows k
-        heard_epoch = torch.where(got, self.epoch.unsqueeze(-2), torch.zeros_like(self.epoch).unsqueeze(-2)).amax(-1)
-        self.failed, self.epoch = merge(self.failed, self.epoch, heard_failed, heard_epoch)
+        self.sent = self.rank.clone()
+        self.heard_rank = torch.where(got.unsqueeze(-1), self.rank.unsqueeze(-3), self.heard_rank)
+        heard = torch.where(got.unsqueeze(-1), self.rank.unsqueeze(-3), torch.zeros_like(self.rank).unsqueeze(-3)).amax(-2)
+        itself = torch.eye(got.shape[-1], dtype=torch.bool, device=got.device)
+        self.rank = alive_again(torch.maximum(self.rank, heard), got | itself)
 
 
-class Knowledge:
-    """One deployed agent's knowledge, with the second each piece arrived at: its state
-    message for instant k carries what the twin's does, everything learnt before k (the
-    twin's agents send at the instant what they knew before it), and its decision at k
-    uses everything learnt up to k. Failed sets are bitmasks (wire format)."""
-
-    def __init__(self) -> None:
-        self.parts: dict[float, tuple[int, int]] = {}  # second learnt -> (failed mask, epoch) merged, non-empty only
-        self.heard: dict[int, tuple[int, int]] = {}  # sender -> the knowledge its last message carried
-
-    def learn(self, t: float, failed: int, epoch: int, sender: int | None = None) -> None:
-        if sender is not None:
-            self.heard[sender] = (failed, epoch)
-        if failed or epoch:  # one entry per second: at most one per signalling instant and decision
-            f, e = self.parts.get(t, (0, 0))
-            self.parts[t] = (f | failed, max(e, epoch))
-
-    def view(self, before: float) -> tuple[int, int]:
-        """(failed mask, epoch) of everything learnt before second `before`."""
-        failed, epoch = 0, 0
-        for t, (f, e) in self.parts.items():
-            if t < before:
-                failed, epoch = failed | f, max(epoch, e)
-        return failed, epoch
-
-
-__all__ = ["DECLARE_AFTER_MISSED", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M", "steady", "Knowledge", "may_predict", "MAX_SWARM", "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "merge", "suspects"]
+__all__ = ["DECLARE_AFTER_MISSED", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
+           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
+           "steady", "suspects"]

@@ -32,6 +32,8 @@ offset), computed by this module in the twin's controllers and in the deployed a
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import torch
 
@@ -268,6 +270,11 @@ class TeamPlans:
         self.failed: np.ndarray | None = None  # (B, A, n) bool: the failed set the copy was re-planned for
         self.epoch: np.ndarray | None = None  # (B, A) the epoch of that re-plan (0: none)
         self.maps: list[tuple[int, np.ndarray]] = []  # (second, counts (B, K)) of every map the plan took
+        self.since: np.ndarray | None = None  # (B, A, n) the instant each failed identity was declared at (0: alive)
+        # (b, a) -> the copy's re-plan steps (failed set, epoch), and its plan before each of
+        # them (failed, epoch, since, points, slot, second saved, the step's epoch), oldest first
+        self.steps: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
+        self.before: dict[tuple[int, int], list[tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, int, int]]] = {}
 
     def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
@@ -278,6 +285,8 @@ class TeamPlans:
         self.failed = np.zeros((b, a, self.n), dtype=bool)
         self.epoch = np.zeros((b, a), dtype=np.int64)
         self.maps = [(t, counts)]
+        self.since = np.zeros((b, a, self.n), dtype=np.int64)
+        self.steps, self.before = {}, {}
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -313,13 +322,42 @@ class TeamPlans:
             self.slot[b, a, live] = moved[self.slot[b, a, live]]
             self.points[b, a, :k] = new
 
+    def settle(self, b: int, a: int, failed: np.ndarray, since: np.ndarray,
+               sources_at: Callable[[int], np.ndarray] | None = None) -> bool:
+        """Copy (b, a) now knows the identities failed (n,) declared at instants since (n,):
+        its plan becomes the one re-planned at each of those instants in order (`replan`
+        for the identities declared by then), whatever order it learnt them in, so copies
+        that know the same hold the same plan. Steps it already made are kept; a step that
+        no longer holds (an identity taken back at a newer incarnation, model/gossip.py, or
+        a declaration learnt to be earlier) is undone by rolling the copy back to its plan
+        before that step. `sources_at(epoch)` (n, 2) replaces the predicted positions (the
+        constant-velocity ablation). True if the plan changed."""
+        at = sorted({int(x) for x in since[failed]})
+        want = [(failed & (since <= s), s) for s in at]
+        have = self.steps.setdefault((b, a), [])
+        k = 0
+        while k < min(len(want), len(have)) and have[k][1] == want[k][1] and np.array_equal(have[k][0], want[k][0]):
+            k += 1
+        if k == len(want) == len(have):
+            return False
+        if k < len(have):
+            self._roll_back(b, a, k)
+        for f, s in want[k:]:
+            self.replan(b, a, f.copy(), s, None if sources_at is None else sources_at(s))
+        self.since[b, a] = np.where(failed, since, 0)
+        return True
+
     def replan(self, b: int, a: int, failed: np.ndarray, epoch: int, sources: np.ndarray | None = None) -> None:
-        """Copy (b, a) learnt the failed set failed (n,) with epoch: re-place one point per
-        survivor on the map in force at the epoch and assign them by least travel from the
-        survivors' plan-aware predicted positions at the epoch; then the maps taken since.
-        The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources` (n, 2)
-        replaces the predicted positions (the constant-velocity ablation)."""
+        """One re-plan step of copy (b, a): the failed set failed (n,) at epoch: re-place one
+        point per survivor on the map in force at the epoch and assign them by least travel
+        from the survivors' plan-aware predicted positions at the epoch; then the maps taken
+        since. The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources`
+        (n, 2) replaces the predicted positions (the constant-velocity ablation)."""
         assert self.motion is not None and self.points is not None and self.slot is not None
+        self.before.setdefault((b, a), []).append((self.failed[b, a].copy(), int(self.epoch[b, a]), self.since[b, a].copy(),
+                                                   self.points[b, a].copy(), self.slot[b, a].copy(), self.motion.t, int(epoch)))
+        self.steps.setdefault((b, a), []).append((failed.copy(), int(epoch)))
+        self.since[b, a] = np.where(failed, np.where(self.since[b, a] > 0, self.since[b, a], epoch), 0)
         alive = np.flatnonzero(~failed)
         if alive.size == 0:  # only false declarations get here (the copy's own agent is alive): keep the plan
             self.failed[b, a], self.epoch[b, a] = failed, epoch
@@ -332,12 +370,29 @@ class TeamPlans:
         src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
         self.slot[b, a, alive] = assign(src, pts)
         self.failed[b, a], self.epoch[b, a] = failed, epoch
-        for s, later in self.maps:
-            if s > epoch:
-                new, served = self.grid.place(later[b : b + 1], len(alive))
-                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, : len(alive)])[0] + REPLAN_MARGIN:
-                    self._move_to(b, [a], new[0])
+        self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
+
+    def _follow_maps(self, b: int, a: int, after: int) -> None:
+        """Copy (b, a) takes the maps of seconds after `after`, as `on_map` would have."""
+        k = int((self.slot[b, a] >= 0).sum())
+        for s, later in self.maps:
+            if s > after:
+                new, served = self.grid.place(later[b : b + 1], k)
+                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0] + REPLAN_MARGIN:
+                    self._move_to(b, [a], new[0])
+
+    def _roll_back(self, b: int, a: int, k: int) -> None:
+        """Copy (b, a) returns to its plan before its re-plan step k, with the maps taken since
+        it was left, and its prediction re-flown from that step's epoch."""
+        assert self.motion is not None and self.points is not None and self.slot is not None
+        stack, steps = self.before[(b, a)], self.steps[(b, a)]
+        was_failed, was_epoch, was_since, points, slot, saved_t, left = stack[k]
+        del stack[k:], steps[k:]
+        self.failed[b, a], self.epoch[b, a], self.since[b, a] = was_failed, was_epoch, was_since
+        self.points[b, a], self.slot[b, a] = points, slot
+        self._follow_maps(b, a, saved_t)
+        self.motion.replay(b, a, left, self.all_targets()[b, a])
 
     def targets(self, idents: np.ndarray) -> np.ndarray:
         """(B, A, 2): agent a's target, the point of its identity idents[a] in its own copy

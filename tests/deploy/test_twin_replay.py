@@ -20,11 +20,12 @@ from plmarl_sitl.deploy.agent.inbox import Inbox
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.demand import encode_demand
-from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_sense, encode_state, failed_mask
+from plmarl_sitl.deploy.mqtt.schema import StateMsg, Topics, encode_sense, encode_state
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant, map_period
+from plmarl_sitl.model.gossip import key_of, since_of
 from plmarl_sitl.twin.env import CoverageEnv
 
 from .conftest import MISSION, ROOT
@@ -71,9 +72,10 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -
                 continue  # a failed node's agent is gone
             h = env.holdings
             got = [j for j in range(n) if float(h.t_rx[0, i, j]) == t and j != i]
-            failed, epoch = env.gossip.sent  # what each sender knew before this instant: its message carries it
+            sent = env.gossip.sent  # what each sender knew before this instant: its message carries it
             msgs = [encode_state(StateMsg(j, 1, t, t * 1000, tuple(h.state[0, i, j].tolist()),
-                                          failed_mask(np.flatnonzero(failed[0, j].numpy())), int(epoch[0, j])))
+                                          tuple((c, int(key_of(r)) // 2, int(since_of(r)))
+                                                for c, r in enumerate(sent[0, j]) if int(key_of(r)) > 0)))
                     for j in got]
             if msgs:
                 inbox.on_message(topics.rx(i), b"".join(msgs))

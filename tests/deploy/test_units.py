@@ -41,7 +41,7 @@ f32 = st.floats(-1e5, 1e5, width=32)
 def test_state_round_trip(sender, session, seq, t_ms, state) -> None:
     m = StateMsg(sender, session, seq, t_ms, state)
     raw = encode_state(m)
-    assert len(raw) == STATE_SIZE == 74  # kind G (schema 3): 38 + epoch 4 + failed mask 32
+    assert len(raw) == STATE_SIZE == 39  # kind I (schema 4): 38 + entry count 1 (knowing nothing)
     assert decode_state(raw) == m
 
 

@@ -9,39 +9,42 @@ import torch
 
 from plmarl_sitl.learning.eval.controllers import ServiceController
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.model.gossip import Gossip, merge
+from plmarl_sitl.model.gossip import Gossip, key_of, rank_of, since_of
 from plmarl_sitl.twin.env import CoverageEnv
 
 
-def test_merge_is_a_union_and_a_max_whatever_the_order() -> None:
-    a = (torch.tensor([True, False, False]), torch.tensor(30))
-    b = (torch.tensor([False, False, True]), torch.tensor(45))
-    ab, ba = merge(*a, *b), merge(*b, *a)
-    assert torch.equal(ab[0], ba[0]) and int(ab[1]) == int(ba[1]) == 45
-    assert ab[0].tolist() == [True, False, True]
-    again = merge(*ab, *a)  # idempotent
-    assert torch.equal(again[0], ab[0]) and int(again[1]) == 45
+def test_the_merge_is_a_max_of_ranks_whatever_the_order() -> None:
+    """Per identity: a newer incarnation beats a declaration of an older one, at one
+    incarnation failed beats alive, and of two declarations the earlier instant wins."""
+    key = torch.tensor([1, 0, 1, 2])
+    since = torch.tensor([30, 0, 60, 0])
+    other_key = torch.tensor([1, 1, 2, 1])
+    other_since = torch.tensor([45, 45, 0, 90])
+    a, b = rank_of(key, since), rank_of(other_key, other_since)
+    ab, ba = torch.maximum(a, b), torch.maximum(b, a)
+    assert torch.equal(ab, ba) and torch.equal(torch.maximum(ab, a), ab)  # commutative, idempotent
+    assert key_of(ab).tolist() == [1, 1, 2, 2] and since_of(ab).tolist() == [30, 45, 0, 0]
 
 
 def test_gossip_crosses_a_line_one_hop_per_instant() -> None:
-    """Agents 0-1-2-3 in a line, each hearing only its neighbours: agent 0's declaration
-    reaches agent 3, which never hears agent 0, three instants later; nobody learns
-    anything it was not sent."""
-    n = 4
+    """Agents 0-1-2-3 in a line, each hearing only its neighbours, and a silent identity 4:
+    agent 0's declaration of 4 reaches agent 3, which never hears agent 0, three instants
+    later; nobody learns anything it was not sent."""
+    n = 5
     g = Gossip(1, n)
     hears = torch.zeros(1, n, n, dtype=torch.bool)
-    for i in range(n - 1):
+    for i in range(n - 2):
         hears[0, i, i + 1] = hears[0, i + 1, i] = True
     mine = torch.zeros(1, n, n, dtype=torch.bool)
-    mine[0, 0, 3] = True  # agent 0 declares agent 3... (knowledge only; the rule is elsewhere)
-    g.declare(mine, torch.tensor([[60, 0, 0, 0]]))
+    mine[0, 0, 4] = True  # agent 0 declares identity 4 (knowledge only; the rule is elsewhere)
+    g.declare(mine, torch.tensor([[60, 0, 0, 0, 0]]))
     known = []
     for _ in range(3):
         g.receive(hears)
-        known.append(g.failed[0, :, 3].tolist())
+        known.append(g.failed[0, :4, 4].tolist())
     assert known == [[True, True, False, False], [True, True, True, False], [True, True, True, True]]
-    assert g.epoch[0].tolist() == [60, 60, 60, 60]
-    assert not g.failed[0, :, :3].any()
+    assert g.epoch[0, :4].tolist() == [60, 60, 60, 60]
+    assert not g.failed[0, :, :4].any()
 
 
 def run(mission_path: str, replan: bool, seed: int = 1_000_000_123, batch: int = 4):

@@ -146,8 +146,8 @@ class Agent:
     def publish_state(self, k: int) -> None:
         """This agent's state (the latest telemetry) for signalling instant k, to tx/<id>."""
         state = tuple(float(x) for x in self.decision.ego.tolist())
-        failed, epoch = self.decision.table.knowledge.view(before=k)  # what it knew before the instant (model/gossip.py)
-        msg = StateMsg(self.me, self.cfg.session_id, self.seq, k * 1000, state, failed, epoch)  # type: ignore[arg-type]
+        known = self.decision.table.knowledge.view(before=k)  # what it knew before the instant (model/gossip.py)
+        msg = StateMsg.with_knowledge(self.me, self.cfg.session_id, self.seq, k * 1000, state, known)  # type: ignore[arg-type]
         self.seq += 1
         self.bus.publish(self.topics.tx(self.me), self.wire.state(msg))
 

@@ -194,7 +194,7 @@ class Inbox:
             self.rx.duplicate += 1
         elif why == "out_of_order":
             self.rx.out_of_order += 1
-        elif self.table.on_state(msg.sender, msg.t_s, msg.state, msg.failed, msg.epoch_s):
+        elif self.table.on_state(msg.sender, msg.t_s, msg.state, msg.known()):
             self.rx.accepted += 1
         else:
             self.rx.out_of_order += 1

@@ -20,7 +20,7 @@ class LocalAgentPlan:
     def __init__(self, mission: Mission, me: int, knowledge: Knowledge | None = None) -> None:
         self.me, self.n = me, mission.n_uavs
         self.plan = local_plan_of(mission)
-        self.knowledge = knowledge if knowledge is not None else Knowledge()  # carried on the wire; not used to plan
+        self.knowledge = knowledge if knowledge is not None else Knowledge(me)  # carried on the wire; not used to plan
         self.map_t: float | None = None
         self.point: torch.Tensor | None = None
         self.memory: dict[int, np.ndarray] = {}  # its last plan: identity -> point

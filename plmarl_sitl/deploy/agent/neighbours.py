@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from plmarl_sitl.model.gossip import Knowledge
+from plmarl_sitl.model.gossip import NOTHING, Knowledge, Known
 from plmarl_sitl.model.signalling import NEVER
 
 
@@ -31,14 +31,14 @@ class NeighbourTable:
         self.lost = False
         self.dropped: list[int] = []  # ids dropped, in order (for logs and tests)
         self.closed: int | None = None  # the newest signalling instant whose misses are booked
-        self.knowledge = Knowledge()  # failures known, merged from the states received (model/gossip.py)
+        self.knowledge = Knowledge(me)  # failures known, merged from the states received (model/gossip.py)
 
-    def on_state(self, j: int, t_s: float, state: tuple[float, ...], failed: int = 0, epoch_s: int = 0) -> bool:
-        """Take a received state and the sender's knowledge (failed mask, epoch) it carries;
-        False if it is not newer than what we hold."""
+    def on_state(self, j: int, t_s: float, state: tuple[float, ...], known: Known = NOTHING) -> bool:
+        """Take a received state and the sender's knowledge (failed set, epoch, incarnations)
+        it carries; False if it is not newer than what we hold."""
         if j == self.me or not 0 <= j < self.n or t_s < float(self.t_rx[j]):
             return False
-        self.knowledge.learn(t_s, failed, epoch_s, j)
+        self.knowledge.learn(t_s, known, j)
         self.state[j] = torch.tensor(state, dtype=torch.float32)
         self.t_rx[j] = t_s
         self.ever[j] = True

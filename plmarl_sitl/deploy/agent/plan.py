@@ -17,10 +17,11 @@ that map: the plan the twin, which hears them at once, started with.
 Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
 decision, a neighbour silent at the `DECLARE_AFTER_MISSED` newest instants whose misses
 are booked (the table's `closed`; in lockstep the newest instant, as in the twin), that the
-plan-aware prediction put in clear hearing at each, and whose last message carried this
-agent's knowledge, is declared failed at the newest signalling instant (the epoch);
-the knowledge the table merged from received states and these declarations, as of the
-decision, is what the plan is re-solved for (`TeamPlans.replan`) whenever it changes.
+plan-aware prediction put in clear hearing at each (or on a steady link), and whose last
+message knew this agent's declarations before then, is declared failed at the newest
+signalling instant; the knowledge the table merged from received states and these
+declarations (with the refutations of identities heard again, model/knowledge.py), as of
+the decision, is what the plan settles to (`TeamPlans.settle`) whenever it changes.
 The state message of instant k carries `NeighbourTable.knowledge.view(before=k)` (core.py).
 """
 
@@ -31,7 +32,7 @@ import torch
 
 from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Knowledge, steady, suspects
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, steady, suspects
 from plmarl_sitl.model.service import TeamPlans, grid_counts
 
 
@@ -42,7 +43,7 @@ class AgentPlan:
         self.instants = SignallingInstants(mission)
         self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
         self.declare_after = DECLARE_AFTER_MISSED
-        self.knowledge = knowledge if knowledge is not None else Knowledge()  # the neighbour table's
+        self.knowledge = knowledge if knowledge is not None else Knowledge(me)  # the neighbour table's
         self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)
@@ -98,20 +99,18 @@ class AgentPlan:
         (up to `closed`), predicted in clear hearing at each, whose last message carried this
         agent's knowledge (model/gossip.py); re-plan if what this agent knows changed. True if
         the plan changed."""
-        failed_mask, epoch = self.knowledge.view(before=k + 1)
+        known = self.knowledge.view(before=k + 1)
         newest = self.instants.last(k)
 
-        def may_predict(j: int) -> bool:  # model.gossip.may_predict, on bitmasks
-            heard_failed, heard_epoch = self.knowledge.heard.get(j, (0, 0))
-            same = (heard_failed, heard_epoch) == (failed_mask, epoch)
-            return same or (heard_failed & ~failed_mask == 0 and heard_epoch < epoch and epoch >= newest)
+        def may_predict(j: int) -> bool:  # model.gossip.may_predict, on Known values
+            return known.predicts_alike(self.knowledge.heard.get(j, NOTHING), newest)
 
         recent = self.instants.recent(closed, self.declare_after + 1)
         missed = recent[: self.declare_after]  # newest first
         rx = t_rx.tolist()
         heard = any(rx[j] >= missed[0] for j in range(self.n) if j != self.me)  # someone at the newest instant
         silent = [j for j in range(self.n) if j != self.me and 0 <= rx[j] < missed[-1]
-                  and not failed_mask >> j & 1 and may_predict(j)] \
+                  and j not in known.failed and may_predict(j)] \
             if heard and len(missed) == self.declare_after and missed[-1] > 0 else []
         if silent:
             silent_t = torch.zeros(1, 1, self.n, dtype=torch.bool)
@@ -129,13 +128,13 @@ class AgentPlan:
                 sus = sus | st
             ids = np.flatnonzero(sus[0, 0].numpy())
             if len(ids):
-                self.knowledge.learn(k, sum(1 << int(j) for j in ids), self.instants.last(k))
-                failed_mask, epoch = self.knowledge.view(before=k + 1)
-        failed = np.array([bool(failed_mask >> j & 1) for j in range(self.n)])
-        if (failed == self.plans.failed[0, 0]).all() and epoch == self.plans.epoch[0, 0]:
-            return False
-        self.plans.replan(0, 0, failed, epoch)
-        return True
+                self.knowledge.learn(k, known.declared([int(j) for j in ids], self.instants.last(k)))
+                known = self.knowledge.view(before=k + 1)
+        failed = np.zeros(self.n, dtype=bool)
+        since = np.zeros(self.n, dtype=np.int64)
+        for j, s in known.failed.items():
+            failed[j], since[j] = True, s
+        return self.plans.settle(0, 0, failed, since)
 
     def hear_first_instant(self, held: torch.Tensor, t_rx: torch.Tensor) -> bool:
         """Add the neighbours whose state of the first instant is now held and refit the launch

@@ -1,9 +1,12 @@
-"""The signalling wire format (schema version 3): compact binary state and sensing messages.
+"""The signalling wire format (schema version 4): compact binary state and sensing messages.
 
 docs/SIGNALLING.md is the contract. All integers little-endian. A state message is the
-sparse signalling update of Algorithm 1: kind 'S' (38 bytes, schema 1-2) or, since schema
-version 3, kind 'G' (74 bytes: the same fields, then the sender's knowledge of failures,
-model/gossip.py: its plan epoch and failed-set bitmask); a sensing message lists the users a
+sparse signalling update of Algorithm 1: kind 'S' (38 bytes, schema 1-2), kind 'G' (74
+bytes, schema 3: the same fields, then the sender's knowledge of failures: its plan epoch
+and failed-set bitmask) or, since schema version 4, kind 'I' (39 + 7 x count bytes: the
+fields of 'S', then the sender's knowledge, model/gossip.py: for each identity declared
+failed or above incarnation 0, its incarnation and the instant of its declaration); a
+sensing message lists the users a
 vehicle's payload sensor sees. Decoders never raise anything but `Malformed`, whose
 `reason` feeds the receive counters.
 
@@ -19,17 +22,24 @@ import math
 import struct
 from dataclasses import dataclass, field
 
+from plmarl_sitl.model.knowledge import Known
+
 # The contract's version (docs/SIGNALLING.md). 2 adds the demand message (issue 12) and
 # signed messages (issue 14: version byte / "v" 2 and an authentication trailer, `auth.py`,
 # `wire.py`); the messages of version 1 are unchanged and keep their version byte, VERSION.
 # 3 adds the state message with gossip, kind 'G' (issue 24): a new kind, not a changed one,
 # so a receiver of schema 2 counts it as malformed_kind and one of schema 3 still reads 'S'
-# (as knowing no failure). Agents of schema 3 send 'G'.
-SCHEMA_VERSION = 3
+# (as knowing no failure). 4 adds kind 'I' (issue 24: a declared UAV heard again is taken
+# back at a newer incarnation, model/gossip.py): again a new kind, so a receiver of schema 3
+# counts it as malformed_kind (a clear, counted drop), and one of schema 4 still reads 'G'
+# and 'S' (every incarnation 0; a 'G' names its epoch as every declaration's instant).
+# Agents of schema 4 send 'I'.
+SCHEMA_VERSION = 4
 VERSION = 1
 SIGNED_VERSION = 2
 KIND_STATE = ord("S")
 KIND_GOSSIP_STATE = ord("G")
+KIND_INCARNATION_STATE = ord("I")
 FAILED_MASK_BYTES = 32  # the failed set: bit j of byte j // 8 = identity j (ids 0..255)
 KIND_SENSE = ord("U")
 MAX_ABS_POS_M = 1.0e6
@@ -51,10 +61,25 @@ WINDOW_SLACK_S = 5.0
 _STATE = struct.Struct("<BBHHIi6f")
 # then (kind 'G'): epoch_s (u32), failed mask (32 bytes)
 _GOSSIP = struct.Struct(f"<I{FAILED_MASK_BYTES}s")
+# then (kind 'I'): count (u8), then count x (identity u8, incarnation u16, declared at s u32:
+# 0 = not failed), identities ascending
+_COUNT = struct.Struct("<B")
+_ENTRY = struct.Struct("<BHI")
+MAX_INCARNATION = 0xFFFF
 # version, kind, receiver, t_ms, count; then count x (north, east) float32
 _SENSE_HEAD = struct.Struct("<BBHiH")
-STATE_SIZE = _STATE.size + _GOSSIP.size  # what a schema-3 agent sends (kind 'G')
-STATE_SIZES = {KIND_STATE: _STATE.size, KIND_GOSSIP_STATE: STATE_SIZE}
+STATE_SIZE = _STATE.size + _COUNT.size  # what a schema-4 agent sends (kind 'I') knowing nothing
+STATE_SIZES = {KIND_STATE: _STATE.size, KIND_GOSSIP_STATE: _STATE.size + _GOSSIP.size, KIND_INCARNATION_STATE: STATE_SIZE}
+
+
+def state_size(payload: bytes, at: int = 0) -> int:
+    """The length of the state message starting at byte `at` (0: not a state kind): fixed
+    for 'S' and 'G', 39 + 7 x count for 'I' (its fixed part if too short to tell)."""
+    kind = payload[at + 1] if at + 1 < len(payload) else -1
+    size = STATE_SIZES.get(kind, 0)
+    if kind == KIND_INCARNATION_STATE and at + size <= len(payload):
+        size += _ENTRY.size * payload[at + size - 1]
+    return size
 
 
 class Malformed(ValueError):
@@ -72,15 +97,26 @@ class StateMsg:
     seq: int
     t_ms: int  # mission time of the signalling instant (ms)
     state: tuple[float, float, float, float, float, float]  # mission frame NED [p, v]
-    failed: int = 0  # the sender's known failed set, bit j = identity j (a kind 'S' message: none)
-    epoch_s: int = 0  # the sender's plan epoch: the mission second of its newest failure re-plan
+    # the sender's knowledge (model/knowledge.py): (identity, incarnation, declared at s or 0),
+    # for the identities declared failed or above incarnation 0, ascending
+    entries: tuple[tuple[int, int, int], ...] = ()
+
+    @classmethod
+    def with_knowledge(cls, sender: int, session: int, seq: int, t_ms: int, state: tuple[float, ...], known: Known) -> StateMsg:
+        ids = sorted(set(known.failed) | set(known.inc))
+        return cls(sender, session, seq, t_ms, state,  # type: ignore[arg-type]
+                   tuple((j, known.inc.get(j, 0), known.failed.get(j, 0)) for j in ids))
+
+    def known(self) -> Known:
+        """The sender's knowledge this message carries."""
+        return Known({j: s for j, _, s in self.entries if s > 0}, {j: c for j, c, _ in self.entries})
 
     @property
     def t_s(self) -> float:
         return self.t_ms / 1000.0
 
     def failed_ids(self) -> list[int]:
-        return [j for j in range(8 * FAILED_MASK_BYTES) if self.failed >> j & 1]
+        return [j for j, _, s in self.entries if s > 0]
 
 
 def failed_mask(ids: object) -> int:
@@ -92,9 +128,11 @@ def failed_mask(ids: object) -> int:
 
 
 def encode_state(m: StateMsg) -> bytes:
-    """A kind 'G' state message (schema version 3): the state and the sender's knowledge."""
-    head = _STATE.pack(VERSION, KIND_GOSSIP_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
-    return head + _GOSSIP.pack(m.epoch_s & 0xFFFFFFFF, m.failed.to_bytes(FAILED_MASK_BYTES, "little"))
+    """A kind 'I' state message (schema version 4): the state and the sender's knowledge."""
+    head = _STATE.pack(VERSION, KIND_INCARNATION_STATE, m.sender, m.session, m.seq & 0xFFFFFFFF, m.t_ms, *m.state)
+    entries = sorted(m.entries)
+    return (head + _COUNT.pack(len(entries))
+            + b"".join(_ENTRY.pack(j, min(c, MAX_INCARNATION), s & 0xFFFFFFFF) for j, c, s in entries))
 
 
 def _head(payload: bytes, kind: int, size: int) -> None:
@@ -109,33 +147,39 @@ def _head(payload: bytes, kind: int, size: int) -> None:
 
 
 def decode_state(payload: bytes) -> StateMsg:
-    """A state message of kind 'G' or (schema 1-2) 'S', which carries no knowledge."""
+    """A state message of kind 'I', or 'G' (schema 3, every incarnation 0), or 'S' (schema
+    1-2), which carries no knowledge."""
     kind = payload[1] if len(payload) >= 2 and payload[1] in STATE_SIZES else KIND_STATE
     _head(payload, kind, STATE_SIZES[kind])
-    if len(payload) != STATE_SIZES[kind]:
+    if len(payload) != state_size(payload):
         raise Malformed("length")
     _, _, sender, session, seq, t_ms, *s = _STATE.unpack_from(payload)
-    failed, epoch_s = 0, 0
-    if kind == KIND_GOSSIP_STATE:
+    entries: tuple[tuple[int, int, int], ...] = ()
+    if kind == KIND_GOSSIP_STATE:  # schema 3: every declaration at its plan epoch, incarnation 0
         epoch_s, mask = _GOSSIP.unpack_from(payload, _STATE.size)
-        failed = int.from_bytes(mask, "little")
+        bits = int.from_bytes(mask, "little")
+        entries = tuple((j, 0, max(epoch_s, 1)) for j in range(8 * FAILED_MASK_BYTES) if bits >> j & 1)
+    if kind == KIND_INCARNATION_STATE:
+        at = STATE_SIZES[kind]
+        entries = tuple(_ENTRY.unpack_from(payload, at + _ENTRY.size * i) for i in range(payload[at - 1]))
+        if any(c == 0 and since == 0 for _, c, since in entries) or [j for j, _, _ in entries] != sorted({j for j, _, _ in entries}):
+            raise Malformed("knowledge")  # empty entries are left out, identities ascend once each
     if not all(math.isfinite(x) for x in s):
         raise Malformed("not_finite")
     if any(abs(x) > MAX_ABS_POS_M for x in s[:3]) or any(abs(x) > MAX_ABS_VEL_MPS for x in s[3:]):
         raise Malformed("out_of_range")
-    return StateMsg(sender, session, seq, t_ms, tuple(s), failed, epoch_s)  # type: ignore[arg-type]
+    return StateMsg(sender, session, seq, t_ms, tuple(s), entries)  # type: ignore[arg-type]
 
 
 def split_states(payload: bytes, trailer: int = 0) -> list[bytes]:
     """The state messages of an rx payload: one, or several back to back (the SITL link
     emulator delivers an instant's updates to a receiver in one message), each as long as
-    its kind says (byte 1: 'S' or 'G'; a signed one `trailer` bytes longer). Raises
+    its kind says (byte 1: 'S', 'G' or 'I', `state_size`; a signed one `trailer` bytes longer). Raises
     Malformed("length") when the payload is not whole messages; each part is then decoded
     (and counted if malformed) on its own."""
     parts, i, n = [], 0, len(payload)
     while i < n:
-        kind = payload[i + 1] if i + 1 < n else -1
-        size = STATE_SIZES.get(kind, 0) + trailer
+        size = state_size(payload, i) + trailer
         if i == 0 and (size == trailer or size >= n):
             return [payload]  # one message (or not a state): its decoder says what is wrong
         if size == trailer or i + size > n:

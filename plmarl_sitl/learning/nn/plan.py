@@ -79,9 +79,9 @@ class ServiceTargets:
     With the twin's `Gossip` (`update(..., gossip=obs.gossip)`) the plan also re-plans at
     failures (model/gossip.py, `TeamPlans.replan`): each agent declares failed a neighbour
     out of N_i that the plan-aware prediction puts in clear hearing at the instants it
-    missed and whose last message carried the agent's own knowledge, and each copy re-plans
-    whenever its agent's knowledge (failed set, epoch) differs from the one its plan was
-    made for."""
+    missed and whose last message knew the agent's declarations before then, and each copy
+    settles its plan (`TeamPlans.settle`) whenever its agent's declarations (identity,
+    instant) differ from the ones its plan was made for."""
 
     def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
                  declare_after: int = DECLARE_AFTER_MISSED) -> None:
@@ -170,7 +170,7 @@ class ServiceTargets:
         missed = recent[: self.declare_after]  # the instants j must have missed, newest first
         silent = (t_rx >= 0) & (t_rx < missed[-1]) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
         silent &= (t_rx == missed[0]).any(-1, keepdim=True)  # someone was heard at the newest instant
-        silent &= may_predict(gossip.heard_failed, gossip.heard_epoch, gossip.failed, gossip.epoch, self.instants.last(t))
+        silent &= may_predict(gossip.heard_rank, gossip.rank, self.instants.last(t))
         if len(missed) == self.declare_after and missed[-1] > 0 and bool(silent.any()):
             # Silent at the instants it missed, at each of which the plan-aware prediction
             # says it should have been heard (the tracker's beliefs, 30 s after the last
@@ -188,15 +188,15 @@ class ServiceTargets:
                 sus = sus | st
             at = torch.full_like(gossip.epoch, self.instants.last(t))
             gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
-        known = gossip.failed.numpy()
-        epoch = gossip.epoch.numpy()
+        known, since = gossip.failed.numpy(), gossip.since.numpy()
         live = alive.numpy()
-        stale = live & ((known != plans.failed).any(-1) | (epoch != plans.epoch))
+        stale = live & ((known != plans.failed).any(-1) | (np.where(known, since, 0) != plans.since).any(-1))
         for e, a in zip(*np.nonzero(stale), strict=True):
             src = None
             if self.sources == "cv":  # p + v (epoch - t_rx) from the held states; itself: back from now
-                at = float(epoch[e, a])
-                src = (held[e, a, :, :2] + held[e, a, :, 3:5] * (at - t_rx[e, a]).unsqueeze(-1)).double().numpy()
-                src[a] = (ego[e, a, :2] + ego[e, a, 3:5] * (at - t)).double().numpy()
-            plans.replan(int(e), int(a), known[e, a].copy(), int(epoch[e, a]), src)
-            self.replans_done += 1
+                def src(at: int, e: int = int(e), a: int = int(a)) -> np.ndarray:
+                    xy = (held[e, a, :, :2] + held[e, a, :, 3:5] * (at - t_rx[e, a]).unsqueeze(-1)).double().numpy()
+                    xy[a] = (ego[e, a, :2] + ego[e, a, 3:5] * (at - t)).double().numpy()
+                    return xy
+            if plans.settle(int(e), int(a), known[e, a].copy(), since[e, a].copy(), src):
+                self.replans_done += 1
