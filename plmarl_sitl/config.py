@@ -298,9 +298,22 @@ class VehicleModel:
         )
 
 
+# Vehicle models read so far, by (resolved path, mtime, size): `Mission.vehicle_model()` is
+# asked five times while an agent starts (issue 25: 100 agents' start-up), and a SITL
+# swarm's forkserver reads the file once for every agent it forks. VehicleModel is frozen.
+_vehicles: dict[tuple[str, int, int], VehicleModel] = {}
+
+
 def load_vehicle(name_or_path: str | Path) -> VehicleModel:
-    """A vehicle model by file path or by name in vehicle_models/."""
+    """A vehicle model by file path or by name in vehicle_models/ (read once per file version)."""
     p = Path(name_or_path)
     if not p.suffix:
         p = REPO_ROOT / "vehicle_models" / f"{name_or_path}.yaml"
-    return load_yaml(VehicleModel, p)
+    try:
+        st = p.stat()
+    except OSError:
+        return load_yaml(VehicleModel, p)  # its own clear error
+    key = (str(p.resolve()), st.st_mtime_ns, st.st_size)
+    if key not in _vehicles:
+        _vehicles[key] = load_yaml(VehicleModel, p)
+    return _vehicles[key]

@@ -13,6 +13,7 @@ function off the user x UAV hot path.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -81,6 +82,14 @@ class CoverageRadius:
         idx = torch.nonzero(self.table >= best - 1e-6).flatten()
         mid = int(idx[len(idx) // 2])
         return float(self.alts[mid]), best
+
+
+@functools.lru_cache(maxsize=16)
+def coverage_radius(ch: Channel, sensing_m: float, alt_min: float, alt_max: float) -> CoverageRadius:
+    """The CoverageRadius of these constants, tabulated once per process and shared (read
+    only): an agent asked for it twice while it starts, and a SITL swarm's forkserver builds
+    it once for every agent it forks (issue 25: start-up at N = 100)."""
+    return CoverageRadius(ch, sensing_m, alt_min, alt_max)
 
 
 def db_to_lin(db: torch.Tensor | float) -> torch.Tensor | float:

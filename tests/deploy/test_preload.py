@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from plmarl_sitl.deploy.agent.preload import preload, preloaded
+from plmarl_sitl.deploy.agent.preload import preload, preloaded, preloaded_mission
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
 
@@ -39,3 +39,19 @@ def test_a_preloaded_policy_is_found_only_for_the_same_unchanged_files(tmp_path:
     os.utime(mission, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # the mission file changed since
     assert preloaded(policy, mission) is None
     assert preloaded(tmp_path / "gone", mission) is None
+
+
+def test_a_preloaded_mission_is_found_only_for_the_same_unchanged_file(tmp_path: Path) -> None:
+    mission = tmp_path / "mission.yaml"
+    shutil.copy(ROOT / "missions" / "paper_urban.yaml", mission)
+    other = tmp_path / "other.yaml"
+    shutil.copy(ROOT / "missions" / "paper_urban.yaml", other)
+    assert preloaded_mission(mission) is None
+    preload(ROOT / "policies" / "pl-marl", mission)
+    m = preloaded_mission(str(mission))
+    assert m is not None and m == load_mission(mission)
+    assert preloaded_mission(other) is None
+    st = mission.stat()
+    os.utime(mission, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # the mission file changed since
+    assert preloaded_mission(mission) is None
+    assert preloaded_mission(tmp_path / "gone.yaml") is None

@@ -5,7 +5,7 @@ import math
 import torch
 
 from plmarl_sitl.mission import Channel
-from plmarl_sitl.model.channel import CoverageRadius, a2g_path_loss_db, fspl_db, los_probability
+from plmarl_sitl.model.channel import CoverageRadius, a2g_path_loss_db, coverage_radius, fspl_db, los_probability
 from plmarl_sitl.model.coverage import coverage_rate, covered_users, sensing_features
 
 CH = Channel()
@@ -71,3 +71,12 @@ def test_sensing_features_hand_built():
     assert math.isclose(rms, math.sqrt((100 + 100 + 900) / 3) / 100.0, rel_tol=1e-6)
     none = sensing_features(_uav(900.0, 900.0, 80.0), users[:3], 100.0, 60)
     assert none.abs().sum() == 0
+
+
+def test_coverage_radius_is_tabulated_once_per_constants_and_equals_a_fresh_table():
+    shared = coverage_radius(CH, 300.0, 30.0, 200.0)
+    assert coverage_radius(CH, 300.0, 30.0, 200.0) is shared
+    fresh = CoverageRadius(CH, 300.0, 30.0, 200.0)
+    assert torch.equal(shared.table, fresh.table) and shared.best_altitude() == fresh.best_altitude()
+    other = coverage_radius(Channel(max_path_loss_db=CH.max_path_loss_db - 3.0), 300.0, 30.0, 200.0)
+    assert other is not shared and float(other.table.max()) < float(shared.table.max())

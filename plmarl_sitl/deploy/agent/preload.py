@@ -15,23 +15,34 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from plmarl_sitl.learning.nn.io import LoadedPolicy, load_policy
-from plmarl_sitl.mission import load_mission
+from plmarl_sitl.mission import Mission, load_mission
+
+if TYPE_CHECKING:  # torch: imported where a policy is loaded, not by `plmarl agent`'s argument checks
+    from plmarl_sitl.learning.nn.io import LoadedPolicy
 
 _loaded: dict[tuple, LoadedPolicy] = {}
+_missions: dict[tuple, Mission] = {}
 
 
 def _key(policy: str | Path, mission: str | Path) -> tuple:
     files = [Path(policy).resolve() / name for name in ("card.yaml", "predictor.pt", "policy.pt")] + [Path(mission).resolve()]
-    return tuple((str(f), os.stat(f).st_mtime_ns, os.stat(f).st_size) for f in files)
+    return tuple(_version(f) for f in files)
+
+
+def _version(f: Path) -> tuple[str, int, int]:
+    st = os.stat(f)
+    return str(f), st.st_mtime_ns, st.st_size
 
 
 def preload(policy: str | Path, mission: str | Path) -> None:
     """Load `policy` checked against the mission file `mission`, and build its plan grid."""
+    from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.learning.nn.plan import service_grid
 
     m = load_mission(mission)
+    _missions[_version(Path(mission).resolve())] = m  # frozen: shared by every agent as it is
     lp = load_policy(policy, m)
     if lp.takes_plan and m.coordination == "team":  # the neighbourhood plan (coordination: local) needs no grid
         service_grid(m)  # cached by its constants: the agents' AgentPlan finds it built
@@ -56,5 +67,14 @@ def preloaded(policy: str | Path, mission: str | Path) -> LoadedPolicy | None:
     """The policy preloaded for exactly these files, or None."""
     try:
         return _loaded.get(_key(policy, mission))
+    except OSError:
+        return None
+
+
+def preloaded_mission(mission: str | Path) -> Mission | None:
+    """The mission the forkserver loaded from exactly this file (unchanged since), or None.
+    Its load warnings were said once, by the forkserver, not by each agent."""
+    try:
+        return _missions.get(_version(Path(mission).resolve()))
     except OSError:
         return None

@@ -147,10 +147,12 @@ def run(args: argparse.Namespace) -> int:
     """The parsed program: load, build the agent with its bus and link, fly; the exit code."""
     import dataclasses
 
+    from plmarl_sitl.deploy.agent.preload import preloaded_mission
     from plmarl_sitl.mission import load_mission
 
     # The user's mistakes first, in one line, before seconds of torch imports and policy loading.
-    mission = load_mission(args.mission)
+    # A forked SITL agent may find the mission loaded by its forkserver (deploy/agent/preload.py).
+    mission = preloaded_mission(args.mission) or load_mission(args.mission)
     if args.n_uavs is not None:
         mission = dataclasses.replace(mission, n_uavs=args.n_uavs)
     if not args.id < mission.n_uavs:

@@ -43,6 +43,11 @@ log = logging.getLogger("plmarl.agent")
 # this is also the setpoint rate (>= 10 Hz; PX4 needs > 2 Hz). 20 Hz doubles the load on a
 # SITL world of 20 vehicles at speedup 10 for no gain in a policy acting every 3 s.
 TELEMETRY_HZ = 10.0
+# LOCAL_POSITION_NED rate during the climb (vehicle time): the agent only watches the height
+# and, on PX4, keeps the offboard signal alive (COM_OF_LOSS_T 1 s; > 2 Hz before the switch,
+# which comes after TELEMETRY_HZ is back). At N = 100 the climb's 10 Hz samples were most of
+# the swarm's start-up CPU (issue 25); a companion asks for what it needs, as here.
+CLIMB_TELEMETRY_HZ = 2.0
 TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 # Lockstep: the world may hold the clock (and so the telemetry) while it waits out a
 # straggling agent; the vehicle is lost only if silent much longer than that bound.
@@ -318,10 +323,13 @@ class VehicleSession:
             self.decision.hold_target = None
             self.flying = True
         log.info("taking off to %.0f m above home", alt_tgt)
+        slowed = await self.view.stream("LOCAL_POSITION_NED", CLIMB_TELEMETRY_HZ)  # refused: the climb at the full rate
         await self._wait_until(
             "takeoff", lambda: self.height_above_home() >= alt_tgt - 0.5 and abs(float(self.decision.ego[5])) < 0.3,
             self.cfg.takeoff_timeout_s,
         )
+        if slowed:  # the offboard switch and the mission need the full rate: not optional
+            await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
 
     async def start(self) -> None:
         """Find the autopilot, then take off (or attach) and switch to the offboard mode."""

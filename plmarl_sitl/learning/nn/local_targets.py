@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.model.channel import CoverageRadius
+from plmarl_sitl.model.channel import coverage_radius
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.local_plan import LocalPlan, heard_launch_line
 from plmarl_sitl.model.vehicle import goto_accel
@@ -18,7 +18,7 @@ from plmarl_sitl.model.vehicle import goto_accel
 def local_plan_of(mission) -> LocalPlan:  # noqa: ANN001 - Mission
     """The mission's neighbourhood plan (its cells, coverage radius, R_comm, d_safe)."""
     vm = mission.vehicle_model()
-    _, cover_r = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+    _, cover_r = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
     return LocalPlan(float(mission.area.north_m), float(mission.area.east_m), float(mission.demand.cell_m), float(cover_r),
                      float(mission.radii.comm_m), float(mission.radii.safe_m))
 
@@ -29,7 +29,7 @@ class LocalTargets:
 
     def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
-        self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+        self.alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.plan = local_plan_of(mission)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
         self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
