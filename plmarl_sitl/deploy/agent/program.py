@@ -91,6 +91,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
                    "now: start at once (default with --bus direct)")
+    p.add_argument("--airframe-drag", type=float, default=0.0, metavar="PER_S",
+                   help="the airframe's linear drag per unit mass, 1/s, added back to each acceleration setpoint's horizontal part (k v) "
+                   "for an autopilot that flies them open loop: 1 for a PX4 SIH quadrotor (SIH_KDV / SIH_MASS); "
+                   "default 0 (the emulator, ArduCopter)")
     p.add_argument("--trace", default=None, metavar="PATH", help="write one JSON line per mission second (P-AoI, N_i, f, action)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write loop timing, RSS and counters here on exit")
     p.add_argument("--rt-priority", type=rt_priority_arg(), default=None, metavar="P",
@@ -218,6 +222,7 @@ def run(args: argparse.Namespace) -> int:
         stats_path=_output_path("--stats-json", args.stats_json),
         swarm_key=swarm_key,
         lockstep=args.lockstep,
+        airframe_drag_per_s=args.airframe_drag,
     )
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
