@@ -136,6 +136,12 @@ class Personality:
     # (PX4: AUTO.RTL, its failsafe's return now that it can). None: no such fallback.
     no_position_mode: str | None = None
     gps_back_mode: str | None = None
+    # A motor failure: what the autopilot says when it stops (PX4's failure detector), and
+    # when the vehicle hits the ground (ArduPilot SITL); whether MAV_CMD_INJECT_FAILURE
+    # (PX4's own fault injection, SYS_FAILURE_EN 1 in SITL) can stop a motor.
+    motor_failure_texts: tuple[str, ...] = ()
+    crash_texts: tuple[str, ...] = ("SIM Hit ground", "Potential Thrust Loss (1)")
+    inject_failure: bool = False
     # Names of the autopilot's other modes (custom_mode -> name), which the emulator does not
     # fly but a real one may show (a failsafe's, a pilot's): logs and events name them.
     other_mode_names: tuple[tuple[int, str], ...] = ()
@@ -218,6 +224,9 @@ PX4 = Personality(
         # SIH's linear drag (N s/m on its 1 kg airframe: 1 /s); 0 flies the twin's drag-free mass
         ParamSpec("SIH_KDV", "accel_drag_per_s", _REAL32),
         ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
+        # SIH's GPS (sensor_gps_sim): satellites used; below 4 it reports no fix. The GPS
+        # loss a PX4 SIH is given (MAV_CMD_INJECT_FAILURE's GPS unit is not SIH's).
+        ParamSpec("SIM_GPS_USED", "gps_satellites", dialect.MAV_PARAM_TYPE_INT32),
         ParamSpec("MPC_Z_VEL_MAX_UP", "max_climb_mps", _REAL32),
     ),
     param_bytewise=True,
@@ -264,6 +273,10 @@ PX4 = Personality(
     loss_text="Failsafe activated",
     no_position_mode="ALTCTL",
     gps_back_mode="AUTO.RTL",
+    # measured 0.8 s after the injection, severity CRITICAL; nothing at the ground
+    motor_failure_texts=("Preflight Fail: Attitude failure (roll)",),
+    crash_texts=(),
+    inject_failure=True,
     mode_change_disarmed_accepted=True,
     takeoff_disarmed_accepted=True,
     # px4_custom_mode.h (src/modules/commander)

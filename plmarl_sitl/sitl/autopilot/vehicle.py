@@ -527,11 +527,13 @@ class Vehicle:
     def lose_gps(self) -> None:
         if self.gps_lost_at is None:
             self.gps_lost_at = self.fleet.now
+            self.fleet.gps_lost.add(self.index)
 
     def restore_gps(self) -> None:
         if self.gps_lost_at is None:
             return
         self.gps_lost_at = None
+        self.fleet.gps_lost.discard(self.index)
         if self.aiding_stopped or self.ekf_failsafe:
             self.statustext("EKF3 IMU0 is using GPS")
         if self.ekf_failsafe:
@@ -541,6 +543,13 @@ class Vehicle:
         if p.gps_back_mode is not None and self.failsafe and self.mode == p.no_position_mode and self.armed:
             self.statustext(p.loss_text, d.MAV_SEVERITY_CRITICAL)
             self._enter_failsafe_mode(p.gps_back_mode)
+
+    def gps_param_set(self, fix: bool) -> None:
+        """PX4 SIH's SIM_GPS_USED set (the world's gps_loss on a real PX4 goes this way too)."""
+        if fix:
+            self.restore_gps()
+        else:
+            self.lose_gps()
 
     def gps_update(self, now: float) -> None:
         """The navigation filter's reaction to the GPS loss, as time goes on (called by the host)."""
@@ -561,6 +570,9 @@ class Vehicle:
             self.statustext("EKF3 IMU0 stopped aiding")
 
     def fail_motor(self) -> None:
+        if not self.motor_failed:
+            for text in self.personality.motor_failure_texts:
+                self.statustext(text, d.MAV_SEVERITY_CRITICAL)
         self.motor_failed = True
         self.taking_off = False
         self._guide(Kind.FALL)
@@ -606,8 +618,8 @@ class Vehicle:
     def _touchdown(self) -> None:
         if self.motor_failed:  # measured: ArduCopter stays armed in its mode where it crashed
             self.fleet.guide(self.index, Kind.IDLE)
-            self.statustext("SIM Hit ground")
-            self.statustext("Potential Thrust Loss (1)", d.MAV_SEVERITY_EMERGENCY)
+            for i, text in enumerate(self.personality.crash_texts):
+                self.statustext(text, d.MAV_SEVERITY_EMERGENCY if i else d.MAV_SEVERITY_INFO)
             return
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
