@@ -521,7 +521,7 @@ class Vehicle:
     # so nothing changes: it stays in OFFBOARD, armed, its position streamed on (dead
     # reckoning; the real estimate drifts, this one does not). Only a failsafe that wants a
     # position (the setpoints stop) takes ALTCTL instead (heartbeat CRITICAL); the GPS back
-    # then takes AUTO.RTL (measured 2.3 s later; here at once).
+    # then takes AUTO.RTL (measured: "Failsafe activated" 2.3 s, AUTO.RTL ~3 s later; here at once).
     # A motor failure (ArduCopter SIM_ENGINE_FAIL, PX4 INJECT_FAILURE with CA_FAILURE_MODE 1):
     # it falls, hits the ground and stays armed in its mode.
     def lose_gps(self) -> None:
