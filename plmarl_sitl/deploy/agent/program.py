@@ -28,7 +28,7 @@ from pathlib import Path  # noqa: E402
 
 from plmarl_sitl.cmdline import rt_priority_arg, swarm_name_arg, tup_arg  # noqa: E402
 from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES  # noqa: E402
-from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
+from plmarl_sitl.deploy.agent.config import MAX_AIRFRAME_DRAG_PER_S, StartupBounds  # noqa: E402
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
 from plmarl_sitl.errors import UserError, run_reporting  # noqa: E402
 from plmarl_sitl.mission import MAX_UAVS  # noqa: E402
@@ -160,6 +160,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.id < mission.n_uavs:
         raise UserError(f"--id {args.id}: the mission has {mission.n_uavs} UAVs (ids 0..{mission.n_uavs - 1}; "
                         "--n-uavs N to fly another swarm size)")
+    if not 0.0 <= args.airframe_drag <= MAX_AIRFRAME_DRAG_PER_S:
+        raise UserError(f"--airframe-drag {args.airframe_drag:g}: must be 0..{MAX_AIRFRAME_DRAG_PER_S:g} /s")
     if not Path(args.policy).is_dir():
         raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
 
