@@ -226,6 +226,9 @@ def run(args: argparse.Namespace) -> int:
         lockstep=args.lockstep,
         airframe_drag_per_s=args.airframe_drag,
     )
+    if cfg.airframe_drag_per_s:
+        logging.getLogger("plmarl.agent").info("adding the airframe's drag back: %g /s x the horizontal velocity "
+                                               "on each acceleration setpoint", cfg.airframe_drag_per_s)
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
     bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),
