@@ -239,6 +239,7 @@ def test_swarm_size_outside_training_is_named():
     (["--id", "9", "--n-uavs", "4"], "--id 9: the mission has 4 UAVs (ids 0..3"),
     (["--id", "-1"], "argument --id: -1 is outside 0..249"),
     (["--id", "0", "--n-uavs", "0"], "argument --n-uavs: 0 is outside 1..250"),
+    (["--id", "0", "--airframe-drag", "-1"], "--airframe-drag -1: must be 0..10 /s"),
 ])
 def test_agent_names_a_wrong_id_before_loading_anything_heavy(flags, message):
     """Issue 26: `--id` / `--n-uavs` mistakes are one line before torch is imported (they came

@@ -14,12 +14,18 @@ The schedule answers two questions about the same data:
   node's agent process, the broker gate) and logs them all.
 
 Autopilot faults (gps_loss, motor_failure) reach the autopilot's own fault injection in
-SITL; the twin has no autopilot, so it takes their measured outcome on a real ArduCopter
-4.7 (docs/RESULTS.md, "Autopilot faults"): a UAV with a failed motor falls (it hit the
-ground 3.3 s later from 30 m) and is lost at once; a UAV whose GPS stays dark for
-GPS_FAILSAFE_S has its EKF failsafe switch it to LAND, out of the mission for good; a
-shorter loss is bridged by dead reckoning and changes nothing. `fault_failures_at` gives
-both worlds the second each such UAV stops counting, and `failure_s` includes it.
+SITL; the twin has no autopilot, so it takes their measured outcome on the autopilot the
+schedule is for (`EventSchedule.autopilot`, ArduCopter unless told; docs/CONFORMANCE.md):
+a UAV with a failed motor falls and is lost at once on both. A GPS loss differs:
+- ArduCopter 4.7: a UAV whose GPS stays dark for GPS_FAILSAFE_S has its EKF failsafe
+  switch it to LAND, out of the mission for good; a shorter loss is bridged by dead
+  reckoning and changes nothing.
+- PX4 1.17 (SIH): nothing takes the UAV out. An acceleration-only OFFBOARD needs only an
+  attitude (commander's offboardCheck.cpp), so the vehicle stays in OFFBOARD under its
+  agent, and its position stream goes on, dead-reckoned (the estimate drifts: 26 m off
+  after 40 s, measured).
+`fault_failures_at` gives both worlds the second each such UAV stops counting, and
+`failure_s` includes it.
 """
 
 from __future__ import annotations
@@ -48,14 +54,22 @@ def end_second(ev: Event) -> float:
 GPS_FAILSAFE_S = 8
 GPS_AIDING_STOPS_S = 15
 AUTOPILOT_FAULTS = ("gps_loss", "motor_failure")
+# Seconds of GPS loss after which each autopilot's failsafe takes a UAV flying under its
+# agent out of the mission (None: never, see above). Keyed by personality name.
+GPS_OUT_AFTER_S: dict[str, int | None] = {"ardupilot": GPS_FAILSAFE_S, "px4": None}
+# ... and after which its position stream stops (None: it goes on, dead-reckoned).
+GPS_STREAM_STOPS_S: dict[str, int | None] = {"ardupilot": GPS_AIDING_STOPS_S, "px4": None}
+FAULT_AUTOPILOTS = tuple(GPS_OUT_AFTER_S)
 
 
-def fault_failure_second(ev: Event) -> float:
-    """The mission second an autopilot fault takes its UAVs out of the mission (inf: never)."""
+def fault_failure_second(ev: Event, autopilot: str = "ardupilot") -> float:
+    """The mission second an autopilot fault takes its UAVs out of the mission (inf: never)
+    on `autopilot` (a personality name)."""
     if ev.type == "motor_failure":
         return float(start_second(ev))
-    if ev.type == "gps_loss" and (ev.duration_s is None or end_second(ev) - start_second(ev) >= GPS_FAILSAFE_S):
-        return float(start_second(ev) + GPS_FAILSAFE_S)
+    out_s = GPS_OUT_AFTER_S[autopilot]
+    if ev.type == "gps_loss" and out_s is not None and (ev.duration_s is None or end_second(ev) - start_second(ev) >= out_s):
+        return float(start_second(ev) + out_s)
     return math.inf
 
 
@@ -75,12 +89,19 @@ class EventSchedule:
     # Every event, node failures of the `failures` list included (first), in time order;
     # events at the same time keep the order they are written in.
     events: tuple[Event, ...]
+    # Whose measured reaction to an autopilot fault the schedule applies (GPS_OUT_AFTER_S):
+    # the SITL world's autopilots (`sitl.run_inputs`); the twin's default is ArduCopter's.
+    autopilot: str = "ardupilot"
+
+    def __post_init__(self) -> None:
+        if self.autopilot not in GPS_OUT_AFTER_S:
+            raise ValueError(f"no measured fault reactions for autopilot {self.autopilot!r} (have: {', '.join(GPS_OUT_AFTER_S)})")
 
     @classmethod
-    def of(cls, mission: Mission) -> EventSchedule:
+    def of(cls, mission: Mission, autopilot: str = "ardupilot") -> EventSchedule:
         failures = tuple(Event(type="node_failure", at_s=f.at_s, uav=f.uav) for f in mission.failures)
         events = tuple(sorted(failures + mission.events, key=lambda e: e.at_s))
-        return cls(mission.n_uavs, mission.signalling.tup_s, events)
+        return cls(mission.n_uavs, mission.signalling.tup_s, events, autopilot)
 
     def has(self, kind: str) -> bool:
         return any(e.type == kind for e in self.events)
@@ -93,8 +114,8 @@ class EventSchedule:
 
     def fault_failures_at(self, second: int) -> list[tuple[int, Event]]:
         """(uav, fault) for each UAV an autopilot fault takes out of the mission at `second`."""
-        return [(u, e) for e in self.events if e.type in AUTOPILOT_FAULTS and fault_failure_second(e) == second
-                for u in self.uavs_of(e)]
+        return [(u, e) for e in self.events if e.type in AUTOPILOT_FAULTS
+                and fault_failure_second(e, self.autopilot) == second for u in self.uavs_of(e)]
 
     # ------------------------------------------------------------------ what changes at t
     def changes_at(self, second: int) -> list[Change]:
@@ -117,7 +138,7 @@ class EventSchedule:
                 at[e.uav] = min(at[e.uav], start_second(e))
             elif e.type in AUTOPILOT_FAULTS:
                 for u in self.uavs_of(e):
-                    at[u] = min(at[u], fault_failure_second(e))
+                    at[u] = min(at[u], fault_failure_second(e, self.autopilot))
         return tuple(float(s) for s in at)
 
     def tup_at(self, t: int) -> int:
@@ -173,5 +194,5 @@ def failure_times(
     return fail_at
 
 
-__all__ = ["AUTOPILOT_FAULTS", "GPS_AIDING_STOPS_S", "GPS_FAILSAFE_S", "Change", "EventSchedule", "end_second",
+__all__ = ["AUTOPILOT_FAULTS", "FAULT_AUTOPILOTS", "GPS_AIDING_STOPS_S", "GPS_FAILSAFE_S", "GPS_OUT_AFTER_S", "GPS_STREAM_STOPS_S", "Change", "EventSchedule", "end_second",
            "failure_times", "fault_failure_second", "start_second"]

@@ -71,7 +71,7 @@ from plmarl_sitl.sitl.network.access import BrokerAccess
 from plmarl_sitl.sitl.network.broker import AmqttProcess, MosquittoBroker, free_udp_ports
 from plmarl_sitl.sitl.network.broker_gate import BrokerGate
 from plmarl_sitl.sitl.options import OWN_BROKERS, UpOptions, swarm_options
-from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, Px4Fleet
+from plmarl_sitl.sitl.px4 import SIGNING_UNSUPPORTED, SIH_DRAG_PER_S, Px4Fleet
 from plmarl_sitl.sitl.remote import HostFailed, RemoteHosts
 from plmarl_sitl.sitl.report_csv import write_metrics_csv
 from plmarl_sitl.sitl.run_inputs import RunInputs, load_inputs
@@ -434,7 +434,9 @@ class _Run:
         await asyncio.gather(*(
             fleet.spawn(i, agent_urls[i], bus_url, mission=mission_file, policy=opts.policy, swarm=opts.swarm,
                         extra=["--autopilot", {"arducopter": "ardupilot", "px4": "px4"}.get(opts.autopilot, opts.personality),
-                               *(["--lockstep"] if opts.lockstep else [])], verbose=opts.verbose,
+                               *(["--lockstep"] if opts.lockstep else []),
+                               *(["--airframe-drag", str(SIH_DRAG_PER_S)] if opts.autopilot == "px4" else [])],
+                        verbose=opts.verbose,
                         swarm_key=key_path, credentials=creds.get(f"agent{i}"),
                         mavlink_key=key_file(mav_dir, i) if mav_dir is not None else None)
             for i in range(n)))

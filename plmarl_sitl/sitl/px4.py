@@ -86,6 +86,12 @@ RUN_PARAMS = {
     "CA_FAILURE_MODE": 1,
 }
 
+# SIH's quadrotor airframe drag per unit mass, 1/s: its defaults SIH_KDV 1 N/(m/s) on SIH_MASS
+# 1 kg (the run sets neither; `simulator_sih/sih.cpp`: F_drag = -SIH_KDV v). PX4 flies the
+# agents' acceleration-only setpoints open loop, so their agents add it back
+# (`plmarl agent --airframe-drag`).
+SIH_DRAG_PER_S = 1.0
+
 # The GCS link's streams the world does not read, and their rates there (ROMFS px4-rc.mavlink
 # sets most of them to 50 Hz on it: about 350 messages a vehicle-second, four vehicles at 2x
 # some 2800 a wall second for the world's process to parse). Set with PX4's own

@@ -41,12 +41,20 @@ class RunInputs:
     logins: dict[str, tuple[str, str]]
 
 
+def fault_autopilot(opts: UpOptions) -> str:
+    """Whose measured reaction to a GPS loss the run's schedule applies: the vehicles' autopilot."""
+    if opts.autopilot == "emulator":
+        return opts.personality
+    return {"arducopter": "ardupilot", "px4": "px4"}[opts.autopilot]
+
+
 def load_inputs(opts: UpOptions) -> RunInputs:
     """Raises UserError (or ConfigError) naming the input that is wrong."""
     mission = load_mission(opts.mission_path)
     if opts.seed is not None:
         mission = replace(mission, seed=opts.seed)
-    schedule = EventSchedule.of(mission)
+    # Autopilot faults take a UAV out as its autopilot was measured to (model.events).
+    schedule = EventSchedule.of(mission, fault_autopilot(opts))
     n = mission.n_uavs
     copter_parm = None
     if opts.autopilot == "arducopter":

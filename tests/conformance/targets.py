@@ -122,8 +122,10 @@ def start_real_px4(build: Path, workdir: Path) -> Target:
     """Real PX4 SITL (SIH quadrotor, at 1x in lockstep), reached on its offboard/API link as the
     agent reaches it; the GCS link (18570 + i, answers whoever sends a HEARTBEAT) is the second."""
     from conformance.px4_sitl import start_px4
+    from plmarl_sitl.sitl.px4 import RUN_PARAMS
 
-    px4 = start_px4(build, workdir, home=HOME)
+    # As a swarm's vehicles run (CA_FAILURE_MODE 1: an injected motor failure stops the motor)
+    px4 = start_px4(build, workdir, home=HOME, params=dict(RUN_PARAMS))
     return Target("px4", 1.0, f"udpin:127.0.0.1:{px4.api_port}", f"udpout://127.0.0.1:{px4.gcs_port}",
                   px4.proc, workdir, sysid=px4.sysid, stopper=px4.stop)
 

@@ -49,6 +49,7 @@ OFFBOARD = 6 << 16
 LOITER = (4 << 16) | (3 << 24)
 INSTANCE = PX4_INSTANCE + 1  # the conformance suite's instance is PX4_INSTANCE
 FLY_S = 20.0  # wall seconds in OFFBOARD the test watches
+AFTER_EXIT_S = 6.0  # wall seconds the GCS link watches on once the agent has exited
 
 
 @dataclass
@@ -180,6 +181,13 @@ def test_the_shipped_agent_flies_px4_in_offboard(tmp_path: Path, target: str) ->
                 ["--id", "0", "--n-uavs", "1", "--connect", url, "--broker", broker.url,
                  "--bus", "direct", "--no-auth"], cwd=agent_dir, timeout_s=200, on_line=on_line,
                 interrupt_when=flown_enough))
+            # Watch on after the agent has gone: it exits as soon as the mode change is
+            # acknowledged, often before the GCS link's next (1 Hz) heartbeat. Stopping the
+            # watch there saw no heartbeat at all after the Ctrl-C in most runs.
+            exited = time.monotonic() - t0
+            deadline = time.monotonic() + AFTER_EXIT_S
+            while time.monotonic() < deadline and sum(t > exited for t, _ in seen.modes) < 2:
+                time.sleep(0.1)
             stop.set()
             watcher.join(5)
     finally:
@@ -195,6 +203,8 @@ def test_the_shipped_agent_flies_px4_in_offboard(tmp_path: Path, target: str) ->
     print(f"\n{target}: OFFBOARD (agent) at {offboard[:1]} s, (GCS) at {seen.offboard_armed_at} s; "
           f"in OFFBOARD: max horizontal speed {speed:.2f} m/s, moved up to {span:.1f} m, altitude "
           f"{min(alts, default=0):.1f}-{max(alts, default=0):.1f} m; {len(seen.accel_echoes)} accel echoes")
+    print(f"Ctrl-C at {interrupted[:1]} s, agent exited at {exited:.2f} s; heartbeats from then: "
+          f"{[(round(t, 2), hex(m)) for t, m in seen.modes if interrupted and t >= interrupted[0]]}")
     assert seen.error is None, seen.error
     assert run.code == 0, log + "\n" + px4.tail()
     assert "taking off to 60 m above home" in log and "in OFFBOARD at" in log, log
@@ -212,6 +222,9 @@ def test_the_shipped_agent_flies_px4_in_offboard(tmp_path: Path, target: str) ->
     assert len({(round(a, 2), round(b, 2)) for _, a, b, _ in echoes}) > 3, echoes[:10]
     assert moved and span > 0.5, moved[:3]
     # Ctrl-C: the agent asks for AUTO.LOITER (under heavy load its 3 s wait for the answer may
-    # run out; the mode the GCS sees is what counts).
+    # run out; the mode the GCS sees is what counts), and the vehicle stays there once the
+    # agent, and with it the offboard setpoint stream, has gone.
     after_stop = [m for t, m in seen.modes if t >= interrupted[0]]
+    after_exit = [m for t, m in seen.modes if t > exited]
     assert LOITER in after_stop, (after_stop, log)
+    assert len(after_exit) >= 2 and set(after_exit) == {LOITER}, (after_exit, log)

@@ -151,3 +151,75 @@ def test_motor_failure_falls_and_stays_armed_where_it_crashed():
         assert c.mode() == (GUIDED, True)
 
     _with_client(body)
+
+
+# ---------------------------------------------------------------------------- PX4
+# The PX4 personality as a real PX4 1.17 SIH was measured to react under a stream of
+# acceleration setpoints (docs/CONFORMANCE.md, "Autopilot faults"): a GPS loss changes
+# nothing (OFFBOARD with acceleration setpoints needs only an attitude), the position stream
+# goes on; once the setpoints stop, its failsafe cannot hold a position and takes ALTCTL
+# (CRITICAL); the GPS back, AUTO.RTL.
+OFFBOARD, ALTCTL, LOITER, RTL = 6 << 16, 2 << 16, (4 << 16) | (3 << 24), (4 << 16) | (5 << 24)
+
+
+def _px4_with_client(body):
+    async def main():
+        async with running_host(1, speedup=4.0, personality_name="px4") as host:
+            await asyncio.to_thread(lambda: body(host, Client(host.ports[0])))
+
+    run(main())
+
+
+def _px4_offboard(host, c: Client, alt_m: float) -> None:
+    c.command(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAVLINK_MSG_ID_GPS_RAW_INT, 200_000)
+    # COM_OF_LOSS_T 3 s: at 4x the default 1 s is 0.25 s of wall time, which a loaded machine's
+    # client loop can miss (a setpoint loss the test did not mean)
+    c.m.mav.param_set_send(c.m.target_system, 1, b"COM_OF_LOSS_T", 3.0, mav.MAV_PARAM_TYPE_REAL32)
+    amsl = host.vehicles[0].home_geodetic[2] + alt_m  # PX4: NAV_TAKEOFF param7 is AMSL
+    assert c.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, amsl) == mav.MAV_RESULT_ACCEPTED
+    assert c.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mav.MAV_RESULT_ACCEPTED
+    c.fly_until(lambda: c.mode() == (LOITER, True), 60, stream=False)
+    t = c.boot_s
+    c.fly_until(lambda: c.boot_s > t + 1.0, 10)  # the stream first: PX4 refuses OFFBOARD without one
+    assert c.command(mav.MAV_CMD_DO_SET_MODE, mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 6) == mav.MAV_RESULT_ACCEPTED
+    c.fly_until(lambda: c.mode() == (OFFBOARD, True), 10)
+
+
+def test_px4_gps_loss_under_acceleration_setpoints_changes_nothing():
+    def body(host, c: Client) -> None:
+        _px4_offboard(host, c, 20.0)
+        fixes: list[int] = []
+        host.set_gps(0, False)
+        t_loss = host.now
+        c.fly_until(lambda: c.boot_s > t_loss + 20, 40)  # longer than ArduCopter's 8 s and 15 s
+        assert c.mode() == (OFFBOARD, True)
+        assert not [v for t, k, v in c.log if k == "text" and t >= t_loss], c.log
+        lpn = [t for t, k, _ in c.log if k == "lpn" and t >= t_loss]
+        assert lpn and max(b - a for a, b in zip(lpn, lpn[1:], strict=False)) < 1.0  # streamed on
+        while (m := c.m.recv_match(type="GPS_RAW_INT", blocking=True, timeout=2)) is not None and len(fixes) < 2:
+            fixes.append(m.fix_type)
+        assert fixes and set(fixes) == {mav.GPS_FIX_TYPE_NO_GPS}, fixes
+
+    _px4_with_client(body)
+
+
+def test_px4_setpoint_loss_without_gps_takes_altctl_then_rtl_when_it_is_back():
+    def body(host, c: Client) -> None:
+        _px4_offboard(host, c, 20.0)
+        host.set_gps(0, False)
+        t = c.boot_s
+        c.fly_until(lambda: c.boot_s > t + 2.0, 10)
+        t_stop = c.boot_s
+        c.fly_until(lambda: c.mode() == (ALTCTL, True), 10, stream=False)  # measured: 1.0 s (COM_OF_LOSS_T 1), then ALTCTL
+        assert c.first("text", "Failsafe activated", t_stop) is not None
+        hb = c.m.recv_match(type="HEARTBEAT", blocking=True, timeout=3)
+        assert hb is not None and hb.system_status == mav.MAV_STATE_CRITICAL
+        alt = c.alt()
+        c.fly_until(lambda: c.boot_s > t_stop + 10, 10, stream=False)
+        assert c.mode() == (ALTCTL, True) and abs(c.alt() - alt) < 2.0  # holds its altitude
+        t_back = c.boot_s
+        host.set_gps(0, True)
+        c.fly_until(lambda: c.mode() == (RTL, True), 10, stream=False)
+        assert c.first("text", "Failsafe activated", t_back) is not None
+
+    _px4_with_client(body)

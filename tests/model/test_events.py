@@ -74,6 +74,21 @@ def test_autopilot_faults_take_uavs_out_at_their_measured_second():
     assert everyone.failure_s() == (10.0 + GPS_FAILSAFE_S,) * BASE.n_uavs
 
 
+def test_on_px4_a_gps_loss_takes_no_uav_out_and_a_motor_failure_does_at_once():
+    """PX4 1.17 SIH, measured: under acceleration setpoints a GPS loss leaves the vehicle in
+    OFFBOARD under its agent (docs/CONFORMANCE.md, "Autopilot faults on PX4")."""
+    events = ({"type": "gps_loss", "at_s": 40.5, "duration_s": 30, "uavs": (0, 2)},
+              {"type": "motor_failure", "at_s": 100, "uav": 3})
+    ardupilot = _schedule(*events)
+    px4 = dataclasses.replace(ardupilot, autopilot="px4")
+    assert ardupilot.failure_s() == (41 + GPS_FAILSAFE_S, math.inf, 41 + GPS_FAILSAFE_S, 100.0)
+    assert px4.failure_s() == (math.inf, math.inf, math.inf, 100.0)
+    assert all(px4.fault_failures_at(t) == [] for t in range(0, 100))
+    assert [(u, e.type) for u, e in px4.fault_failures_at(100)] == [(3, "motor_failure")]
+    with pytest.raises(ValueError, match="no measured fault reactions"):
+        dataclasses.replace(ardupilot, autopilot="betaflight")
+
+
 def test_autopilot_fault_events_are_validated_with_their_yaml_path(tmp_path):
     cases = {
         "{type: motor_failure, at_s: 10}": "events[0].uav: is required for a motor_failure event",

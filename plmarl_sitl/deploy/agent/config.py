@@ -11,6 +11,8 @@ from plmarl_sitl.deploy.mqtt.schema import INSTANT_WAIT_WALL_S
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import Mission
 
+MAX_AIRFRAME_DRAG_PER_S = 10.0
+
 
 @dataclass(frozen=True)
 class StartupBounds:
@@ -58,8 +60,17 @@ class AgentConfig:
     # Lockstep SITL (`deploy.agent.lockstep`): stamp each setpoint with the telemetry it
     # answers, answer a boot second's telemetry only after the world's tick for it.
     lockstep: bool = False
+    # The airframe's linear drag per unit mass (1/s) the agent adds back to each command's
+    # horizontal part (decision.Decision.command says why not the vertical):
+    # PX4 flies an acceleration-only setpoint as a feed-forward with no velocity loop around
+    # it (PositionControl), so drag turns a commanded a into a speed of a / k instead of the
+    # policy's acceleration (PX4 SIH: SIH_KDV / SIH_MASS = 1 /s). 0: the vehicle flies the
+    # command as a net acceleration (the emulator in a SITL world, ArduCopter's velocity loop).
+    airframe_drag_per_s: float = 0.0
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.airframe_drag_per_s <= MAX_AIRFRAME_DRAG_PER_S:
+            raise UserError(f"--airframe-drag {self.airframe_drag_per_s:g}: must be 0..{MAX_AIRFRAME_DRAG_PER_S:g} /s")
         n = self.mission.n_uavs
         if not 0 <= self.uav_id < n:
             raise UserError(f"--id {self.uav_id}: the mission has {n} UAVs (ids 0..{n - 1})")

@@ -92,7 +92,8 @@ class Agent:
         self.clock = MissionClock(int(cfg.tup_s or m.signalling.tup_s), int(m.timing.decision_every_s),
                                   cfg.settle_min_s, cfg.settle_wall_s, lockstep=cfg.lockstep)
         self.table = NeighbourTable(self.n, self.me, m.signalling.drop_after_missed)
-        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics, cfg.lockstep)
+        self.decision = Decision(m, self.me, lp, self.clock, self.table, self.stats, self.trace, self.topics, cfg.lockstep,
+                                 cfg.airframe_drag_per_s)
         # Lockstep SITL: a boot second's telemetry is answered once the world's tick for it is in.
         self.gate = TickGate() if cfg.lockstep else None
         self.inbox = Inbox(self.topics, self.me, self.n, self.table, self.clock, self.decision.sense_history,

@@ -45,8 +45,12 @@ HOLD_KP, HOLD_KD, HOLD_MAX_ACCEL = 0.3, 1.0, 2.5  # pre-mission hold: soft, so l
 
 class Decision:
     def __init__(self, mission: Mission, me: int, lp: LoadedPolicy, clock: MissionClock, table: NeighbourTable,
-                 stats: LoopStats, trace: Trace, topics: Topics, lockstep: bool = False) -> None:
+                 stats: LoopStats, trace: Trace, topics: Topics, lockstep: bool = False,
+                 airframe_drag_per_s: float = 0.0) -> None:
         self.mission, self.me, self.n = mission, me, mission.n_uavs
+        # The airframe's linear drag per unit mass, 1/s, added back to the policy's command
+        # (`command`): see AgentConfig.airframe_drag_per_s.
+        self.drag_per_s = airframe_drag_per_s
         self.sense_topic = topics.sense(me)  # where sensing comes from (for the warning when it does not)
         self.tracker, self.policy = lp.tracker, lp.call  # policy(PolicyInputs) -> accel
         self.form = lp.form  # which inputs the file takes (and which f rule)
@@ -233,4 +237,15 @@ class Decision:
             if norm > HOLD_MAX_ACCEL:
                 a = a * (HOLD_MAX_ACCEL / norm)
             return float(a[0]), float(a[1]), float(a[2])
-        return band_guard(self.accel, alt, v_up, vm.min_alt_m, vm.max_alt_m, vm.max_accel_mps2)
+        a = band_guard(self.accel, alt, v_up, vm.min_alt_m, vm.max_alt_m, vm.max_accel_mps2)
+        if self.drag_per_s:
+            # The policy means a net acceleration of the mission's drag-free point mass. An
+            # autopilot that flies acceleration setpoints open loop (PX4's feed-forward) gets
+            # -k v of it eaten by the airframe's drag: ask for a + k v so the net is a.
+            # Horizontally only: PX4 sets the vertical thrust from its hover-thrust estimate,
+            # whose error is a constant vertical acceleration (SIH under afz 0: +1.2 m/s up,
+            # docs/CONFORMANCE.md); the drag is what bounds it, and cancelling the drag
+            # integrated it into +-8 m/s swings over 70-170 m (measured on real PX4).
+            k = self.drag_per_s
+            a = (a[0] + k * float(ego[3]), a[1] + k * float(ego[4]), a[2])
+        return a

@@ -28,7 +28,7 @@ from pathlib import Path  # noqa: E402
 
 from plmarl_sitl.cmdline import rt_priority_arg, swarm_name_arg, tup_arg  # noqa: E402
 from plmarl_sitl.config import PAPER_MISSION, PROJECT_POLICIES  # noqa: E402
-from plmarl_sitl.deploy.agent.config import StartupBounds  # noqa: E402
+from plmarl_sitl.deploy.agent.config import MAX_AIRFRAME_DRAG_PER_S, StartupBounds  # noqa: E402
 from plmarl_sitl.deploy.mavlink.personality import PERSONALITIES  # noqa: E402
 from plmarl_sitl.errors import UserError, run_reporting  # noqa: E402
 from plmarl_sitl.mission import MAX_UAVS  # noqa: E402
@@ -91,6 +91,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
                    "now: start at once (default with --bus direct)")
+    p.add_argument("--airframe-drag", type=float, default=0.0, metavar="PER_S",
+                   help="the airframe's linear drag per unit mass, 1/s, added back to each acceleration setpoint's horizontal part (k v) "
+                   "for an autopilot that flies them open loop: 1 for a PX4 SIH quadrotor (SIH_KDV / SIH_MASS); "
+                   "default 0 (the emulator, ArduCopter)")
     p.add_argument("--trace", default=None, metavar="PATH", help="write one JSON line per mission second (P-AoI, N_i, f, action)")
     p.add_argument("--stats-json", default=None, metavar="PATH", help="write loop timing, RSS and counters here on exit")
     p.add_argument("--rt-priority", type=rt_priority_arg(), default=None, metavar="P",
@@ -158,6 +162,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.id < mission.n_uavs:
         raise UserError(f"--id {args.id}: the mission has {mission.n_uavs} UAVs (ids 0..{mission.n_uavs - 1}; "
                         "--n-uavs N to fly another swarm size)")
+    if not 0.0 <= args.airframe_drag <= MAX_AIRFRAME_DRAG_PER_S:
+        raise UserError(f"--airframe-drag {args.airframe_drag:g}: must be 0..{MAX_AIRFRAME_DRAG_PER_S:g} /s")
     if not Path(args.policy).is_dir():
         raise UserError(f"{args.policy}: missing policy directory (train one with `plmarl train`, or pass --policy)")
 
@@ -220,7 +226,11 @@ def run(args: argparse.Namespace) -> int:
         stats_path=_output_path("--stats-json", args.stats_json),
         swarm_key=swarm_key,
         lockstep=args.lockstep,
+        airframe_drag_per_s=args.airframe_drag,
     )
+    if cfg.airframe_drag_per_s:
+        logging.getLogger("plmarl.agent").info("adding the airframe's drag back: %g /s x the horizontal velocity "
+                                               "on each acceleration setpoint", cfg.airframe_drag_per_s)
     me, swarm = cfg.uav_id, cfg.swarm
     # The bus hands each message to the agent built just below (nothing arrives before `agent.run`).
     bus = MqttBus(args.broker, f"plmarl-{swarm}-agent-{me}-{cfg.session_id:04x}", subscriptions(Topics(swarm), me, cfg.bus_mode, cfg.lockstep),

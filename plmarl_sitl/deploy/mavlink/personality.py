@@ -131,6 +131,20 @@ class Personality:
     # setpoint stream too); armed, OFFBOARD without one is ACCEPTED and nothing changes.
     mode_change_disarmed_accepted: bool = False
     takeoff_disarmed_accepted: bool = False  # PX4: NAV_TAKEOFF disarmed switches to AUTO.TAKEOFF; arming climbs
+    # A failsafe that wants a mode needing a position (hold, return) while the GPS is lost
+    # takes this one instead (PX4: ALTCTL, measured), and the GPS back takes `gps_back_mode`
+    # (PX4: AUTO.RTL, its failsafe's return now that it can). None: no such fallback.
+    no_position_mode: str | None = None
+    gps_back_mode: str | None = None
+    # A motor failure: what the autopilot says when it stops (PX4's failure detector), and
+    # when the vehicle hits the ground (ArduPilot SITL); whether MAV_CMD_INJECT_FAILURE
+    # (PX4's own fault injection, SYS_FAILURE_EN 1 in SITL) can stop a motor.
+    motor_failure_texts: tuple[str, ...] = ()
+    crash_texts: tuple[str, ...] = ("SIM Hit ground", "Potential Thrust Loss (1)")
+    inject_failure: bool = False
+    # Names of the autopilot's other modes (custom_mode -> name), which the emulator does not
+    # fly but a real one may show (a failsafe's, a pilot's): logs and events name them.
+    other_mode_names: tuple[tuple[int, str], ...] = ()
 
     def mode(self, name: str) -> ModeSpec:
         for m in self.modes:
@@ -143,6 +157,13 @@ class Personality:
             if m.custom_mode == custom_mode:
                 return m
         return None
+
+    def mode_name(self, custom_mode: int) -> str | None:
+        """The name of `custom_mode`, flown by the emulator or not (None: not one of ours)."""
+        spec = self.mode_by_custom(custom_mode)
+        if spec is not None:
+            return spec.name
+        return dict(self.other_mode_names).get(custom_mode)
 
     def custom_mode_from_set_mode(self, p2: float, p3: float) -> int:
         """custom_mode requested by MAV_CMD_DO_SET_MODE (param2, param3)."""
@@ -203,6 +224,9 @@ PX4 = Personality(
         # SIH's linear drag (N s/m on its 1 kg airframe: 1 /s); 0 flies the twin's drag-free mass
         ParamSpec("SIH_KDV", "accel_drag_per_s", _REAL32),
         ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
+        # SIH's GPS (sensor_gps_sim): satellites used; below 4 it reports no fix. The GPS
+        # loss a PX4 SIH is given (MAV_CMD_INJECT_FAILURE's GPS unit is not SIH's).
+        ParamSpec("SIM_GPS_USED", "gps_satellites", dialect.MAV_PARAM_TYPE_INT32),
         ParamSpec("MPC_Z_VEL_MAX_UP", "max_climb_mps", _REAL32),
     ),
     param_bytewise=True,
@@ -247,8 +271,23 @@ PX4 = Personality(
     takeoff_spoolup_s=3.5,
     loss_modes=("AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"),
     loss_text="Failsafe activated",
+    no_position_mode="ALTCTL",
+    gps_back_mode="AUTO.RTL",
+    # measured 0.8 s after the injection, severity CRITICAL; nothing at the ground
+    motor_failure_texts=("Preflight Fail: Attitude failure (roll)",),
+    crash_texts=(),
+    inject_failure=True,
     mode_change_disarmed_accepted=True,
     takeoff_disarmed_accepted=True,
+    # px4_custom_mode.h (src/modules/commander)
+    other_mode_names=(
+        (px4_custom_mode(3, 1), "POSCTL.ORBIT"), (px4_custom_mode(3, 2), "POSCTL.SLOW"),
+        (px4_custom_mode(4, 1), "AUTO.READY"), (px4_custom_mode(4, 4), "AUTO.MISSION"),
+        (px4_custom_mode(4, 8), "AUTO.FOLLOW_TARGET"), (px4_custom_mode(4, 9), "AUTO.PRECLAND"),
+        (px4_custom_mode(4, 10), "AUTO.VTOL_TAKEOFF"), (px4_custom_mode(5), "ACRO"),
+        (px4_custom_mode(8), "RATTITUDE"), (px4_custom_mode(10), "TERMINATION"),
+        (px4_custom_mode(11), "ALTITUDE_CRUISE"),
+    ),
 )
 
 ARDUPILOT = Personality(

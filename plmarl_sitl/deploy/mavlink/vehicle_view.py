@@ -60,8 +60,8 @@ class VehicleState:
 
 
 def decode_heartbeat(hb: Any, personality: Personality | None) -> VehicleState:
-    spec = personality.mode_by_custom(hb.custom_mode) if personality is not None else None
-    return VehicleState(armed=bool(hb.base_mode & ARMED), mode=spec.name if spec is not None else str(hb.custom_mode),
+    name = personality.mode_name(hb.custom_mode) if personality is not None else None
+    return VehicleState(armed=bool(hb.base_mode & ARMED), mode=name if name is not None else str(hb.custom_mode),
                         custom_mode=int(hb.custom_mode))
 
 

@@ -51,6 +51,7 @@ class Fleet:
         self._refresh_views()
         self.sp_deadline = np.full(count, np.inf)  # sim time each vehicle's setpoint stream times out
         self._watched: dict[int, None] = {}  # insertion-ordered set
+        self.gps_lost: set[int] = set()  # vehicles whose GPS is dark (their navigation reacts as time goes on)
         self.default_rates = dict(rates)
         self.streams = Scheduler(stream_phases)
         # Lockstep (`sitl.lockstep`): the time_boot_ms of the last LOCAL_POSITION_NED each

@@ -25,6 +25,10 @@ Addr = tuple[str, int]
 SIGNATURE_FAULTS = ("unsigned", "bad_signature")
 
 # Sanity bounds on setpoint fields: beyond these a value is garbage, not a wish to clip.
+# PX4 SIH's sensor_gps_sim: SIM_GPS_USED satellites; below 4 (GPS_FIX_MIN_SATELLITES here) no fix.
+GPS_SATELLITES_PARAM = "SIM_GPS_USED"
+GPS_FIX_MIN_SATELLITES = 4
+FAILURE_UNIT_SYSTEM_MOTOR, FAILURE_TYPE_OFF = d.FAILURE_UNIT_SYSTEM_MOTOR, d.FAILURE_TYPE_OFF
 MAX_ABS = {Kind.POSITION: 1e6, Kind.VELOCITY: 1e3, Kind.ACCEL: 1e3}
 
 
@@ -220,11 +224,22 @@ def _cmd_get_home(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
     return _send_once(v, d.MAVLINK_MSG_ID_HOME_POSITION, addr)
 
 
+def _cmd_inject_failure(v: Vehicle, p: list[float], msg: Message, addr: Addr) -> int:
+    """PX4's MAV_CMD_INJECT_FAILURE: motor off is what the missions use; the rest is left out."""
+    if not v.personality.inject_failure:
+        return UNSUPPORTED
+    if (p[0], p[1]) != (FAILURE_UNIT_SYSTEM_MOTOR, FAILURE_TYPE_OFF):
+        return UNSUPPORTED
+    v.fail_motor()
+    return ACCEPTED
+
+
 COMMANDS: dict[int, CommandFn] = {
     d.MAV_CMD_COMPONENT_ARM_DISARM: _cmd_arm,
     d.MAV_CMD_DO_SET_MODE: _cmd_set_mode,
     d.MAV_CMD_NAV_TAKEOFF: _cmd_takeoff,
     d.MAV_CMD_NAV_LAND: _cmd_land,
+    d.MAV_CMD_INJECT_FAILURE: _cmd_inject_failure,
     d.MAV_CMD_SET_MESSAGE_INTERVAL: _cmd_set_message_interval,
     d.MAV_CMD_GET_MESSAGE_INTERVAL: _cmd_get_message_interval,
     d.MAV_CMD_REQUEST_MESSAGE: _cmd_request_message,
@@ -299,6 +314,8 @@ def _param_set(v: Vehicle, msg: Message, addr: Addr) -> None:
         v.drop("bad_value", f"PARAM_SET {name}={msg.param_value}: {refused}")
     else:
         v.params_changed()
+        if name == GPS_SATELLITES_PARAM:  # PX4 SIH's GPS: the fault injection a real one is given
+            v.gps_param_set(v.params["gps_satellites"] >= GPS_FIX_MIN_SATELLITES)
     _param_value(v, index, None)  # broadcast the (new or unchanged) value, as PX4 does
 
 

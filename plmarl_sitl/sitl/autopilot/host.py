@@ -154,7 +154,6 @@ class AutopilotHost:
             v.params_changed()
         self._transports: list[asyncio.DatagramTransport] = []
         self._logged_drops: dict[int, int] = {}
-        self._gps_lost: set[int] = set()  # vehicles whose GPS is dark (their EKF reacts as time goes on)
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -259,10 +258,8 @@ class AutopilotHost:
         v = self.vehicles[i]
         if on:
             v.restore_gps()
-            self._gps_lost.discard(i)
         else:
             v.lose_gps()
-            self._gps_lost.add(i)
 
     def fail_motor(self, i: int) -> None:
         """motor_failure: one of vehicle i's motors stops for good."""
@@ -297,7 +294,7 @@ class AutopilotHost:
                 f.unwatch(i)
         for i in f.setpoints_lost():
             self.vehicles[i].check_setpoint_loss(f.now)
-        for i in self._gps_lost:
+        for i in f.gps_lost:
             self.vehicles[i].gps_update(f.now)
         self._boot_events()
         due: dict[int, list[int]] = {}

@@ -45,6 +45,7 @@ def ranges(model: VehicleModel) -> dict[str, Range]:
         "takeoff_speed_mps": Range(0.1, model.max_climb_mps),
         "offboard_loss_action": Range(0, 5),
         "accel_drag_per_s": Range(0.0, 10.0),  # PX4 COM_OBL_RC_ACT: 0-3 RTL (no RC), 4 land, 5 hold
+        "gps_satellites": Range(0, 50),  # PX4 SIH SIM_GPS_USED: below GPS_FIX_MIN_SATELLITES, no fix
     }
 
 
@@ -60,6 +61,7 @@ def defaults(model: VehicleModel, personality: Personality, sysid: int) -> dict[
         "takeoff_speed_mps": min(personality.takeoff_speed_mps or model.max_climb_mps, model.max_climb_mps),
         "offboard_loss_action": 0.0,
         "accel_drag_per_s": personality.accel_drag_per_s,
+        "gps_satellites": 10.0,  # PX4 SIH's default
     }
 
 

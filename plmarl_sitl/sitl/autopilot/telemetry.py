@@ -82,9 +82,10 @@ def system_time(v: Vehicle) -> Message:
 def gps_raw_int(v: Vehicle) -> Message:
     lat, lon, alt = v.geodetic()
     vn, ve, _ = v.velocity()
+    dark = v.gps_lost_at is not None  # a GPS loss: no fix, no satellites (PX4 SIH, measured)
     return v.codec.mav.gps_raw_int_encode(
-        int(v.fleet.unix_time_s() * 1e6), d.GPS_FIX_TYPE_3D_FIX, int(lat * 1e7), int(lon * 1e7),
-        int(alt * 1000), 80, 120, int(math.hypot(vn, ve) * 100), 65535, 12,
+        int(v.fleet.unix_time_s() * 1e6), d.GPS_FIX_TYPE_NO_GPS if dark else d.GPS_FIX_TYPE_3D_FIX, int(lat * 1e7),
+        int(lon * 1e7), int(alt * 1000), 80, 120, int(math.hypot(vn, ve) * 100), 65535, 0 if dark else 12,
     )
 
 

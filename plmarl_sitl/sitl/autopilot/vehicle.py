@@ -22,7 +22,7 @@ from plmarl_sitl.config import VehicleModel
 from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
 from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
 from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, POSITION_ONLY, VELOCITY_ONLY
-from plmarl_sitl.model.events import GPS_AIDING_STOPS_S, GPS_FAILSAFE_S
+from plmarl_sitl.model.events import GPS_OUT_AFTER_S, GPS_STREAM_STOPS_S
 from plmarl_sitl.model.geodesy import ned_to_geodetic
 from plmarl_sitl.sitl.autopilot.counters import InputCounters
 from plmarl_sitl.sitl.autopilot.fleet import Fleet
@@ -511,33 +511,53 @@ class Vehicle:
         self._guide(Kind.IDLE if self.on_ground() else Kind.FALL)
 
     # ------------------------------------------------------------------ autopilot faults
-    # What a real ArduCopter 4.7 SITL does, measured in GUIDED flight (docs/RESULTS.md,
-    # "Autopilot faults"): with SIM_GPS1_ENABLE 0 it dead-reckons; GPS_FAILSAFE_S later its
-    # EKF failsafe switches to LAND; GPS_AIDING_STOPS_S later the EKF stops aiding and
+    # What the real autopilots do, measured under an agent's acceleration setpoints
+    # (docs/CONFORMANCE.md, "Autopilot faults"; the delays are model.events').
+    # ArduCopter 4.7 (SIM_GPS1_ENABLE 0): it dead-reckons; GPS_OUT_AFTER_S later its EKF
+    # failsafe switches to LAND; GPS_STREAM_STOPS_S later the EKF stops aiding and
     # LOCAL_POSITION_NED stops; it lands blind and disarms. GPS back: the EKF uses it again,
-    # the stream resumes, the mode stays LAND. With SIM_ENGINE_FAIL on one motor it falls,
-    # hits the ground and stays armed in its mode. The PX4 personality does the same (PX4's
-    # own reaction was not measured).
+    # the stream resumes, the mode stays LAND.
+    # PX4 1.17 SIH (SIM_GPS_USED 0): an acceleration-only OFFBOARD needs only an attitude,
+    # so nothing changes: it stays in OFFBOARD, armed, its position streamed on (dead
+    # reckoning; the real estimate drifts, this one does not). Only a failsafe that wants a
+    # position (the setpoints stop) takes ALTCTL instead (heartbeat CRITICAL); the GPS back
+    # then takes AUTO.RTL (measured: "Failsafe activated" 2.3 s, AUTO.RTL ~3 s later; here at once).
+    # A motor failure (ArduCopter SIM_ENGINE_FAIL, PX4 INJECT_FAILURE with CA_FAILURE_MODE 1):
+    # it falls, hits the ground and stays armed in its mode.
     def lose_gps(self) -> None:
         if self.gps_lost_at is None:
             self.gps_lost_at = self.fleet.now
+            self.fleet.gps_lost.add(self.index)
 
     def restore_gps(self) -> None:
         if self.gps_lost_at is None:
             return
         self.gps_lost_at = None
+        self.fleet.gps_lost.discard(self.index)
         if self.aiding_stopped or self.ekf_failsafe:
             self.statustext("EKF3 IMU0 is using GPS")
         if self.ekf_failsafe:
             self.statustext("EKF Failsafe Cleared", d.MAV_SEVERITY_CRITICAL)
         self.aiding_stopped = self.ekf_failsafe = False
+        p = self.personality
+        if p.gps_back_mode is not None and self.failsafe and self.mode == p.no_position_mode and self.armed:
+            self.statustext(p.loss_text, d.MAV_SEVERITY_CRITICAL)
+            self._enter_failsafe_mode(p.gps_back_mode)
+
+    def gps_param_set(self, fix: bool) -> None:
+        """PX4 SIH's SIM_GPS_USED set (the world's gps_loss on a real PX4 goes this way too)."""
+        if fix:
+            self.restore_gps()
+        else:
+            self.lose_gps()
 
     def gps_update(self, now: float) -> None:
-        """The EKF's reaction to the GPS loss, as time goes on (called by the host)."""
+        """The navigation filter's reaction to the GPS loss, as time goes on (called by the host)."""
         if self.gps_lost_at is None or self.killed:
             return
         lost_s = now - self.gps_lost_at
-        if not self.ekf_failsafe and lost_s >= GPS_FAILSAFE_S:
+        out_s, stops_s = GPS_OUT_AFTER_S[self.personality.name], GPS_STREAM_STOPS_S[self.personality.name]
+        if out_s is not None and not self.ekf_failsafe and lost_s >= out_s:
             self.ekf_failsafe = True
             self.statustext("EKF variance", d.MAV_SEVERITY_CRITICAL)
             if self.armed and (self.mode_spec.needs_position or self.behaviour == Behaviour.OFFBOARD):
@@ -545,11 +565,14 @@ class Vehicle:
                 self.taking_off = False
                 self._start_land()
                 self.statustext("EKF Failsafe: changed to LAND Mode", d.MAV_SEVERITY_CRITICAL)
-        if not self.aiding_stopped and lost_s >= GPS_AIDING_STOPS_S:
+        if stops_s is not None and not self.aiding_stopped and lost_s >= stops_s:
             self.aiding_stopped = True
             self.statustext("EKF3 IMU0 stopped aiding")
 
     def fail_motor(self) -> None:
+        if not self.motor_failed:
+            for text in self.personality.motor_failure_texts:
+                self.statustext(text, d.MAV_SEVERITY_CRITICAL)
         self.motor_failed = True
         self.taking_off = False
         self._guide(Kind.FALL)
@@ -595,8 +618,8 @@ class Vehicle:
     def _touchdown(self) -> None:
         if self.motor_failed:  # measured: ArduCopter stays armed in its mode where it crashed
             self.fleet.guide(self.index, Kind.IDLE)
-            self.statustext("SIM Hit ground")
-            self.statustext("Potential Thrust Loss (1)", d.MAV_SEVERITY_EMERGENCY)
+            for i, text in enumerate(self.personality.crash_texts):
+                self.statustext(text, d.MAV_SEVERITY_EMERGENCY if i else d.MAV_SEVERITY_INFO)
             return
         was_armed = self.armed
         self.armed = False  # PX4 and ArduPilot both disarm after landing
@@ -617,6 +640,16 @@ class Vehicle:
     def _setpoint_stale(self) -> bool:
         return self.fleet.now - self.setpoint_time > self.params["offboard_timeout_s"]
 
+    def _enter_failsafe_mode(self, name: str) -> None:
+        self.mode_spec = self.personality.mode(name)
+        b = self.behaviour
+        if b == Behaviour.RETURN:
+            self._start_return()
+        elif b == Behaviour.LAND:
+            self._start_land()
+        else:
+            self._hold_here()
+
     def check_setpoint_loss(self, now: float) -> None:
         """Called by the host once this vehicle's setpoint deadline has passed."""
         self._check_setpoint_loss(now)
@@ -630,16 +663,12 @@ class Vehicle:
             p = self.personality
             action = int(self.params["offboard_loss_action"])
             name = p.loss_modes[action] if p.loss_modes else p.hold_mode
+            if (self.gps_lost_at is not None and p.no_position_mode is not None
+                    and p.mode(name).behaviour in (Behaviour.HOLD, Behaviour.RETURN)):
+                name = p.no_position_mode  # measured: PX4 holds its altitude, no position to hold or return by
             self.failsafe = bool(p.loss_modes)
             self.statustext(p.loss_text, d.MAV_SEVERITY_WARNING)
-            self.mode_spec = p.mode(name)
-            b = self.behaviour
-            if b == Behaviour.RETURN:
-                self._start_return()
-            elif b == Behaviour.LAND:
-                self._start_land()
-            else:
-                self._hold_here()
+            self._enter_failsafe_mode(name)
             log.info("vehicle %d: offboard setpoints lost at t=%.2f s, %s", self.sysid, now, name)
         elif self.setpoint[0] != Kind.POSITION:
             # ArduPilot keeps GUIDED; a velocity/accel target times out and it brakes.
