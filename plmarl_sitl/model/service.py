@@ -82,7 +82,7 @@ class ServiceGrid:
         # transpose, padded to one row per sub-point with the extra index C (a scratch gain
         # slot), so the candidates of several sub-points are one fancy index, not a CSR gather
         cand, pt = self._cover_pairs()
-        self.cover_ptr, self.cover_idx = _csr(cand, pt, len(self.cands))
+        self.cover_ptr, self.cover_idx = _csr(cand, pt, len(self.cands), len(self.subpts) - 1)
         order = np.argsort(pt, kind="stable")
         self.covered_by = _padded(pt[order], cand[order], len(self.subpts), len(self.cands))
         # Per cell, the candidates covering any of its sub-points and how many of them (a
@@ -92,7 +92,7 @@ class ServiceGrid:
                               return_counts=True)
         cell, cell_cand = np.divmod(key, len(self.cands) + 1)
         self.cell_cover = _padded(cell, cell_cand, self.rows * self.cols, len(self.cands))
-        self.cell_mult = _padded(cell, mult, self.rows * self.cols, 0).astype(np.uint16)
+        self.cell_mult = _padded(cell, mult, self.rows * self.cols, 0)
         # One map's picks (`_place_one`) update a window of candidates around each pick: the
         # link and spacing tests reach `window` steps, the gains a pick changes 2 cover radii
         # (the candidates covering a sub-point the pick covers). Candidates are exact multiples
@@ -272,18 +272,24 @@ class _Tiles:
         return query[keep], pt[keep]
 
 
-def _csr(rows: np.ndarray, cols: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row pointers and column indices of (row, col) pairs already grouped by row."""
+def _index_dtype(largest: int) -> type:
+    """The smallest index type holding 0..largest: the tables are held by every agent (its
+    RSS), and at 3 km their indices fit in 16 bits."""
+    return np.uint16 if largest < 2**16 else np.int32
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, n_rows: int, largest: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row pointers and column indices (0..largest) of (row, col) pairs already grouped by row."""
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
-    return ptr, cols.astype(np.int32)
+    return ptr, cols.astype(_index_dtype(largest))
 
 
 def _padded(rows: np.ndarray, cols: np.ndarray, n_rows: int, pad: int) -> np.ndarray:
     """(n_rows, longest row) column indices of (row, col) pairs already grouped by row, each
     row's in order, filled up with `pad`."""
     counts = np.bincount(rows, minlength=n_rows)
-    out = np.full((n_rows, int(counts.max(initial=0))), pad, dtype=np.int32)
+    out = np.full((n_rows, int(counts.max(initial=0))), pad, dtype=_index_dtype(max(pad, int(cols.max(initial=0)))))
     starts = np.cumsum(counts) - counts
     out[rows, np.arange(len(rows)) - np.repeat(starts, counts)] = cols
     return out
