@@ -159,9 +159,9 @@ class ServiceGrid:
         return self.cands[idx], (w * ~unserved).sum(-1) / (self.sub * self.sub)
 
     def _place_one(self, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """`place` on one map, weights w (S,) and gains gain (C + 1,) (`_gains`): the same picks with about a dozen small numpy
-        calls per pick (an agent's new map at N = 100 is 100 picks; per-call overhead, not
-        arithmetic, is what a pick costs). Every candidate a pick changes (its gain, link or
+        """`place` on one map, weights w (S,) and gains gain (C + 1,) (`_gains`): the same
+        picks with about a dozen small numpy calls per pick (an agent's new map at N = 100 is
+        100 picks; per-call overhead, not arithmetic, is what a pick costs). Every candidate a pick changes (its gain, link or
         spacing test) lies within `reach` lattice steps of it, so the score is rewritten on
         that window only; each candidate's gain loses the same weights in the same order as
         in the batch path."""
