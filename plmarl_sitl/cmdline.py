@@ -10,12 +10,14 @@ import math
 import re
 import sys
 from collections.abc import Callable, Collection, Iterable
-from typing import Any, TypeVar
-
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from plmarl_sitl.config import MAX_SEED
+
+if TYPE_CHECKING:  # rich is imported where a table or bar is drawn: the agent (which takes this
+    # module's argument types) never draws one, and every forked agent's RSS counts its ~2 MB
+    from rich.console import Console
+    from rich.progress import Progress
 
 T = TypeVar("T")
 
@@ -178,6 +180,16 @@ def from_flags(cls: type[T], args: argparse.Namespace, **given: Any) -> T:
 
 def progress(disable: bool = False) -> Progress:
     """A rich progress bar on stderr, so stdout stays clean for --json."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
     return Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -194,4 +206,6 @@ def table_console() -> Console:
     """A console for result tables on stdout: the terminal's width on a terminal; piped to a
     file or another program, wide enough that no column is cut (rich assumes 80 columns
     there, and printed "covera…" and "tag-ma…")."""
+    from rich.console import Console
+
     return Console() if sys.stdout.isatty() else Console(width=1000)

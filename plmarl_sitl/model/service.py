@@ -80,11 +80,30 @@ class ServiceGrid:
         # along either axis are farther than R_link and 2 d_safe: a pick changes neither test there.
         self.window = int(max(self.link_m, self.apart_m) // GRID_M) + 1
         self.tiles = _Tiles(self.subpts, max(cover_r, GRID_M))
-        # cover: candidate -> the sub-points within the coverage radius; covered_by: the transpose
+        # cover: candidate -> the sub-points within the coverage radius (CSR); covered_by: the
+        # transpose, padded to one row per sub-point with the extra index C (a scratch gain
+        # slot), so the candidates of several sub-points are one fancy index, not a CSR gather
         cand, pt = self._cover_pairs()
-        self.cover_ptr, self.cover_idx = _csr(cand, pt, len(self.cands))
+        self.cover_ptr, self.cover_idx = _csr(cand, pt, len(self.cands), len(self.subpts) - 1)
         order = np.argsort(pt, kind="stable")
-        self.covered_by_ptr, self.covered_by_idx = _csr(pt[order], cand[order], len(self.subpts))
+        self.covered_by = _padded(pt[order], cand[order], len(self.subpts), len(self.cands))
+        # Per cell, the candidates covering any of its sub-points and how many of them (a
+        # map's gains from scratch: a cell's users sit on all its sub-points alike, so a
+        # third of the sub-point pairs)
+        key, mult = np.unique((pt // (self.sub * self.sub)).astype(np.int64) * (len(self.cands) + 1) + cand,
+                              return_counts=True)
+        cell, cell_cand = np.divmod(key, len(self.cands) + 1)
+        self.cell_cover = _padded(cell, cell_cand, self.rows * self.cols, len(self.cands))
+        self.cell_mult = _padded(cell, mult, self.rows * self.cols, 0)
+        # One map's picks (`_place_one`) update a window of candidates around each pick: the
+        # link and spacing tests reach `window` steps, the gains a pick changes 2 cover radii
+        # (the candidates covering a sub-point the pick covers). Candidates are exact multiples
+        # of GRID_M, so their distances to a pick depend on the offset alone: one stencil.
+        self.reach = max(self.window, int(2.0 * cover_r // GRID_M) + 2)
+        offs = np.arange(-self.reach, self.reach + 1) * GRID_M
+        dist = np.sqrt(offs[:, None] ** 2 + offs[None, :] ** 2)  # the float ops of place's window distances
+        self.near_stencil = dist <= self.link_m
+        self.apart_stencil = dist >= self.apart_m
 
     def _cover_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """(candidate, sub-point) index pairs within the coverage radius, candidate-major;
@@ -109,22 +128,20 @@ class ServiceGrid:
         pick changes with it, so only that is updated (issue 24: 100 picks on a 3 km map):
         the gains, whole numbers kept exactly, lose the weight of the sub-points the pick
         newly serves at the candidates that cover those; the link and spacing tests change
-        only in the window of candidates within R_link or 2 d_safe of the pick (a batch of
-        maps, the twin's small areas, updates them whole: one vector operation per pick)."""
+        only in the window of candidates within R_link or 2 d_safe of the pick. One map (an
+        agent) takes `_place_one`; a batch of maps (the twin's small areas) updates them
+        whole: one vector operation per pick."""
         w = self._weights(counts)
+        if w.shape[0] == 1:
+            return self._place_one(w[0], self._gains(counts)[0], n)
         b, c = w.shape[0], len(self.cands)
-        nr, ne = self.cand_shape
-        k = self.window
         unserved = np.ones(w.shape, dtype=bool)
-        rows, pts = np.nonzero(w)  # the gains from scratch over the sub-points with users only
-        owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pts)
-        gain = np.bincount(rows[owner] * c + cand, weights=w[rows, pts][owner], minlength=b * c).reshape(b, c)
+        gain = self._gains(counts)[:, :c].copy()  # contiguous: subtract.at works on its flat view
         near = np.zeros((b, c), dtype=bool)  # within R_link of a pick
         apart = np.ones((b, c), dtype=bool)  # at least 2 d_safe from every pick
         score = gain.copy()  # gain where allowed, else -1; before the first pick everything is allowed
-        grid_n, grid_e = self.cand_n.reshape(nr, ne), self.cand_e.reshape(nr, ne)
         chosen = []
-        for step in range(n):
+        for _ in range(n):
             best = score.argmax(-1)  # ties: lowest candidate index
             chosen.append(best)
             # the sub-points the pick newly serves, and the gains they leave
@@ -134,36 +151,96 @@ class ServiceGrid:
             unserved[team, pt] = False
             lit = w[team, pt] > 0
             team, pt = team[lit], pt[lit]
-            owner, cand = _gather(self.covered_by_ptr, self.covered_by_idx, pt)
-            touched = team[owner] * c + cand  # flat (B * C) indices of the gains that change
-            np.subtract.at(gain.reshape(-1), touched, w[team, pt][owner])
-            if b > 1 or step == 0:  # a batch of small maps (the twin), or the first pick: every candidate at once
-                dist = np.sqrt((self.cand_n - self.cand_n[best][:, None]) ** 2 + (self.cand_e - self.cand_e[best][:, None]) ** 2)
-                near |= dist <= self.link_m
-                apart &= dist >= self.apart_m
-                score = np.where(near & apart, gain, -1.0)
-                continue
-            # one map (an agent): only the window around the pick
-            i, j = divmod(int(best[0]), ne)
-            win = (slice(max(0, i - k), i + k + 1), slice(max(0, j - k), j + k + 1))
-            dist = np.sqrt((grid_n[win] - grid_n[i, j]) ** 2 + (grid_e[win] - grid_e[i, j]) ** 2)
-            near_w, apart_w = near.reshape(nr, ne)[win], apart.reshape(nr, ne)[win]  # views
-            near_w |= dist <= self.link_m
-            apart_w &= dist >= self.apart_m
-            score.reshape(nr, ne)[win] = np.where(near_w & apart_w, gain.reshape(nr, ne)[win], -1.0)
-            flat_score, flat_gain = score.reshape(-1), gain.reshape(-1)
-            flat_score[touched] = np.where(near.reshape(-1)[touched] & apart.reshape(-1)[touched], flat_gain[touched], -1.0)
+            owner, cand = self._covering(pt)
+            np.subtract.at(gain.reshape(-1), team[owner] * c + cand, w[team, pt][owner])
+            dist = np.sqrt((self.cand_n - self.cand_n[best][:, None]) ** 2 + (self.cand_e - self.cand_e[best][:, None]) ** 2)
+            near |= dist <= self.link_m
+            apart &= dist >= self.apart_m
+            score = np.where(near & apart, gain, -1.0)
         idx = np.stack(chosen, -1)
         return self.cands[idx], (w * ~unserved).sum(-1) / (self.sub * self.sub)
+
+    def _place_one(self, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`place` on one map, weights w (S,) and gains gain (C + 1,) (`_gains`): the same
+        picks with about a dozen small numpy calls per pick (an agent's new map at N = 100 is
+        100 picks; per-call overhead, not arithmetic, is what a pick costs). Every candidate a pick changes (its gain, link or
+        spacing test) lies within `reach` lattice steps of it, so the score is rewritten on
+        that window only; each candidate's gain loses the same weights in the same order as
+        in the batch path."""
+        c = len(self.cands)
+        nr, ne = self.cand_shape
+        r = self.reach
+        left = w.copy()  # the weight still unserved at each sub-point (w where unserved, else 0)
+        near = np.zeros((nr, ne), dtype=bool)
+        apart = np.ones((nr, ne), dtype=bool)
+        score = gain[:c].copy()  # before the first pick everything is allowed
+        grid_score, grid_gain = score.reshape(nr, ne), gain[:c].reshape(nr, ne)
+        ptr, idx = self.cover_ptr, self.cover_idx
+        chosen = []
+        for step in range(n):
+            best = int(score.argmax())  # ties: lowest candidate index
+            chosen.append(best)
+            pt = idx[ptr[best]:ptr[best + 1]]
+            wv = left[pt]
+            lit = wv > 0  # sub-points with users the pick newly serves
+            pt, wv = pt[lit], wv[lit]
+            left[pt] = 0.0
+            cover = self.covered_by[pt]
+            np.subtract.at(gain, cover.ravel(), np.repeat(wv, cover.shape[1]))  # flat: ufunc.at's fast path
+            i, j = divmod(best, ne)
+            i0, i1, j0, j1 = max(0, i - r), min(nr, i + r + 1), max(0, j - r), min(ne, j + r + 1)
+            st = (slice(i0 - i + r, i1 - i + r), slice(j0 - j + r, j1 - j + r))
+            near_w, apart_w = near[i0:i1, j0:j1], apart[i0:i1, j0:j1]  # views
+            near_w |= self.near_stencil[st]
+            apart_w &= self.apart_stencil[st]
+            if step == 0:
+                score[:] = -1.0  # allowed from now on: within R_link of a pick, so in some pick's window
+            grid_score[i0:i1, j0:j1] = np.where(near_w & apart_w, grid_gain[i0:i1, j0:j1], -1.0)
+        # w - left is w where served, else 0: the elements of w * ~unserved, summed alike
+        return self.cands[np.asarray(chosen)][None], ((w - left).sum() / (self.sub * self.sub))[None]
+
+    def _gains(self, counts: np.ndarray) -> np.ndarray:
+        """(B, C + 1) each candidate's gain on maps counts (B, K) (the last column: scratch,
+        it takes the padding): the weight of the sub-points it covers, counts x how many
+        of a cell's sub-points it covers (whole numbers: exact in any order)."""
+        counts = np.asarray(counts, dtype=np.float64)
+        b, c = counts.shape[0], len(self.cands) + 1
+        rows, cells = np.nonzero(counts)
+        cover = self.cell_cover[cells]  # (P, D)
+        at = (rows[:, None] * c + cover).ravel() if b > 1 else cover.ravel()
+        weights = (counts[rows, cells][:, None] * self.cell_mult[cells]).ravel()
+        return np.bincount(at, weights=weights, minlength=b * c).reshape(b, c)
+
+    def _covering(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(position in pts, candidate) pairs of the candidates covering each sub-point,
+        in sub-point order (covered_by without its padding)."""
+        cand = self.covered_by[pts]
+        keep = cand < len(self.cands)
+        owner = np.broadcast_to(np.arange(len(pts))[:, None], cand.shape)
+        return owner[keep], cand[keep]
 
     def served(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(B,) users the points (B, n, 2) serve on maps counts (B, K)."""
         w = self._weights(counts)
         b, n = points.shape[:2]
-        owner, pt = self.tiles.within(np.asarray(points, dtype=np.float64).reshape(-1, 2), self.r2)
+        flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        at = self._candidate_index(flat)
+        if at is not None:  # points on candidates (a plan's): their cover lists, the same pairs
+            owner, pt = _gather(self.cover_ptr, self.cover_idx, at)
+        else:
+            owner, pt = self.tiles.within(flat, self.r2)
         hit = np.zeros(w.shape, dtype=bool)
         hit[owner // n, pt] = True
         return (w * hit).sum(-1) / (self.sub * self.sub)
+
+    def _candidate_index(self, xy: np.ndarray) -> np.ndarray | None:
+        """(P,) candidate index of each point (P, 2) if every point is exactly a candidate, else None."""
+        ij = np.rint(xy / GRID_M)
+        nr, ne = self.cand_shape
+        if not (np.isfinite(ij).all() and (ij * GRID_M == xy).all() and (ij >= 0).all()
+                and (ij[:, 0] < nr).all() and (ij[:, 1] < ne).all()):
+            return None
+        return (ij[:, 0] * ne + ij[:, 1]).astype(np.int64)
 
 
 class _Tiles:
@@ -197,11 +274,27 @@ class _Tiles:
         return query[keep], pt[keep]
 
 
-def _csr(rows: np.ndarray, cols: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row pointers and column indices of (row, col) pairs already grouped by row."""
+def _index_dtype(largest: int) -> type:
+    """The smallest index type holding 0..largest: the tables are held by every agent (its
+    RSS), and at 3 km their indices fit in 16 bits."""
+    return np.uint16 if largest < 2**16 else np.int32
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, n_rows: int, largest: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row pointers and column indices (0..largest) of (row, col) pairs already grouped by row."""
     ptr = np.zeros(n_rows + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n_rows), out=ptr[1:])
-    return ptr, cols.astype(np.int32)
+    return ptr, cols.astype(_index_dtype(largest))
+
+
+def _padded(rows: np.ndarray, cols: np.ndarray, n_rows: int, pad: int) -> np.ndarray:
+    """(n_rows, longest row) column indices of (row, col) pairs already grouped by row, each
+    row's in order, filled up with `pad`."""
+    counts = np.bincount(rows, minlength=n_rows)
+    out = np.full((n_rows, int(counts.max(initial=0))), pad, dtype=_index_dtype(max(pad, int(cols.max(initial=0)))))
+    starts = np.cumsum(counts) - counts
+    out[rows, np.arange(len(rows)) - np.repeat(starts, counts)] = cols
+    return out
 
 
 def _spans(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
