@@ -7,8 +7,9 @@ plmarl_sitl/learning/nn/fused.py, as exported), torch on ONE thread, no
 autograd (inference_mode). Each policy file is called as a deployed agent calls it: one
 `PolicyInputs` per decision through `contract.PolicyCall`, which passes the file the inputs
 of its version (docs/POLICY_IO.md): version 1 without the demand map, version 2 with it,
-and a policy that takes the team plan with its plan point too. Methods are timed interleaved, call by call,
-in the same run, so machine load hits them equally; report the median and the 99th percentile
+and a policy that takes the team plan with its plan point too. Methods and swarm sizes are timed
+interleaved, call by call, in the same run, so machine load hits them equally (a ratio N = 100 / N = 4
+does not move with the load between them); report the median and the 99th percentile
 of the wall time, and the median of the thread's CPU time (on a loaded shared machine the
 wall time of a 15 ms plan is mostly waiting for a core).
 
@@ -195,111 +196,140 @@ def plan_inputs(n: int, seed: int, area_m: float | None = None) -> PlanInputs:
     return PlanInputs(m, *first, wire, period // int(m.timing.decision_every_s))
 
 
-def _time_n(mods: dict, n: int, calls: int, gen, seed: int, area_m: float | None = None) -> list[dict]:  # noqa: ANN001
-    import numpy as np
+class _SizeBench:
+    """One swarm size's decision, set up as an agent of that size holds it; `step` times one
+    decision of every method (and the plan's decision or new map). `run` steps the sizes in
+    turn, call by call, so a change of the machine's load falls on every size alike."""
+
+    def __init__(self, mods: dict, n: int, gen, seed: int, area_m: float | None = None) -> None:  # noqa: ANN001
+        import torch
+
+        from plmarl_sitl.deploy.agent.coordination import agent_plan
+        from plmarl_sitl.learning.nn.contract import PolicyCall
+        from plmarl_sitl.model.coverage import SENSING_FEATURES
+
+        self.mods, self.n = mods, n
+        m_nbrs = n - 1
+        side = 1000.0 if area_m is None else area_m
+        self.held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([side, side, -100.0]),
+                               torch.randn(m_nbrs, 3, generator=gen)], -1)
+        self.t_rx = torch.zeros(m_nbrs)
+        self.ego = torch.tensor([side / 2, side / 2, -100.0, 1.0, 0.0, 0.0])
+        self.mask = torch.ones(m_nbrs, dtype=torch.bool)
+        self.sense = torch.rand(SENSING_FEATURES, generator=gen)
+        self.fail = torch.tensor(False)
+        self.policy_calls = {m: PolicyCall(p) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
+        with_plan = any(c.form.takes_plan for c in self.policy_calls.values())
+        self.pi = pi = plan_inputs(n, seed, area_m) if with_plan else None
+        self.demand = pi.maps[0] if pi is not None else torch.cat(
+            [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
+        self.plans, self.target = {}, None
+        if pi is not None:
+            # What an agent pays at each decision (deploy/agent/decision.py): `target` at second k,
+            # k advancing by tau (the team plan's plan-aware prediction flies the team that far),
+            # with its N_i (the failure check); a new map every decisions_per_map decisions.
+            self.full = torch.ones(n, dtype=torch.bool)
+            self.full[0] = False
+            self.tau = int(pi.mission.timing.decision_every_s)
+            for coord in COORDINATIONS:
+                plan = agent_plan(pi.mission.with_coordination(coord), 0)
+                self.target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]), self.full)  # the plan starts
+                self.plans[coord] = (plan, [0, 0])  # (plan, [second k, map number])
+        self.times: dict[str, list[int]] = {m: [] for m in mods}
+        self.cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
+        if pi is not None:
+            for rows_of in COORDINATIONS.values():
+                for label in rows_of[:2]:
+                    self.times[label], self.cpu[label] = [], []
+        self.state = {}
+        with torch.inference_mode():
+            for m, (tracker, _, _) in mods.items():
+                buf, seen = tracker.init_state(self.held)
+                _, _, buf, seen = tracker(0.0, self.held, self.t_rx, buf, seen)  # first reception
+                self.state[m] = (buf, seen)
+
+    def plan_decision(self, coord: str) -> None:
+        plan, kt = self.plans[coord]
+        kt[0] += self.tau
+        pi = self.pi
+        plan.target(kt[0], pi.ego, pi.held, pi.t_rx, (float(kt[1]), pi.maps[kt[1] % 2]), self.full)
+
+    def plan_map(self, coord: str) -> None:
+        self.plans[coord][1][1] += 1
+        self.plan_decision(coord)
+
+    def decide(self, m: str) -> None:
+        from plmarl_sitl.learning.nn.contract import PolicyInputs
+
+        tracker = self.mods[m][0]
+        buf, seen = self.state[m]
+        belief, _, _, _ = tracker(7.0, self.held, self.t_rx, buf, seen)  # P-AoI 7: the predictor runs
+        self.policy_calls[m](PolicyInputs(self.ego, belief, self.mask, self.sense, self.fail, self.demand,
+                                          self.target))  # each file takes its version's inputs
+
+    def timed(self, label: str, fn) -> None:  # noqa: ANN001
+        t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
+        fn()
+        self.times[label].append(time.perf_counter_ns() - t0)
+        self.cpu[label].append(time.thread_time_ns() - c0)
+
+    def warm_up(self, i: int) -> None:  # TorchScript's profiling runs
+        for m in self.mods:
+            self.decide(m)
+        if self.pi is not None:
+            for coord in COORDINATIONS:
+                self.plan_decision(coord)
+                if i % 30 == 0:
+                    self.plan_map(coord)
+
+    def step(self, i: int) -> None:
+        for m in self.mods:
+            self.timed(m, lambda m=m: self.decide(m))
+        if self.pi is not None:
+            for coord, (dec, new_map, _, _) in COORDINATIONS.items():
+                if i % self.pi.decisions_per_map == 0:
+                    self.timed(new_map, lambda c=coord: self.plan_map(c))
+                else:
+                    self.timed(dec, lambda c=coord: self.plan_decision(c))
+
+    def rows(self) -> list[dict]:
+        import numpy as np
+
+        n, rows = self.n, []
+        for m, ts in self.times.items():
+            a = np.asarray(ts) / 1e3
+            rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
+                         "cpu_median_us": float(np.median(np.asarray(self.cpu[m]) / 1e3)), "calls": len(ts)})
+        if self.pi is not None:
+            med = {r["method"]: r["median_us"] for r in rows}
+            med_cpu = {r["method"]: r["cpu_median_us"] for r in rows}
+            per = self.pi.decisions_per_map
+            for dec, new_map, amort, with_ in COORDINATIONS.values():
+                # per decision: (per - 1) decisions on the map the plan follows and one with a new map
+                amortised, amortised_cpu = (((per - 1) * x[dec] + x[new_map]) / per for x in (med, med_cpu))
+                rows.append({"method": amort, "n": n, "decisions_per_map": per,
+                             "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
+                for m in self.mods:  # the decision including the coordination, for the methods that take the plan
+                    if self.policy_calls[m].form.takes_plan:
+                        rows.append({"method": m + with_, "n": n, "median_us": med[m] + amortised, "p99_us": None,
+                                     "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
+        return rows
+
+
+def time_sizes(mods: dict, ns: list[int], calls: int, gen, seed: int, area_m: float | None = None) -> list[dict]:  # noqa: ANN001
+    """Every size set up first (in order, so the generator's draws are each size's own), warmed
+    up, then timed call by call in turn."""
     import torch
 
-    from plmarl_sitl.deploy.agent.coordination import agent_plan
-    from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyInputs
-    from plmarl_sitl.model.coverage import SENSING_FEATURES
-
-    m_nbrs = n - 1
-    side = 1000.0 if area_m is None else area_m
-    held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([side, side, -100.0]),
-                      torch.randn(m_nbrs, 3, generator=gen)], -1)
-    t_rx = torch.zeros(m_nbrs)
-    ego = torch.tensor([side / 2, side / 2, -100.0, 1.0, 0.0, 0.0])
-    mask = torch.ones(m_nbrs, dtype=torch.bool)
-    sense = torch.rand(SENSING_FEATURES, generator=gen)
-    fail = torch.tensor(False)
-    policy_calls = {m: PolicyCall(p) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
-    with_plan = any(c.form.takes_plan for c in policy_calls.values())
-    pi = plan_inputs(n, seed, area_m) if with_plan else None
-    demand = pi.maps[0] if pi is not None else torch.cat(
-        [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
-    plans, target = {}, None
-    if pi is not None:
-        # What an agent pays at each decision (deploy/agent/decision.py): `target` at second k,
-        # k advancing by tau (the team plan's plan-aware prediction flies the team that far),
-        # with its N_i (the failure check); a new map every decisions_per_map decisions.
-        full = torch.ones(n, dtype=torch.bool)
-        full[0] = False
-        tau = int(pi.mission.timing.decision_every_s)
-        for coord in COORDINATIONS:
-            plan = agent_plan(pi.mission.with_coordination(coord), 0)
-            target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]), full)  # the plan starts
-            plans[coord] = (plan, [0, 0])  # (plan, [second k, map number])
-
-    def plan_decision(coord: str) -> None:
-        plan, kt = plans[coord]
-        kt[0] += tau
-        plan.target(kt[0], pi.ego, pi.held, pi.t_rx, (float(kt[1]), pi.maps[kt[1] % 2]), full)
-
-    def plan_map(coord: str) -> None:
-        plans[coord][1][1] += 1
-        plan_decision(coord)
-
-    state = {}
-    times: dict[str, list[int]] = {m: [] for m in mods}
-    cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
-    if pi is not None:
-        for rows_of in COORDINATIONS.values():
-            for label in rows_of[:2]:
-                times[label], cpu[label] = [], []
+    benches = [_SizeBench(mods, n, gen, seed, area_m) for n in ns]
     with torch.inference_mode():
-        for m, (tracker, _, _) in mods.items():
-            buf, seen = tracker.init_state(held)
-            _, _, buf, seen = tracker(0.0, held, t_rx, buf, seen)  # first reception
-            state[m] = (buf, seen)
-
-        def decide(m: str) -> None:
-            tracker = mods[m][0]
-            buf, seen = state[m]
-            belief, _, _, _ = tracker(7.0, held, t_rx, buf, seen)  # P-AoI 7: the predictor runs
-            policy_calls[m](PolicyInputs(ego, belief, mask, sense, fail, demand, target))  # each file takes its version's inputs
-
-        def timed(label: str, fn) -> None:  # noqa: ANN001
-            t0, c0 = time.perf_counter_ns(), time.thread_time_ns()
-            fn()
-            times[label].append(time.perf_counter_ns() - t0)
-            cpu[label].append(time.thread_time_ns() - c0)
-
-        for i in range(300):  # warm-up (TorchScript's profiling runs)
-            for m in mods:
-                decide(m)
-            if pi is not None:
-                for coord in COORDINATIONS:
-                    plan_decision(coord)
-                    if i % 30 == 0:
-                        plan_map(coord)
+        for i in range(300):
+            for b in benches:
+                b.warm_up(i)
         for i in range(calls):
-            for m in mods:
-                timed(m, lambda m=m: decide(m))
-            if pi is not None:
-                for coord, (dec, new_map, _, _) in COORDINATIONS.items():
-                    if i % pi.decisions_per_map == 0:
-                        timed(new_map, lambda c=coord: plan_map(c))
-                    else:
-                        timed(dec, lambda c=coord: plan_decision(c))
-    rows = []
-    for m, ts in times.items():
-        a = np.asarray(ts) / 1e3
-        rows.append({"method": m, "n": n, "median_us": float(np.median(a)), "p99_us": float(np.percentile(a, 99)),
-                     "cpu_median_us": float(np.median(np.asarray(cpu[m]) / 1e3)), "calls": len(ts)})
-    if pi is not None:
-        med = {r["method"]: r["median_us"] for r in rows}
-        med_cpu = {r["method"]: r["cpu_median_us"] for r in rows}
-        per = pi.decisions_per_map
-        for dec, new_map, amort, with_ in COORDINATIONS.values():
-            # per decision: (per - 1) decisions on the map the plan follows and one with a new map
-            amortised, amortised_cpu = (((per - 1) * x[dec] + x[new_map]) / per for x in (med, med_cpu))
-            rows.append({"method": amort, "n": n, "decisions_per_map": per,
-                         "median_us": amortised, "p99_us": None, "cpu_median_us": amortised_cpu, "calls": 0})
-            for m in mods:  # the decision including the coordination, for the methods that take the plan
-                if policy_calls[m].form.takes_plan:
-                    rows.append({"method": m + with_, "n": n, "median_us": med[m] + amortised, "p99_us": None,
-                                 "cpu_median_us": med_cpu[m] + amortised_cpu, "calls": 0})
-    return rows
+            for b in benches:
+                b.step(i)
+    return [r for b in benches for r in b.rows()]
 
 
 def run(args: argparse.Namespace) -> dict:
@@ -313,9 +343,7 @@ def run(args: argparse.Namespace) -> dict:
     methods = parse_methods(args.methods or default_methods(), policies)
     mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)
-    rows = []
-    for n in args.n:
-        rows += _time_n(mods, n, args.calls, gen, args.seed, getattr(args, "area", None))
+    rows = time_sizes(mods, list(args.n), args.calls, gen, args.seed, getattr(args, "area", None))
     weights = {m: mods[m][2] for m in mods}
     return {"rows": rows, "weights": weights, "dirs": {m: str(d) for m, (_, d) in methods.items()},
             "machine": machine_info(), "torch_threads": 1, "calls": args.calls, "area_m": getattr(args, "area", None) or 1000.0,
