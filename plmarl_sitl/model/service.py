@@ -44,6 +44,12 @@ from plmarl_sitl.model.plan_motion import ROUND_M, PlanMotion
 GRID_M = 25.0  # candidate service points: the greedy reference's grid; also the spacing of a cell's sub-points
 LINK_FRAC = 0.95  # points placed within this fraction of R_comm of an earlier one (connected plan)
 LAUNCH_ROUND_M = 0.01  # the fitted launch line, rounded: the same in every agent's copy (launch_line)
+# Heard launch positions all within this of the mission's own launch line: the copy takes that
+# line (common knowledge) instead of a fit. A fit through the 3 states an agent hears at N = 100
+# (SINR with 100 transmitters) extrapolates 1 cm of position quantisation to 0.2-0.3 m at the
+# line's far end; copies then broke the lattice's exact assignment ties differently (22 points
+# held twice at scale_100's first decision: the SITL-to-twin gap of 0.17-0.21).
+LAUNCH_SNAP_M = 0.5
 REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more
 
 
@@ -320,9 +326,21 @@ def grid_counts(cells: np.ndarray, grid: ServiceGrid) -> np.ndarray:
     return out
 
 
-def launch_line(ids: np.ndarray, pos: np.ndarray, n: int) -> np.ndarray:
+def mission_launch_xy(mission) -> np.ndarray:  # noqa: ANN001 - Mission
+    """(n, 2) the mission's launch line (north, east), as `twin.env.launch_positions` places it."""
+    la = mission.launch
+    offs = (np.arange(mission.n_uavs, dtype=np.float64) - (mission.n_uavs - 1) / 2) * la.spacing_m
+    d_north, d_east = la.direction()
+    return np.stack([la.north_m + offs * d_north, la.east_m + offs * d_east], -1)
+
+
+def launch_line(ids: np.ndarray, pos: np.ndarray, n: int, nominal: np.ndarray | None = None) -> np.ndarray:
     """(n, 2) launch positions of identities 0..n-1 fitted as p = a + b id through the
-    heard ones (ids (H,), pos (H, 2), the agent itself included); one heard -> all there."""
+    heard ones (ids (H,), pos (H, 2), the agent itself included); one heard -> all there.
+    With `nominal` (n, 2), the mission's line: that line if every heard position lies within
+    LAUNCH_SNAP_M of its identity's place on it (every copy then has it to the bit)."""
+    if nominal is not None and np.abs(np.asarray(pos, dtype=np.float64) - nominal[np.asarray(ids, dtype=np.int64)]).max() <= LAUNCH_SNAP_M:
+        return np.round(nominal / LAUNCH_ROUND_M) * LAUNCH_ROUND_M
     ids = np.asarray(ids, dtype=np.float64)
     pos = np.asarray(pos, dtype=np.float64)
     if len(ids) < 2:
@@ -502,4 +520,5 @@ class TeamPlans:
         return np.where((self.slot >= 0)[..., None], pts, np.nan)
 
 
-__all__ = ["GRID_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line"]
+__all__ = ["GRID_M", "LAUNCH_SNAP_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line",
+           "mission_launch_xy"]

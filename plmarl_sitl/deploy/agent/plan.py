@@ -33,7 +33,7 @@ import torch
 from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, steady, suspects
-from plmarl_sitl.model.service import TeamPlans, grid_counts
+from plmarl_sitl.model.service import TeamPlans, grid_counts, mission_launch_xy
 
 
 class AgentPlan:
@@ -45,6 +45,7 @@ class AgentPlan:
         self.declare_after = DECLARE_AFTER_MISSED
         self.knowledge = knowledge if knowledge is not None else Knowledge(me)  # the neighbour table's
         self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
+        self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)
         self.heard_xy: dict[int, np.ndarray] = {}  # identity -> position in its state of that instant (me included)
@@ -150,6 +151,6 @@ class AgentPlan:
         heard = np.array([j in self.heard_xy and j != self.me for j in range(self.n)])
         xy = np.stack([self.heard_xy.get(j, np.zeros(2)) for j in range(self.n)])
         late = self.launch is not None
-        self.launch = heard_launch(self.heard_xy[self.me], xy, heard, self.me)
+        self.launch = heard_launch(self.heard_xy[self.me], xy, heard, self.me, self.nominal)
         return late
 

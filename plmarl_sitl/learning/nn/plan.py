@@ -15,16 +15,18 @@ from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
 from plmarl_sitl.model.plan_motion import PlanMotion
-from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line
+from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line, mission_launch_xy
 from plmarl_sitl.model.vehicle import Limits, goto_accel
 
 
-def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int) -> np.ndarray:
+def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int,
+                 nominal: np.ndarray | None = None) -> np.ndarray:
     """One agent's launch line (n, 2): itself at ego_xy (2,), the neighbours it heard at the
-    first instant (heard (n,) bool) at held_xy (n, 2)."""
+    first instant (heard (n,) bool) at held_xy (n, 2); nominal: the mission's line
+    (`model/service.py::launch_line`)."""
     ids = [me] + [j for j in range(len(heard)) if heard[j] and j != me]
     pos = np.stack([ego_xy] + [held_xy[j] for j in ids[1:]])
-    return launch_line(np.asarray(ids), pos, len(heard))
+    return launch_line(np.asarray(ids), pos, len(heard), nominal)
 
 
 @functools.lru_cache(maxsize=8)
@@ -100,6 +102,7 @@ class ServiceTargets:
         self.sources = sources
         self.instants = SignallingInstants(mission)
         self.mission = mission
+        self.nominal = mission_launch_xy(mission)  # the mission's launch line (launch_line)
         self.reset()
 
     @classmethod
@@ -136,7 +139,7 @@ class ServiceTargets:
             ego_xy = ego[..., :2].double().numpy()
             held = nbr_state[..., :2].double().numpy()
             heard = (nbr_t_rx == float(t)).numpy()
-            launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i) for i in range(n)])
+            launch = np.stack([np.stack([heard_launch(ego_xy[e, i], held[e, i], heard[e, i], i, self.nominal) for i in range(n)])
                                for e in range(b)])
             # The plan-aware prediction only where failures can be learnt (the twin's gossip given):
             # training's plan teacher calls without and does not pay for it.
