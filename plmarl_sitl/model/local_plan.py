@@ -177,13 +177,15 @@ class LocalPlan:
         return xy[int(d2.argmin())]
 
 
-def heard_launch_line(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int) -> np.ndarray:
+def heard_launch_line(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int,
+                      nominal: np.ndarray | None = None) -> np.ndarray:
     """(n, 2) the team's launch line fitted through the agent (ego_xy) and the teammates it heard
-    at the first instant (heard (n,) bool, at held_xy (n, 2)): `learning/nn/plan.py::heard_launch`,
-    here so the twin's and the agent's local plans share it without importing the team plan's module."""
+    at the first instant (heard (n,) bool, at held_xy (n, 2)), or the mission's line `nominal` when
+    they all lie on it (`launch_line`): `learning/nn/plan.py::heard_launch`, here so the twin's and
+    the agent's local plans share it without importing the team plan's module."""
     ids = [me] + [j for j in range(len(heard)) if heard[j] and j != me]
     pos = np.stack([np.asarray(ego_xy, dtype=np.float64)] + [held_xy[j] for j in ids[1:]])
-    return launch_line(np.asarray(ids), pos, len(heard))
+    return launch_line(np.asarray(ids), pos, len(heard), nominal)
 
 
 def predicted_team(me: int, ego_xy: np.ndarray, held: np.ndarray, t_rx: np.ndarray, mask: np.ndarray, t: float,

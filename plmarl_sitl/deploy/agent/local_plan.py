@@ -14,12 +14,14 @@ from plmarl_sitl.learning.nn.local_targets import local_plan_of
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.gossip import Knowledge
 from plmarl_sitl.model.local_plan import heard_launch_line
+from plmarl_sitl.model.service import mission_launch_xy
 
 
 class LocalAgentPlan:
     def __init__(self, mission: Mission, me: int, knowledge: Knowledge | None = None) -> None:
         self.me, self.n = me, mission.n_uavs
         self.plan = local_plan_of(mission)
+        self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.knowledge = knowledge if knowledge is not None else Knowledge(me)  # carried on the wire; not used to plan
         self.map_t: float | None = None
         self.point: torch.Tensor | None = None
@@ -44,7 +46,7 @@ class LocalAgentPlan:
         ego_xy = ego[:2].double().numpy()
         held_np = held.double().numpy()
         # the first plan: the teammates not heard yet on the launch line fitted through those heard (as the team plan)
-        launch = heard_launch_line(ego_xy, held_np[:, :2], rx == float(k), self.me) if self.point is None else None
+        launch = heard_launch_line(ego_xy, held_np[:, :2], rx == float(k), self.me, self.nominal) if self.point is None else None
         pt = self.plan.solve(self.me, self.plan.team(self.me, ego_xy, held_np, rx, own, float(k), self.memory, launch), self.memory)
         self.point = torch.from_numpy(np.asarray(ego_xy if pt is None else pt, dtype=np.float64)).to(torch.float32)
         return self.point

@@ -12,6 +12,7 @@ import torch
 from plmarl_sitl.model.channel import coverage_radius
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.local_plan import LocalPlan, heard_launch_line
+from plmarl_sitl.model.service import mission_launch_xy
 from plmarl_sitl.model.vehicle import goto_accel
 
 
@@ -31,6 +32,7 @@ class LocalTargets:
         vm = mission.vehicle_model()
         self.alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
         self.plan = local_plan_of(mission)
+        self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
         self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
         self.tau = int(mission.timing.decision_every_s)
@@ -72,7 +74,7 @@ class LocalTargets:
                     continue
                 own, rx = m[e, a].copy(), t_rx[e, a].copy()
                 own[a], rx[a] = False, -1.0  # itself: from its own state (row 0)
-                launch = heard_launch_line(ego_np[e, a], held[e, a, :, :2], t_rx[e, a] == float(t), a) if first else None
+                launch = heard_launch_line(ego_np[e, a], held[e, a, :, :2], t_rx[e, a] == float(t), a, self.nominal) if first else None
                 pt = self.plan.solve(a, self.plan.team(a, ego_np[e, a], held[e, a], rx, own, float(t), self.memory[e][a], launch), self.memory[e][a])
                 out[e, a] = ego_np[e, a] if pt is None else pt
         out = np.where(np.isnan(out), ego_np, out)
