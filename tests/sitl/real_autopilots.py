@@ -11,6 +11,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import psutil
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -35,6 +36,38 @@ def free_base(n: int, instances: range, instance_free: Callable[[int], bool], wh
 
 def rows(out: Path) -> list[dict]:
     return [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines() if x.strip()]
+
+
+def names(procs: list[psutil.Process]) -> list[str]:
+    """The names of those of `procs` still running."""
+    out = []
+    for p in procs:
+        try:
+            out.append(p.name())
+        except psutil.NoSuchProcess:
+            pass
+    return out
+
+
+class Started:
+    """The CLI processes a test starts by hand (a world, autopilots, agents), each in a session
+    of its own with its output in DIR/NAME.log; `interrupt` ends them as Ctrl-C would."""
+
+    def __init__(self, directory: Path) -> None:
+        self.dir = directory
+        self.procs: list[subprocess.Popen] = []
+
+    def start(self, args: list[str], name: str) -> subprocess.Popen:
+        f = open(self.dir / f"{name}.log", "w")  # noqa: SIM115 - closed when the test's processes end
+        p = subprocess.Popen(cli(*args), cwd=self.dir, env=env(), stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
+        self.procs.append(p)
+        return p
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in sorted(self.dir.glob("*.log")))
+
+    def interrupt(self) -> None:
+        interrupt_all(self.procs)
 
 
 def interrupt_all(procs: list[subprocess.Popen]) -> None:

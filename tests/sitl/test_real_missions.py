@@ -23,7 +23,7 @@ from pathlib import Path
 import psutil
 import pytest
 import real_autopilots
-from real_autopilots import ROOT, cli, env, rows
+from real_autopilots import ROOT, cli, env, names, rows
 
 from plmarl_sitl.deploy.mqtt.auth import create_key_file
 from plmarl_sitl.mission import load_mission
@@ -56,16 +56,6 @@ def trace(out: Path, i: int) -> list[dict]:
 
 def descendants(pid: int) -> list[psutil.Process]:
     return psutil.Process(pid).children(recursive=True)
-
-
-def names(procs: list[psutil.Process]) -> list[str]:
-    out = []
-    for p in procs:
-        try:
-            out.append(p.name())
-        except psutil.NoSuchProcess:
-            pass
-    return out
 
 
 # ---------------------------------------------------------------------------- real ArduCopter
@@ -176,16 +166,8 @@ def test_world_external_runs_a_mission_on_two_separate_autopilot_processes(tmp_p
     base = free_udp_ports(2)  # the first of two free consecutive ports
     ports = [base, base + 1]
     broker = f"mqtt://127.0.0.1:{free_port()}"
-    procs: list[subprocess.Popen] = []
-
-    def start(args: list[str], name: str) -> subprocess.Popen:
-        f = open(tmp_path / f"{name}.log", "w")  # noqa: SIM115 - closed when the test's processes end
-        p = subprocess.Popen(cli(*args), cwd=tmp_path, env=env(), stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
-        procs.append(p)
-        return p
-
-    def logs() -> str:
-        return "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in sorted(tmp_path.glob("*.log")))
+    started = real_autopilots.Started(tmp_path)
+    start, logs = started.start, started.logs
 
     create_key_file(tmp_path / "swarm.key")
     t0 = time.monotonic()
@@ -213,7 +195,7 @@ def test_world_external_runs_a_mission_on_two_separate_autopilot_processes(tmp_p
             agent_log = (tmp_path / f"agent{i}.log").read_text()
             assert "in GUIDED at" in agent_log and "mission clock: t0 = boot" in agent_log, agent_log
     finally:
-        real_autopilots.interrupt_all(procs)
+        started.interrupt()
 
 
 @needs_arducopter

@@ -24,7 +24,7 @@ from pathlib import Path
 import psutil
 import pytest
 import real_autopilots
-from real_autopilots import ROOT, cli, env, rows
+from real_autopilots import ROOT, cli, env, names, rows
 
 from plmarl_sitl.errors import UserError
 from plmarl_sitl.mission import load_mission
@@ -46,16 +46,6 @@ def free_base(n: int) -> int:
 
 def events(out: Path) -> list[dict]:
     return [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines() if x.strip()]
-
-
-def names(procs: list[psutil.Process]) -> list[str]:
-    out = []
-    for p in procs:
-        try:
-            out.append(p.name())
-        except psutil.NoSuchProcess:
-            pass
-    return out
 
 
 def run_watched(args: list[str], cwd: Path, timeout_s: float) -> tuple[subprocess.CompletedProcess, list[psutil.Process], set[str]]:
@@ -258,16 +248,8 @@ def test_world_external_runs_a_mission_on_two_px4s_started_by_hand(tmp_path: Pat
     base = free_base(2)
     fleet = Px4Fleet(Path(BUILD), m, float(SPEEDUP), tmp_path, instance_base=base)
     broker = f"mqtt://127.0.0.1:{free_port()}"
-    procs: list[subprocess.Popen] = []
-
-    def start(args: list[str], name: str) -> subprocess.Popen:
-        f = open(tmp_path / f"{name}.log", "w")  # noqa: SIM115 - closed when the test's processes end
-        p = subprocess.Popen(cli(*args), cwd=tmp_path, env=env(), stdout=f, stderr=subprocess.STDOUT, start_new_session=True)
-        procs.append(p)
-        return p
-
-    def logs() -> str:
-        return "\n".join(f"--- {p.name}\n{p.read_text()[-1500:]}" for p in sorted(tmp_path.glob("*.log")))
+    started = real_autopilots.Started(tmp_path)
+    start, logs = started.start, started.logs
 
     t0 = time.monotonic()
     try:
@@ -291,7 +273,7 @@ def test_world_external_runs_a_mission_on_two_px4s_started_by_hand(tmp_path: Pat
             agent_log = (tmp_path / f"agent{i}.log").read_text()
             assert "in OFFBOARD at" in agent_log and "mission clock: t0 = boot" in agent_log, agent_log
     finally:
-        real_autopilots.interrupt_all(procs)
+        started.interrupt()
         import asyncio
 
         asyncio.run(fleet.stop())
