@@ -92,6 +92,13 @@ def coverage_radius(ch: Channel, sensing_m: float, alt_min: float, alt_max: floa
     return CoverageRadius(ch, sensing_m, alt_min, alt_max)
 
 
+def mission_coverage(mission) -> tuple[float, float]:  # noqa: ANN001 - Mission
+    """(altitude, radius) of the largest coverage radius in the mission vehicle's altitude band:
+    where the plan and the plan followers fly, and how far a plan point serves."""
+    vm = mission.vehicle_model()
+    return coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+
+
 def db_to_lin(db: torch.Tensor | float) -> torch.Tensor | float:
     return 10.0 ** (db / 10.0)
 

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from plmarl_sitl.model.assignment import linear_sum_assignment  # SciPy's answer without importing scipy (agent RSS)
+from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import cell_centres, grid_shape
 from plmarl_sitl.model.plan_motion import ROUND_M, PlanMotion
 
@@ -324,6 +325,14 @@ def grid_counts(cells: np.ndarray, grid: ServiceGrid) -> np.ndarray:
     out = np.zeros(grid.rows * grid.cols)
     np.add.at(out, r * grid.cols + c, cells[:, 2])
     return out
+
+
+def plan_geometry(mission) -> tuple[float, float, float, float, float, float]:  # noqa: ANN001 - Mission
+    """The constants a plan of the mission is laid on: area north, east, demand cell, coverage
+    radius, R_comm, d_safe (the team plan's `ServiceGrid` and the neighbourhood plan's `LocalPlan`)."""
+    _, cover_r = mission_coverage(mission)
+    return (float(mission.area.north_m), float(mission.area.east_m), float(mission.demand.cell_m), float(cover_r),
+            float(mission.radii.comm_m), float(mission.radii.safe_m))
 
 
 def mission_launch_xy(mission) -> np.ndarray:  # noqa: ANN001 - Mission

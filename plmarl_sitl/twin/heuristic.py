@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.channel import CoverageRadius
+from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.vehicle import velocity_tracking_accel
 from plmarl_sitl.twin.env import Observation
 
@@ -30,7 +30,7 @@ class HeuristicController:
         self.mission = mission
         vm = mission.vehicle_model()
         self.vm = vm
-        self.alt, _ = CoverageRadius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+        self.alt, _ = mission_coverage(mission)
 
     def reset(self) -> None:
         pass

@@ -9,19 +9,16 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.model.channel import coverage_radius
+from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.local_plan import LocalPlan, heard_launch_line
-from plmarl_sitl.model.service import mission_launch_xy
+from plmarl_sitl.model.service import mission_launch_xy, plan_geometry
 from plmarl_sitl.model.vehicle import goto_accel
 
 
 def local_plan_of(mission) -> LocalPlan:  # noqa: ANN001 - Mission
     """The mission's neighbourhood plan (its cells, coverage radius, R_comm, d_safe)."""
-    vm = mission.vehicle_model()
-    _, cover_r = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
-    return LocalPlan(float(mission.area.north_m), float(mission.area.east_m), float(mission.demand.cell_m), float(cover_r),
-                     float(mission.radii.comm_m), float(mission.radii.safe_m))
+    return LocalPlan(*plan_geometry(mission))
 
 
 class LocalTargets:
@@ -30,7 +27,7 @@ class LocalTargets:
 
     def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
         vm = mission.vehicle_model()
-        self.alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+        self.alt, _ = mission_coverage(mission)
         self.plan = local_plan_of(mission)
         self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)

@@ -10,12 +10,12 @@ import functools
 import numpy as np
 import torch
 
-from plmarl_sitl.model.channel import coverage_radius
+from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
 from plmarl_sitl.model.plan_motion import PlanMotion
-from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line, mission_launch_xy
+from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line, mission_launch_xy, plan_geometry
 from plmarl_sitl.model.vehicle import Limits, goto_accel
 
 
@@ -36,10 +36,7 @@ def _grid(area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: f
 
 def service_grid(mission) -> ServiceGrid:  # noqa: ANN001 - Mission
     """The mission's plan grid, built once per set of constants (it is a few MB of tables)."""
-    vm = mission.vehicle_model()
-    _, cover_r = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
-    return _grid(float(mission.area.north_m), float(mission.area.east_m), float(mission.demand.cell_m), float(cover_r),
-                 float(mission.radii.comm_m), float(mission.radii.safe_m))
+    return _grid(*plan_geometry(mission))
 
 
 class SignallingInstants:
@@ -70,7 +67,7 @@ def motion_of(mission, instants: SignallingInstants) -> PlanMotion:  # noqa: ANN
     altitude, the twin's take-off altitude, decisions every tau."""
     vm = mission.vehicle_model()
     limits = Limits.band(vm)
-    alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+    alt, _ = mission_coverage(mission)
     start_alt = min(max(vm.takeoff_alt_m, limits.alt_min), limits.alt_max)
     return PlanMotion(limits, float(alt), float(start_alt), int(mission.timing.decision_every_s), instants.is_instant)
 
@@ -88,7 +85,7 @@ class ServiceTargets:
     def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
                  declare_after: int = DECLARE_AFTER_MISSED) -> None:
         vm = mission.vehicle_model()
-        self.alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+        self.alt, _ = mission_coverage(mission)
         self.grid = service_grid(mission)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
         self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)

@@ -27,7 +27,7 @@ from plmarl_sitl.learning.nn.belief import BeliefTracker
 from plmarl_sitl.learning.nn.contract import INPUT_VERSION
 from plmarl_sitl.learning.nn.features import FeatureScales
 from plmarl_sitl.learning.nn.predictor import make_predictor
-from plmarl_sitl.model.channel import coverage_radius
+from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.vehicle import goto_accel
 
 
@@ -62,8 +62,7 @@ class ServicePolicy(nn.Module):
 
 
 def service_policy(mission) -> ServicePolicy:  # noqa: ANN001 - Mission
-    vm = mission.vehicle_model()
-    alt, _ = coverage_radius(mission.channel, mission.radii.sensing_m, vm.min_alt_m, vm.max_alt_m).best_altitude()
+    alt, _ = mission_coverage(mission)
     return ServicePolicy(FeatureScales.from_mission(mission), alt, float(mission.timing.decision_every_s))
 
 
