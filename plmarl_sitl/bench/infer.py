@@ -205,10 +205,11 @@ class _SizeBench:
         import torch
 
         from plmarl_sitl.deploy.agent.coordination import agent_plan
-        from plmarl_sitl.learning.nn.contract import PolicyCall
+        from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyInputs
         from plmarl_sitl.model.coverage import SENSING_FEATURES
 
         self.mods, self.n = mods, n
+        self.inputs = PolicyInputs  # imported once, not inside the timed decision
         m_nbrs = n - 1
         side = 1000.0 if area_m is None else area_m
         self.held = torch.cat([torch.rand(m_nbrs, 3, generator=gen) * torch.tensor([side, side, -100.0]),
@@ -259,12 +260,10 @@ class _SizeBench:
         self.plan_decision(coord)
 
     def decide(self, m: str) -> None:
-        from plmarl_sitl.learning.nn.contract import PolicyInputs
-
         tracker = self.mods[m][0]
         buf, seen = self.state[m]
         belief, _, _, _ = tracker(7.0, self.held, self.t_rx, buf, seen)  # P-AoI 7: the predictor runs
-        self.policy_calls[m](PolicyInputs(self.ego, belief, self.mask, self.sense, self.fail, self.demand,
+        self.policy_calls[m](self.inputs(self.ego, belief, self.mask, self.sense, self.fail, self.demand,
                                           self.target))  # each file takes its version's inputs
 
     def timed(self, label: str, fn) -> None:  # noqa: ANN001
