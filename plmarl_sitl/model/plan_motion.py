@@ -21,88 +21,139 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from plmarl_sitl.model.vehicle import Limits, goto_accel, step_point_mass
+from plmarl_sitl.model.vehicle import Limits, free_flight_step, step_point_mass
 
 ROUND_M = 0.01  # predicted positions handed to the assignment are rounded like launch_line's
 
 
+def _norm(x: np.ndarray) -> np.ndarray:
+    """(..., 1) Euclidean norms of x (..., 3), by torch as `goto_accel` computes them (it sums
+    the squares with fused multiply-adds, which numpy cannot reproduce bit for bit)."""
+    return torch.linalg.vector_norm(torch.from_numpy(x), dim=-1, keepdim=True).numpy()
+
+
+def _sqrt(x: np.ndarray) -> np.ndarray:
+    """torch's square root (its vectorised kernel rounds ~1 % of float64 results differently from np.sqrt)."""
+    return torch.sqrt(torch.from_numpy(x)).numpy()
+
+
+def _goto_accel(p: np.ndarray, v: np.ndarray, goal: np.ndarray, lim: Limits, tau: float) -> np.ndarray:
+    """`model/vehicle.py::goto_accel` on numpy arrays, operation for operation: the same IEEE
+    operations in the same order, and torch's own kernels on the same shapes for the norms
+    and the square root; torch divides a scalar by a tensor as scalar x (1 / tensor), so that
+    is written out. Three tensor calls where the torch version makes ~15 of a few
+    microseconds each. tests/model/test_plan_motion.py compares the two."""
+    delta = goal - p
+    dist = _norm(delta)
+    brake_speed = _sqrt(2.0 * 0.5 * lim.max_accel * dist)
+    speed = np.minimum(brake_speed, np.minimum(dist / tau, lim.max_speed))
+    v_des = delta / np.maximum(dist, 1e-9) * speed
+    x = (v_des - v) / tau  # velocity_tracking_accel, then clip_norm
+    scale = np.minimum(lim.max_accel * (1.0 / np.maximum(_norm(x), 1e-12)), 1.0)
+    return x * scale
+
+
+def _step(state: np.ndarray, accel: np.ndarray, lim: Limits) -> np.ndarray:
+    """(..., 6) state one second on under accel (..., 3): `step_point_mass`, in numpy when no
+    vehicle can meet a limit (`free_flight_step`, bit for bit), else by torch's event solver."""
+    shape = state.shape
+    flat = state.reshape(-1, 6)
+    p, v = flat[:, :3], flat[:, 3:]
+    out = free_flight_step(p, v, accel.reshape(-1, 3), 1.0, lim)
+    if out is None:
+        pt, vt = step_point_mass(torch.from_numpy(np.ascontiguousarray(p)), torch.from_numpy(np.ascontiguousarray(v)),
+                                 torch.from_numpy(np.ascontiguousarray(accel.reshape(-1, 3))), 1.0, lim)
+        out = pt.numpy(), vt.numpy()
+    return np.concatenate(out, -1).reshape(shape)
+
+
 class PlanMotion:
+    """The nominal states are numpy float64 arrays (torch views of them are handed out by
+    `state` and `at`): the team is flown every second by every agent, and per-call overhead,
+    not arithmetic, is what a second of it costs (issue 25: 15 % of an agent's busy time in
+    torch)."""
+
     def __init__(self, limits: Limits, plan_alt_m: float, start_alt_m: float, tau: int,
                  is_instant: Callable[[int], bool]) -> None:
         self.limits, self.plan_alt, self.start_alt, self.tau = limits, plan_alt_m, start_alt_m, tau
         self.is_instant = is_instant
         self.t = 0
-        self.state: torch.Tensor | None = None  # (B, A, n, 6) float64 [pos NED, vel NED]
-        self.kept: dict[int, torch.Tensor] = {}  # signalling instant -> state then
-        self.accel: torch.Tensor | None = None  # the command held since the last decision second
+        self.now: np.ndarray | None = None  # (B, A, n, 6) float64 [pos NED, vel NED]
+        self.kept: dict[int, np.ndarray] = {}  # signalling instant -> state then
+        self.accel: np.ndarray | None = None  # the command held since the last decision second
+
+    @property
+    def state(self) -> torch.Tensor | None:
+        """(B, A, n, 6) the nominal state now (a view: valid until the next `advance`)."""
+        return None if self.now is None else torch.from_numpy(self.now)
 
     def start(self, launch: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2): every copy's launch line; at rest at the take-off altitude."""
-        xy = torch.from_numpy(np.ascontiguousarray(launch, dtype=np.float64))
-        z = torch.full_like(xy[..., :1], -self.start_alt)
-        self.state = torch.cat([xy, z, torch.zeros(*xy.shape[:-1], 3, dtype=torch.float64)], -1)
+        xy = np.ascontiguousarray(launch, dtype=np.float64)
+        z = np.full(xy.shape[:-1] + (1,), -self.start_alt)
+        self.now = np.concatenate([xy, z, np.zeros(xy.shape[:-1] + (3,))], -1)
         self.t, self.accel = t, None
-        self.kept = {t: self.state.clone()}
+        self.kept = {t: self.now.copy()}
 
     def restart_copy(self, b: int, a: int, launch: np.ndarray) -> None:
         """One copy's launch line changed before it moved (a late state of the first instant)."""
-        assert self.state is not None
-        for s in [self.state, *self.kept.values()]:
-            s[b, a, :, :2] = torch.from_numpy(np.asarray(launch, dtype=np.float64))
+        assert self.now is not None
+        for s in [self.now, *self.kept.values()]:
+            s[b, a, :, :2] = np.asarray(launch, dtype=np.float64)
+
+    def _goal(self, targets: np.ndarray, state: np.ndarray) -> np.ndarray:
+        """(..., 3) the points targets (..., 2) at the plan altitude; a failed identity (NaN) stays."""
+        goal = np.asarray(targets, dtype=np.float64)
+        goal = np.where(np.isnan(goal), state[..., :2], goal)
+        return np.concatenate([goal, np.full(goal.shape[:-1] + (1,), -self.plan_alt)], -1)
 
     def advance(self, t: int, targets: np.ndarray) -> None:
         """Fly every copy to second t; targets (B, A, n, 2) the points held since the last call."""
-        assert self.state is not None
-        goal = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float64))
-        goal = torch.where(torch.isnan(goal), self.state[..., :2], goal)  # a failed identity: stays
-        goal = torch.cat([goal, torch.full_like(goal[..., :1], -self.plan_alt)], -1)
-        lim = self.limits
+        assert self.now is not None
+        goal = self._goal(targets, self.now)
         while self.t < t:
             if self.t % self.tau == 0 or self.accel is None:
-                p, v = self.state[..., :3], self.state[..., 3:]
-                self.accel = goto_accel(p, v, goal, lim.max_speed, lim.max_accel, time_const=float(self.tau))
-            p, v = step_point_mass(self.state[..., :3], self.state[..., 3:], self.accel, 1.0, lim)
-            self.state = torch.cat([p, v], -1)
+                self.accel = _goto_accel(self.now[..., :3], self.now[..., 3:], goal, self.limits, float(self.tau))
+            self.now = _step(self.now, self.accel, self.limits)
             self.t += 1
             if self.is_instant(self.t):
-                self.kept[self.t] = self.state.clone()
+                self.kept[self.t] = self.now.copy()
 
     def replay(self, b: int, a: int, since: int, targets: np.ndarray) -> None:
         """Copy (b, a) re-planned for an epoch `since` in the past: its nominal from then on
         is re-flown to the present with its new targets (n, 2), as if every identity had
         switched at the epoch. So every copy that re-planned for that epoch, whenever it
         learnt of it, predicts the same; the kept instants since are rewritten."""
-        assert self.state is not None
+        assert self.now is not None
         if since >= self.t:
             return
-        state = self.at(since)[b, a].clone()
-        goal = torch.from_numpy(np.ascontiguousarray(targets, dtype=np.float64))
-        goal = torch.where(torch.isnan(goal), state[:, :2], goal)
-        goal = torch.cat([goal, torch.full_like(goal[..., :1], -self.plan_alt)], -1)
-        lim = self.limits
+        state = self._at(since)[b, a].copy()
+        goal = self._goal(targets, state)
         accel = None
         for s in range(since, self.t):
             if s % self.tau == 0 or accel is None:
-                accel = goto_accel(state[:, :3], state[:, 3:], goal, lim.max_speed, lim.max_accel, time_const=float(self.tau))
-            p, v = step_point_mass(state[:, :3], state[:, 3:], accel, 1.0, lim)
-            state = torch.cat([p, v], -1)
+                accel = _goto_accel(state[:, :3], state[:, 3:], goal, self.limits, float(self.tau))
+            state = _step(state, accel, self.limits)
             if s + 1 in self.kept:
                 self.kept[s + 1][b, a] = state
-        self.state[b, a] = state
+        self.now[b, a] = state
+
+    def _at(self, t: int) -> np.ndarray:
+        assert self.now is not None
+        if t >= self.t:
+            return self.now
+        times = [s for s in self.kept if s <= t]
+        return self.kept[max(times)] if times else self.kept[min(self.kept)]
 
     def at(self, t: int) -> torch.Tensor:
         """(B, A, n, 6) the nominal state at signalling instant t (the nearest kept one
         not after t; the current state if t is later than every kept one)."""
-        assert self.state is not None
-        if t >= self.t:
-            return self.state
-        times = [s for s in self.kept if s <= t]
-        return self.kept[max(times)] if times else self.kept[min(self.kept)]
+        return torch.from_numpy(self._at(t))
 
     def sources(self, b: int, a: int, t: int, ids: np.ndarray) -> np.ndarray:
         """(len(ids), 2) predicted positions of identities `ids` at instant t in copy (b, a),
         rounded to ROUND_M so every copy's assignment breaks ties alike."""
-        xy = self.at(t)[b, a, ids, :2].numpy()
+        xy = self._at(t)[b, a, ids, :2]
         return np.round(xy / ROUND_M) * ROUND_M
 
 

@@ -235,18 +235,7 @@ def _free_flight(
 def _free_flight_numpy(
     pos: torch.Tensor, vel: torch.Tensor, accel_cmd: torch.Tensor, dt: float, lim: Limits
 ) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """The free-flight step of `step_point_mass` in numpy, bit for bit, for small float64
-    CPU batches that need none of its projections; None when it does not apply.
-
-    A torch call on a (20, 3) tensor costs a few microseconds whatever it computes, and the
-    autopilot emulator steps its fleet 50 times per simulated second: this path does the
-    same IEEE operations in the same order with numpy's lower per-call cost. It applies
-    only where every projection of the torch path is the identity: all finite, every
-    command and velocity clearly inside its norm limit (torch's scale factor would be
-    exactly 1.0), every altitude inside the band (the clamp returns it unchanged). The
-    free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
-    difference in a norm cannot matter; and at its boundary both paths agree anyway).
-    tests/model/test_vehicle.py compares it with the torch path."""
+    """`free_flight_step` on float64 CPU tensors (views, no copies); None when it does not apply."""
     if (
         pos.dtype != torch.float64 or vel.dtype != torch.float64 or accel_cmd.dtype != torch.float64
         or pos.device.type != "cpu" or pos.requires_grad or vel.requires_grad or accel_cmd.requires_grad
@@ -259,6 +248,27 @@ def _free_flight_numpy(
     acc = accel_cmd.detach().reshape(-1, 3).numpy()
     if v.shape != p.shape or acc.shape != p.shape:
         return None
+    out = free_flight_step(p, v, acc, dt, lim)
+    return None if out is None else (torch.from_numpy(out[0]), torch.from_numpy(out[1]))
+
+
+def free_flight_step(
+    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The free-flight step of `step_point_mass` in numpy, bit for bit, on float64 (M, 3)
+    arrays (position, velocity, command) that need none of its projections; None when it
+    does not apply.
+
+    A torch call on a (20, 3) tensor costs a few microseconds whatever it computes, and the
+    autopilot emulator steps its fleet 50 times per simulated second (and every agent flies
+    its team's plan-aware prediction every second, model/plan_motion.py): this path does the
+    same IEEE operations in the same order with numpy's lower per-call cost. It applies
+    only where every projection of the torch path is the identity: all finite, every
+    command and velocity clearly inside its norm limit (torch's scale factor would be
+    exactly 1.0), every altitude inside the band (the clamp returns it unchanged). The
+    free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
+    difference in a norm cannot matter; and at its boundary both paths agree anyway).
+    tests/model/test_vehicle.py compares it with the torch path."""
     acc_sq = (acc * acc).sum(-1)
     vel_sq = (v * v).sum(-1)
     alt = -p[:, 2]
@@ -281,9 +291,7 @@ def _free_flight_numpy(
         return None
     # The torch path's ballistic update, operation for operation.
     a = acc * inside[:, None].astype(np.float64)
-    p_new = p + v * dt + 0.5 * a * dt * dt
-    v_new = v + a * dt
-    return torch.from_numpy(p_new), torch.from_numpy(v_new)
+    return p + v * dt + 0.5 * a * dt * dt, v + a * dt
 
 
 def step_point_mass(

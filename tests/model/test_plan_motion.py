@@ -1,0 +1,81 @@
+"""The plan-aware prediction in numpy (model/plan_motion.py) is the torch flight it replaced,
+bit for bit: `goto_accel` held for tau, `step_point_mass` each second, on the same shapes.
+The reference below is that torch loop; the states must be equal, not close, because every
+agent and the twin must assign a re-plan from the same positions."""
+
+import numpy as np
+import pytest
+import torch
+
+from plmarl_sitl.model.plan_motion import PlanMotion, _goto_accel
+from plmarl_sitl.model.vehicle import Limits, goto_accel, step_point_mass
+
+LIM = Limits(20.0, 5.0, 40.0, 150.0)
+TAU = 3
+
+
+def _torch_flight(state: torch.Tensor, goal_xy: np.ndarray, t0: int, t1: int, plan_alt: float) -> list[torch.Tensor]:
+    """The former PlanMotion.advance: every second's state from t0 + 1 to t1."""
+    goal = torch.from_numpy(np.ascontiguousarray(goal_xy, dtype=np.float64))
+    goal = torch.where(torch.isnan(goal), state[..., :2], goal)
+    goal = torch.cat([goal, torch.full_like(goal[..., :1], -plan_alt)], -1)
+    out, accel = [], None
+    for t in range(t0, t1):
+        if t % TAU == 0 or accel is None:
+            accel = goto_accel(state[..., :3], state[..., 3:], goal, LIM.max_speed, LIM.max_accel, time_const=float(TAU))
+        p, v = step_point_mass(state[..., :3], state[..., 3:], accel, 1.0, LIM)
+        state = torch.cat([p, v], -1)
+        out.append(state)
+    return out
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 4), (1, 1, 20), (1, 1, 100), (2, 5, 5)])
+def test_numpy_flight_equals_the_torch_flight_bit_for_bit(shape):
+    rng = np.random.default_rng(sum(shape))
+    launch = rng.uniform(0, 1500, shape + (2,))
+    motion = PlanMotion(LIM, 100.5, 60.0, TAU, lambda t: t % 5 == 0)
+    motion.start(launch)
+    ref = torch.from_numpy(motion.now.copy())
+    t = 0
+    # transit at V_max (the event solver), arrival and hover (free flight), a new plan, a failed identity
+    for leg in range(3):
+        targets = rng.uniform(0, 1500, shape + (2,))
+        if leg == 2:
+            targets[..., 0, :] = np.nan
+        for _ in range(40 if leg < 2 else 15):
+            states = _torch_flight(ref, targets, t, t + TAU, 100.5)
+            motion.advance(t + TAU, targets)
+            t += TAU
+            ref = states[-1]
+            assert np.array_equal(motion.now, ref.numpy())
+            for s, st in zip(range(t - TAU + 1, t + 1), states, strict=True):
+                if s % 5 == 0:
+                    assert np.array_equal(motion.kept[s], st.numpy())
+
+
+def test_goto_accel_in_numpy_equals_torch_at_every_distance():
+    rng = np.random.default_rng(3)
+    n = 5000
+    scale = rng.choice([1e-13, 1e-6, 1e-2, 1.0, 30.0, 2000.0], size=(n, 1))
+    p = rng.uniform(0, 3000, (n, 3))
+    goal = p + rng.standard_normal((n, 3)) * scale
+    v = rng.standard_normal((n, 3)) * rng.choice([0.0, 1e-14, 1.0, 20.0], size=(n, 1))
+    want = goto_accel(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(goal), LIM.max_speed, LIM.max_accel,
+                      time_const=float(TAU)).numpy()
+    assert np.array_equal(_goto_accel(p, v, goal, LIM, float(TAU)), want)
+
+
+def test_replay_equals_a_flight_switched_at_the_epoch():
+    rng = np.random.default_rng(7)
+    launch = rng.uniform(0, 1000, (1, 2, 12, 2))
+    motion = PlanMotion(LIM, 100.5, 60.0, TAU, lambda t: t % 5 == 0)
+    motion.start(launch)
+    first = rng.uniform(0, 1000, (1, 2, 12, 2))
+    motion.advance(30, first)
+    later = rng.uniform(0, 1000, (12, 2))
+    motion.replay(0, 1, 15, later)
+    at15 = torch.from_numpy(motion.kept[15][0, 1].copy())
+    states = _torch_flight(at15, later, 15, 30, 100.5)
+    assert np.array_equal(motion.now[0, 1], states[-1].numpy())
+    assert np.array_equal(motion.kept[20][0, 1], states[4].numpy())
+    assert np.array_equal(motion.kept[25][0, 1], states[9].numpy())
