@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from plmarl_sitl.model.vehicle import Limits, free_flight_step, step_point_mass
+from plmarl_sitl.model.vehicle import Limits, step_point_mass_numpy
 
 ROUND_M = 0.01  # predicted positions handed to the assignment are rounded like launch_line's
 
@@ -54,17 +54,12 @@ def _goto_accel(p: np.ndarray, v: np.ndarray, goal: np.ndarray, lim: Limits, tau
 
 
 def _step(state: np.ndarray, accel: np.ndarray, lim: Limits) -> np.ndarray:
-    """(..., 6) state one second on under accel (..., 3): `step_point_mass`, in numpy when no
-    vehicle can meet a limit (`free_flight_step`, bit for bit), else by torch's event solver."""
+    """(..., 6) state one second on under accel (..., 3): `step_point_mass`, bit for bit, in
+    numpy for the vehicles in free flight and torch's event solver for the others."""
     shape = state.shape
     flat = state.reshape(-1, 6)
-    p, v = flat[:, :3], flat[:, 3:]
-    out = free_flight_step(p, v, accel.reshape(-1, 3), 1.0, lim)
-    if out is None:
-        pt, vt = step_point_mass(torch.from_numpy(np.ascontiguousarray(p)), torch.from_numpy(np.ascontiguousarray(v)),
-                                 torch.from_numpy(np.ascontiguousarray(accel.reshape(-1, 3))), 1.0, lim)
-        out = pt.numpy(), vt.numpy()
-    return np.concatenate(out, -1).reshape(shape)
+    p, v = step_point_mass_numpy(flat[:, :3], flat[:, 3:], accel.reshape(-1, 3), 1.0, lim)
+    return np.concatenate([p, v], -1).reshape(shape)
 
 
 class PlanMotion:

@@ -257,11 +257,10 @@ def free_flight_step(
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """The free-flight step of `step_point_mass` in numpy, bit for bit, on float64 (M, 3)
     arrays (position, velocity, command) that need none of its projections; None when it
-    does not apply.
+    does not apply to every vehicle.
 
     A torch call on a (20, 3) tensor costs a few microseconds whatever it computes, and the
-    autopilot emulator steps its fleet 50 times per simulated second (and every agent flies
-    its team's plan-aware prediction every second, model/plan_motion.py): this path does the
+    autopilot emulator steps its fleet 50 times per simulated second: this path does the
     same IEEE operations in the same order with numpy's lower per-call cost. It applies
     only where every projection of the torch path is the identity: all finite, every
     command and velocity clearly inside its norm limit (torch's scale factor would be
@@ -269,29 +268,64 @@ def free_flight_step(
     free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
     difference in a norm cannot matter; and at its boundary both paths agree anyway).
     tests/model/test_vehicle.py compares it with the torch path."""
+    free, inside = _free_in_numpy(p, v, acc, dt, lim)
+    if not free.all():
+        return None
+    return _ballistic(p, v, acc, inside, dt)
+
+
+def _free_in_numpy(
+    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
+) -> tuple[np.ndarray, np.ndarray]:
+    """(free, inside), (M,) bool each: `free_flight_step`'s conditions per vehicle (free: no
+    projection of the torch path changes it and it is inside or resting, `_free_flight`)."""
     acc_sq = (acc * acc).sum(-1)
     vel_sq = (v * v).sum(-1)
     alt = -p[:, 2]
     inner = 1.0 - 1e-9  # far outside the round-off of a norm, far inside the limit
-    if not (
-        np.isfinite(acc_sq).all() and np.isfinite(vel_sq).all() and np.isfinite(alt).all()
-        and acc_sq.max() <= (lim.max_accel * inner) ** 2 and vel_sq.max() <= (lim.max_speed * inner) ** 2
-        and alt.min() >= lim.alt_min and alt.max() <= lim.alt_max
-    ):
-        return None
+    with np.errstate(invalid="ignore"):  # NaN and inf compare False: not free
+        plain = (np.isfinite(acc_sq) & np.isfinite(vel_sq) & np.isfinite(alt)
+                 & (acc_sq <= (lim.max_accel * inner) ** 2) & (vel_sq <= (lim.max_speed * inner) ** 2)
+                 & (alt >= lim.alt_min) & (alt <= lim.alt_max))
+        dt = float(dt)
+        margin = 1e3 * 16.0 * np.finfo(np.float64).eps * max(1.0, lim.alt_max)  # _free_flight's margin
+        reach_v = np.sqrt(vel_sq) + np.sqrt(acc_sq) * dt
+        reach_h = np.abs(v[:, 2]) * dt + 0.5 * np.abs(acc[:, 2]) * dt * dt
+        inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * np.finfo(np.float64).eps)) & (
+            alt - reach_h > lim.alt_min + margin) & (alt + reach_h < lim.alt_max - margin)
+        still = (v == 0).all(-1)
+        resting = still & (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0) & (alt <= lim.alt_min)
+    return plain & (inside | resting), inside
+
+
+def _ballistic(p: np.ndarray, v: np.ndarray, acc: np.ndarray, inside: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The torch path's ballistic update, operation for operation (a resting vehicle: no command)."""
     dt = float(dt)
-    margin = 1e3 * 16.0 * np.finfo(np.float64).eps * max(1.0, lim.alt_max)  # _free_flight's margin
-    reach_v = np.sqrt(vel_sq) + np.sqrt(acc_sq) * dt
-    reach_h = np.abs(v[:, 2]) * dt + 0.5 * np.abs(acc[:, 2]) * dt * dt
-    inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * np.finfo(np.float64).eps)) & (
-        alt - reach_h > lim.alt_min + margin) & (alt + reach_h < lim.alt_max - margin)
-    still = (v == 0).all(-1)
-    resting = still & (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0) & (alt <= lim.alt_min)
-    if not (inside | resting).all():
-        return None
-    # The torch path's ballistic update, operation for operation.
     a = acc * inside[:, None].astype(np.float64)
     return p + v * dt + 0.5 * a * dt * dt, v + a * dt
+
+
+def step_point_mass_numpy(
+    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
+) -> tuple[np.ndarray, np.ndarray]:
+    """`step_point_mass` on float64 (M, 3) arrays, bit for bit: the vehicles in free flight
+    (`free_flight_step`'s conditions, per vehicle) in numpy, only the others through torch's
+    event solver. Why per vehicle: in a team of 20 one vehicle at V_max sends the whole
+    batch to the solver (~15 torch calls per event round); the solver treats every vehicle
+    on its own (its branches on "any vehicle meets an event now" change nothing for a
+    vehicle that meets none, and a free vehicle meets none), so a free vehicle's result does
+    not depend on the batch it is in. tests/model/test_plan_motion.py compares it with the
+    whole batch through `step_point_mass`."""
+    free, inside = _free_in_numpy(p, v, acc, dt, lim)
+    if free.all():
+        return _ballistic(p, v, acc, inside, dt)
+    p_out, v_out = np.empty_like(p), np.empty_like(v)
+    if free.any():
+        p_out[free], v_out[free] = _ballistic(p[free], v[free], acc[free], inside[free], dt)
+    rest = ~free
+    pt, vt = step_point_mass(torch.from_numpy(p[rest]), torch.from_numpy(v[rest]), torch.from_numpy(acc[rest]), dt, lim)
+    p_out[rest], v_out[rest] = pt.numpy(), vt.numpy()
+    return p_out, v_out
 
 
 def step_point_mass(

@@ -79,3 +79,34 @@ def test_replay_equals_a_flight_switched_at_the_epoch():
     assert np.array_equal(motion.now[0, 1], states[-1].numpy())
     assert np.array_equal(motion.kept[20][0, 1], states[4].numpy())
     assert np.array_equal(motion.kept[25][0, 1], states[9].numpy())
+
+
+def _mixed_batch(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """States and commands of every kind the solver separates: free flight, at V_max
+    (pushing on or turning), at a band edge, resting on the floor, past the limits, a NaN command."""
+    p = np.concatenate([rng.uniform(0, 1000, (m, 2)), -rng.uniform(LIM.alt_min, LIM.alt_max, (m, 1))], -1)
+    v = rng.standard_normal((m, 3)) * rng.choice([0.0, 1.0, 10.0], size=(m, 1))
+    acc = rng.standard_normal((m, 3)) * rng.choice([0.0, 1.0, 4.0, 9.0], size=(m, 1))
+    kind = rng.integers(0, 7, m)
+    at_vmax = kind == 1
+    v[at_vmax] *= LIM.max_speed / np.linalg.norm(v[at_vmax] + 1e-30, axis=-1, keepdims=True)
+    p[kind == 2, 2] = -LIM.alt_max
+    p[kind == 3, 2] = -LIM.alt_min
+    v[kind == 3] = 0.0
+    acc[kind == 3] = [0.0, 0.0, 1.0]
+    v[kind == 4] *= 5.0  # faster than V_max: projected back
+    acc[kind == 5] = np.nan
+    p[kind == 6, 2] = -LIM.alt_max - 3.0  # above the band: clamped
+    return p, v, acc
+
+
+@pytest.mark.parametrize("m", [1, 5, 20, 100, 300])
+def test_numpy_step_per_vehicle_equals_the_whole_batch_through_torch(m):
+    from plmarl_sitl.model.vehicle import step_point_mass_numpy
+
+    rng = np.random.default_rng(m)
+    for _ in range(30):
+        p, v, acc = _mixed_batch(rng, m)
+        want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
+        got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
+        assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
