@@ -80,10 +80,17 @@ def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tenso
     hear: at the positions it predicts for the team (predicted_pos (..., A, M, 3), its own
     row replaced by own_pos (..., A, 3); me (A,) its identity) the shared channel model gives
     the link j -> a a clear margin (`SUSPECT_RANGE_FRAC`, `SUSPECT_MARGIN_DB`)."""
+    return dropped & clear_hearing(predicted_pos, me, own_pos, channel, comm_m)
+
+
+def clear_hearing(predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
+                  channel: Channel, comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: the links j -> a with the clear margin of `suspects`, for every j
+    (a function of the predicted positions alone: a deployed agent keeps it while they do)."""
     sinr_a, d2 = _links(predicted_pos, me, own_pos, channel)
     near = d2 <= (SUSPECT_RANGE_FRAC * comm_m) ** 2
     clear = sinr_a >= db_to_lin(channel.sinr_threshold_db + SUSPECT_MARGIN_DB)
-    return dropped & near & clear
+    return near & clear
 
 
 # A link heard at the previous instant is "steady" at the missed one when the prediction
@@ -104,6 +111,13 @@ def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Te
     """(..., A, M) bool: receiver a's teammates heard at the previous instant (heard_prev
     (..., A, M)) whose link j -> a is steady at the missed instant: the predictions
     pred_now / pred_prev (..., A, M, 3) at the two instants (a's own row its own nominal)."""
+    return heard_prev & steady_links(pred_now, pred_prev, me, channel, comm_m)
+
+
+def steady_links(pred_now: torch.Tensor, pred_prev: torch.Tensor, me: torch.Tensor,
+                 channel: Channel, comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: the links j -> a `steady` finds steady, for every j (a function of the
+    two predictions alone)."""
     idx = me.view(*([1] * (pred_now.dim() - 3)), -1, 1, 1).expand(*pred_now.shape[:-3], -1, 1, 3)
     own_now = torch.take_along_dim(pred_now, idx, -2)[..., 0, :]
     own_prev = torch.take_along_dim(pred_prev, idx, -2)[..., 0, :]
@@ -112,7 +126,7 @@ def steady(heard_prev: torch.Tensor, pred_now: torch.Tensor, pred_prev: torch.Te
     moved = ((pred_now - pred_prev) ** 2).sum(-1) <= STEADY_MOVE_M ** 2  # (..., A, M)
     self_moved = ((own_now - own_prev) ** 2).sum(-1, keepdim=True) <= STEADY_MOVE_M ** 2
     ok = (s_now >= s_prev * db_to_lin(-STEADY_DROP_DB)) & (s_now >= db_to_lin(channel.sinr_threshold_db + STEADY_MARGIN_DB))
-    return heard_prev & moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
+    return moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
 # A knowledge entry, one int per (knower, identity): the rank 2^32 x key + (2^32 - 1 - since),
@@ -215,5 +229,5 @@ class Gossip:
 
 
 __all__ = ["DECLARE_AFTER_MISSED", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
-           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
+           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "clear_hearing", "steady_links", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
            "steady", "suspects"]

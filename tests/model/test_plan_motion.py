@@ -110,3 +110,22 @@ def test_numpy_step_per_vehicle_equals_the_whole_batch_through_torch(m):
         want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
         got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
         assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
+
+
+def test_link_tables_are_kept_while_the_predictions_are_and_recomputed_when_they_change():
+    from plmarl_sitl.deploy.agent.plan import LinkTables
+
+    tables, calls = LinkTables(), []
+    pred = torch.zeros(1, 1, 4, 3, dtype=torch.float64)
+
+    def compute():
+        calls.append(1)
+        return pred[..., 0] > len(calls)
+
+    first = tables.get(("clear", 15), (pred,), compute)
+    assert tables.get(("clear", 15), (pred.clone(),), compute) is first and len(calls) == 1
+    pred[0, 0, 2, 1] = 1e-9  # a re-plan re-flew the prediction in place: the table is stale
+    assert tables.get(("clear", 15), (pred,), compute) is not first and len(calls) == 2
+    for k in range(LinkTables.KEEP + 3):
+        tables.get(("clear", 30 + k), (pred,), compute)
+    assert len(tables.tables) == LinkTables.KEEP

@@ -174,8 +174,8 @@ class Decision:
             self.trace.write({
                 "t": k,
                 "boot_s": round(self.clock.boot_s, 3),
-                "aoi": [round(float(x), 2) for x in self.aoi],
-                "mask": [bool(x) for x in mask],
+                "aoi": [round(x, 2) for x in self.aoi.tolist()],  # tolist: iterating a tensor makes a tensor per element
+                "mask": mask.tolist(),
                 "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
                 "fail": self.table.lost,  # a neighbour was dropped
                 "f": self.fail,  # the failure flag the policy got at the last decision
