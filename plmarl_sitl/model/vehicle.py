@@ -305,6 +305,23 @@ def _ballistic(p: np.ndarray, v: np.ndarray, acc: np.ndarray, inside: np.ndarray
     return p + v * dt + 0.5 * a * dt * dt, v + a * dt
 
 
+_SQRT3 = 1.7320508075688774  # |x| <= sqrt(3) max |x_i|; rounded up, and the margins below are 1e-6
+
+
+def _clearly_inside(p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits) -> bool:
+    """A cheap sufficient condition for every vehicle being free and inside (`_free_in_numpy`):
+    bounds from the largest components, a million times wider than the round-off, so that
+    wherever it holds the exact test holds too (a NaN fails every comparison: the exact test
+    decides). A hovering team (the common second) costs 6 numpy calls instead of ~25."""
+    dt = float(dt)
+    vmax, amax, vz, az = float(np.abs(v).max()), float(np.abs(acc).max()), float(np.abs(v[:, 2]).max()), float(np.abs(acc[:, 2]).max())
+    alt_lo, alt_hi = float(-p[:, 2].max()), float(-p[:, 2].min())
+    reach_h = vz * dt + 0.5 * az * dt * dt
+    margin = 1e3 * 16.0 * np.finfo(np.float64).eps * max(1.0, lim.alt_max) + 1e-6
+    return bool(_SQRT3 * (vmax + amax * dt) < lim.max_speed * (1.0 - 1e-6) and _SQRT3 * amax < lim.max_accel * (1.0 - 1e-6)
+                and alt_lo - reach_h > lim.alt_min + margin and alt_hi + reach_h < lim.alt_max - margin)
+
+
 def step_point_mass_numpy(
     p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -316,6 +333,9 @@ def step_point_mass_numpy(
     vehicle that meets none, and a free vehicle meets none), so a free vehicle's result does
     not depend on the batch it is in. tests/model/test_plan_motion.py compares it with the
     whole batch through `step_point_mass`."""
+    if _clearly_inside(p, v, acc, dt, lim):
+        dt = float(dt)  # every vehicle inside: _ballistic with an all-True mask (acc x 1.0 is acc)
+        return p + v * dt + 0.5 * acc * dt * dt, v + acc * dt
     free, inside = _free_in_numpy(p, v, acc, dt, lim)
     if free.all():
         return _ballistic(p, v, acc, inside, dt)

@@ -129,3 +129,18 @@ def test_link_tables_are_kept_while_the_predictions_are_and_recomputed_when_they
     for k in range(LinkTables.KEEP + 3):
         tables.get(("clear", 30 + k), (pred,), compute)
     assert len(tables.tables) == LinkTables.KEEP
+
+
+def test_numpy_step_of_a_hovering_team_equals_torch():
+    """The common second: every vehicle well inside every limit (`_clearly_inside`'s shortcut)."""
+    from plmarl_sitl.model.vehicle import _clearly_inside, step_point_mass_numpy
+
+    rng = np.random.default_rng(11)
+    for m in (1, 4, 20, 100):
+        p = np.concatenate([rng.uniform(0, 3000, (m, 2)), -rng.uniform(60, 120, (m, 1))], -1)
+        v = rng.uniform(-1, 1, (m, 3)) * rng.choice([1e-14, 1e-3, 5.0], size=(m, 1))
+        acc = rng.uniform(-1, 1, (m, 3)) * rng.choice([0.0, 1e-12, 1.0], size=(m, 1))
+        assert _clearly_inside(p, v, acc, 1.0, LIM)
+        want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
+        got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
+        assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
