@@ -215,7 +215,9 @@ def decode_sense(payload: bytes) -> SenseMsg:
     if len(payload) != _SENSE_HEAD.size + 8 * count:
         raise Malformed("length")
     flat = struct.unpack_from(f"<{2 * count}f", payload, _SENSE_HEAD.size)
-    if not all(math.isfinite(x) and abs(x) <= MAX_ABS_POS_M for x in flat):
+    # The same test as all(isfinite(x) and abs(x) <= MAX) per value, iterated in C: a
+    # generator over ~100 values per message was ~2 % of an agent's CPU (issue 25).
+    if not (all(map(math.isfinite, flat)) and (not flat or max(map(abs, flat)) <= MAX_ABS_POS_M)):
         raise Malformed("not_finite")
     return SenseMsg(receiver, t_ms, tuple(zip(flat[0::2], flat[1::2], strict=True)))
 
