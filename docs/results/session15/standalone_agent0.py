@@ -23,5 +23,6 @@ async def fork_or_exec(argv, log_path, env, name, nice=0):  # noqa: ANN001, ANN2
             env=dict(os.environ, **env), preexec_fn=functools.partial(agent_child_setup, nice))
 
 
-agents.fork_agent = fork_or_exec
-sys.exit(main(["swarm", "up", *sys.argv[1:]]))
+if __name__ == "__main__":  # not when the forkserver imports this file as its __main__
+    agents.fork_agent = fork_or_exec
+    sys.exit(main(["swarm", "up", *sys.argv[1:]]))

@@ -55,10 +55,11 @@ def preload(policy: str | Path, mission: str | Path) -> None:
 
 
 def release_free_heap() -> None:
-    """Before the forks: collect, and give the freed heap (the loads' transients, the plan
-    grid's build ~14 MB at 3 km) back to the kernel. An agent's RSS counts every anonymous
-    page its forkserver holds when it forks, garbage included. linecache holds the source
-    lines `inspect` read while torch imported (an agent that needs one reads it again)."""
+    """Collect, and give the freed heap (the loads' transients, the plan grid's build ~14 MB at
+    3 km) back to the kernel: glibc keeps it resident otherwise. The forkserver calls it before
+    its forks (an agent's RSS counts every anonymous page the server holds when it forks,
+    garbage included), an agent once it is built. linecache holds the source lines `inspect`
+    read while torch imported (code that needs one reads it again)."""
     import ctypes
     import gc
     import linecache
