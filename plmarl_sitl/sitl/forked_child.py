@@ -31,7 +31,8 @@ if _spec:
         pass
 # Everything loaded so far is shared copy-on-write with every agent. Frozen, the cyclic GC
 # of an agent never walks (and so never writes to, and copies) the pages of these objects.
-# Collected first: what is garbage now is not frozen into every agent (126 ms of CPU per agent's
-# first full collection otherwise, and its bookkeeping written into inherited pages).
-gc.collect()
+# Collected (and the freed heap trimmed) first: what is garbage now is neither frozen into
+# every agent (126 ms of CPU per agent's first full collection otherwise, and its bookkeeping
+# written into inherited pages) nor counted in every agent's RSS.
+plmarl_sitl.deploy.agent.preload.release_free_heap()
 gc.freeze()

@@ -55,3 +55,26 @@ def test_a_preloaded_mission_is_found_only_for_the_same_unchanged_file(tmp_path:
     os.utime(mission, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # the mission file changed since
     assert preloaded_mission(mission) is None
     assert preloaded_mission(tmp_path / "gone.yaml") is None
+
+
+def test_the_forkserver_holds_no_training_module() -> None:
+    """Every module the forkserver imports is in every forked agent's RSS (issue 24.2): the agent
+    only loads TorchScript files, so the training and export modules stay out of it."""
+    import subprocess
+    import sys
+
+    code = ("import sys, plmarl_sitl.sitl.forked_child; "
+            "print(' '.join(m for m in sys.modules if m.startswith('plmarl_sitl.learning')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout.split()
+    assert "plmarl_sitl.learning.nn.io" in out
+    for training in ("belief", "policy", "predictor", "fused"):
+        assert f"plmarl_sitl.learning.nn.{training}" not in out
+    from plmarl_sitl.learning import nn
+
+    assert nn.Actor.__module__ == "plmarl_sitl.learning.nn.policy"  # the package's names still resolve, on first use
+    try:
+        nn.NoSuchName  # noqa: B018
+    except AttributeError:
+        pass
+    else:
+        raise AssertionError("an unknown name resolved")

@@ -38,24 +38,33 @@ def _version(f: Path) -> tuple[str, int, int]:
 
 def preload(policy: str | Path, mission: str | Path) -> None:
     """Load `policy` checked against the mission file `mission`, and build its plan grid."""
-    from plmarl_sitl.learning.nn.io import load_policy
+    from plmarl_sitl.learning.nn.io import dry_run, load_policy
     from plmarl_sitl.learning.nn.plan import service_grid
 
     m = load_mission(mission)
     _missions[_version(Path(mission).resolve())] = m  # frozen: shared by every agent as it is
     lp = load_policy(policy, m)
+    # load_policy's dry run was each TorchScript method's profiling call; this second one
+    # optimizes their graphs from that same profile, as each agent's first decision would
+    # otherwise do for itself: done once here, the plans are shared by every agent instead of
+    # each one running the JIT passes (their CPU, and ~3 MB of libtorch code pages in its RSS).
+    dry_run(lp.tracker, lp.call)
     if lp.takes_plan and m.coordination == "team":  # the neighbourhood plan (coordination: local) needs no grid
         service_grid(m)  # cached by its constants: the agents' AgentPlan finds it built
     _loaded[_key(policy, mission)] = lp
-    _release_free_heap()
 
 
-def _release_free_heap() -> None:
-    """Give the heap the loads freed (the plan grid's build transient, ~14 MB at 3 km) back to
-    the kernel before the forks: every agent's RSS counts what the server holds when it forks."""
+def release_free_heap() -> None:
+    """Collect, and give the freed heap (the loads' transients, the plan grid's build ~14 MB at
+    3 km) back to the kernel: glibc keeps it resident otherwise. The forkserver calls it before
+    its forks (an agent's RSS counts every anonymous page the server holds when it forks,
+    garbage included), an agent once it is built. linecache holds the source lines `inspect`
+    read while torch imported (code that needs one reads it again)."""
     import ctypes
     import gc
+    import linecache
 
+    linecache.clearcache()
     gc.collect()
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)

@@ -36,7 +36,6 @@ from plmarl_sitl.errors import PolicyFileError
 from plmarl_sitl.learning.nn.card import check_card
 from plmarl_sitl.learning.nn.contract import INPUT_VERSION, PolicyCall, PolicyForm, PolicyInputs
 from plmarl_sitl.learning.nn.features import EGO_FEATURES, STATE_DIM
-from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
 from plmarl_sitl.model.coverage import SENSING_FEATURES
 from plmarl_sitl.model.demand import DEMAND_CELL_FIELDS
 
@@ -84,6 +83,10 @@ def sha256(path: Path) -> str:
 
 def export_policy(out_dir: str | Path, tracker: nn.Module, policy: nn.Module, card: dict) -> Path:
     """Script and save tracker and policy, then write card.yaml (with the files' sha256)."""
+    # Imported here, not at the top: the fused modules (and the training modules they build on)
+    # are for export; an agent, which only loads, does not hold them (its RSS, issue 24.2).
+    from plmarl_sitl.learning.nn.fused import fuse_policy, fuse_tracker
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tracker = fuse_tracker(tracker)  # unchanged if not fusable (GRU, hold, scripted)
@@ -205,12 +208,19 @@ def load_policy(directory: str | Path, mission=None) -> LoadedPolicy:  # noqa: A
                 str(d / "predictor.pt"), f"mismatched with mission {mission.name!r}: buffer length {buffer_len}, mission has {mission.signalling.buffer_len}"
             )
     try:
-        with torch.no_grad():
-            held = torch.zeros(2, STATE_DIM)
-            buf, seen = tracker.init_state(held)
-            belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
-            call(PolicyInputs(torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES),
-                              torch.tensor(False), torch.zeros(1, DEMAND_CELL_FIELDS), torch.zeros(2)))
+        dry_run(tracker, call)
     except RuntimeError as exc:
         raise PolicyFileError(str(d), f"mismatched: a dry run of predictor.pt -> policy.pt failed ({str(exc).splitlines()[0]})") from exc
     return LoadedPolicy(d, tracker, policy, card)
+
+
+def dry_run(tracker: torch.jit.ScriptModule, call: PolicyCall) -> None:
+    """Run the tracker (init_state, forward) and the policy once on dummy inputs (2 neighbours,
+    one demand cell). TorchScript's profiling executor profiles a method's first call and
+    optimizes its graph on the second, from that profile, whatever the inputs."""
+    with torch.no_grad():
+        held = torch.zeros(2, STATE_DIM)
+        buf, seen = tracker.init_state(held)
+        belief, _, _, _ = tracker(0.0, held, torch.zeros(2), buf, seen)
+        call(PolicyInputs(torch.zeros(STATE_DIM), belief, torch.ones(2, dtype=torch.bool), torch.zeros(SENSING_FEATURES),
+                          torch.tensor(False), torch.zeros(1, DEMAND_CELL_FIELDS), torch.zeros(2)))
