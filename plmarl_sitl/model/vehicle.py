@@ -235,29 +235,44 @@ def _free_flight(
 def _free_flight_numpy(
     pos: torch.Tensor, vel: torch.Tensor, accel_cmd: torch.Tensor, dt: float, lim: Limits
 ) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """The free-flight step of `step_point_mass` in numpy, bit for bit, for small float64
-    CPU batches that need none of its projections; None when it does not apply.
-
-    A torch call on a (20, 3) tensor costs a few microseconds whatever it computes, and the
-    autopilot emulator steps its fleet 50 times per simulated second: this path does the
-    same IEEE operations in the same order with numpy's lower per-call cost. It applies
-    only where every projection of the torch path is the identity: all finite, every
-    command and velocity clearly inside its norm limit (torch's scale factor would be
-    exactly 1.0), every altitude inside the band (the clamp returns it unchanged). The
-    free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
-    difference in a norm cannot matter; and at its boundary both paths agree anyway).
-    tests/model/test_vehicle.py compares it with the torch path."""
+    """`free_flight_numpy` for tensors that can share their memory with numpy (float64, CPU,
+    no autograd); None when they cannot or it does not apply."""
     if (
         pos.dtype != torch.float64 or vel.dtype != torch.float64 or accel_cmd.dtype != torch.float64
         or pos.device.type != "cpu" or pos.requires_grad or vel.requires_grad or accel_cmd.requires_grad
     ):
         return None
     p = pos.detach().reshape(-1, 3).numpy()
-    if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
-        return None
     v = vel.detach().reshape(-1, 3).numpy()
     acc = accel_cmd.detach().reshape(-1, 3).numpy()
     if v.shape != p.shape or acc.shape != p.shape:
+        return None
+    fast = free_flight_numpy(p, v, acc, dt, lim)
+    if fast is None:
+        return None
+    return torch.from_numpy(fast[0]), torch.from_numpy(fast[1])
+
+
+_F64_EPS = float(np.finfo(np.float64).eps)
+
+
+def free_flight_numpy(
+    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The free-flight step of `step_point_mass` in numpy, bit for bit, for small float64
+    (M, 3) batches that need none of its projections; None when it does not apply.
+
+    A torch call on a (20, 3) tensor costs a few microseconds whatever it computes, and the
+    autopilot emulator steps its fleet 50 times per simulated second: this path does the
+    same IEEE operations in the same order with numpy's lower per-call cost (the emulator's
+    fleet keeps its state in numpy and calls it directly). It applies
+    only where every projection of the torch path is the identity: all finite, every
+    command and velocity clearly inside its norm limit (torch's scale factor would be
+    exactly 1.0), every altitude inside the band (the clamp returns it unchanged). The
+    free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
+    difference in a norm cannot matter; and at its boundary both paths agree anyway).
+    tests/model/test_vehicle.py compares it with the torch path."""
+    if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
         return None
     acc_sq = (acc * acc).sum(-1)
     vel_sq = (v * v).sum(-1)
@@ -270,20 +285,84 @@ def _free_flight_numpy(
     ):
         return None
     dt = float(dt)
-    margin = 1e3 * 16.0 * np.finfo(np.float64).eps * max(1.0, lim.alt_max)  # _free_flight's margin
+    margin = 1e3 * 16.0 * _F64_EPS * max(1.0, lim.alt_max)  # _free_flight's margin
     reach_v = np.sqrt(vel_sq) + np.sqrt(acc_sq) * dt
     reach_h = np.abs(v[:, 2]) * dt + 0.5 * np.abs(acc[:, 2]) * dt * dt
-    inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * np.finfo(np.float64).eps)) & (
+    inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * _F64_EPS)) & (
         alt - reach_h > lim.alt_min + margin) & (alt + reach_h < lim.alt_max - margin)
-    still = (v == 0).all(-1)
-    resting = still & (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0) & (alt <= lim.alt_min)
-    if not (inside | resting).all():
-        return None
+    if inside.all():
+        a = acc  # times 1.0, the torch path's mask: the same bits
+    else:
+        still = (v == 0).all(-1)
+        resting = still & (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0) & (alt <= lim.alt_min)
+        if not (inside | resting).all():
+            return None
+        a = acc * inside[:, None].astype(np.float64)
     # The torch path's ballistic update, operation for operation.
-    a = acc * inside[:, None].astype(np.float64)
     p_new = p + v * dt + 0.5 * a * dt * dt
     v_new = v + a * dt
-    return torch.from_numpy(p_new), torch.from_numpy(v_new)
+    return p_new, v_new
+
+
+def free_flight_numpy_steps(
+    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, count: int, lim: Limits
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """`count` successive `free_flight_numpy` steps under one constant command, bit for bit,
+    or None if any one of them would not apply.
+
+    Between two telemetry samples the autopilot emulator's fleet flies constant commands
+    for five substeps: the ballistic updates are done in sequence (the same operations, so
+    the same bits as five calls), and the free-flight test of every substep in one
+    vectorised pass over the stacked states, instead of five passes of ~30 numpy calls
+    each. A vehicle the first test holds still (resting) stays still, so one mask serves
+    every substep; every later test must agree with it."""
+    if count <= 1:
+        return free_flight_numpy(p, v, acc, dt, lim) if count == 1 else (p, v)
+    if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
+        return None
+    dt = float(dt)
+    acc_sq = (acc * acc).sum(-1)
+    inner = 1.0 - 1e-9
+    if not (np.isfinite(acc_sq).all() and acc_sq.max() <= (lim.max_accel * inner) ** 2):
+        return None
+    margin = 1e3 * 16.0 * _F64_EPS * max(1.0, lim.alt_max)
+    acc_reach = np.sqrt(acc_sq) * dt
+    acc_reach_h = 0.5 * np.abs(acc[:, 2]) * dt * dt
+    resting_cmd = (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0)
+
+    def tests(pp: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(inside, resting) of every state in the stack, as free_flight_numpy decides them."""
+        vel_sq = (vv * vv).sum(-1)
+        alt = -pp[..., 2]
+        if not (
+            np.isfinite(vel_sq).all() and np.isfinite(alt).all()
+            and vel_sq.max() <= (lim.max_speed * inner) ** 2 and alt.min() >= lim.alt_min and alt.max() <= lim.alt_max
+        ):
+            return None
+        reach_v = np.sqrt(vel_sq) + acc_reach
+        reach_h = np.abs(vv[..., 2]) * dt + acc_reach_h
+        inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * _F64_EPS)) & (
+            alt - reach_h > lim.alt_min + margin) & (alt + reach_h < lim.alt_max - margin)
+        resting = (vv == 0).all(-1) & resting_cmd & (alt <= lim.alt_min)
+        return inside, resting
+
+    first = tests(p, v)
+    if first is None or not (first[0] | first[1]).all():
+        return None
+    inside = first[0]
+    a = acc if inside.all() else acc * inside[:, None].astype(np.float64)
+    half_a_dt2 = 0.5 * a * dt * dt  # the same bits in every substep: one command, one dt
+    a_dt = a * dt
+    ps, vs = [p], [v]
+    for _ in range(count):
+        p = p + v * dt + half_a_dt2
+        v = v + a_dt
+        ps.append(p)
+        vs.append(v)
+    later = tests(np.stack(ps[1:-1]), np.stack(vs[1:-1]))
+    if later is None or not ((later[0] == inside) & (later[0] | later[1])).all():
+        return None
+    return p, v
 
 
 def step_point_mass(
