@@ -32,6 +32,10 @@ class Kind(enum.IntEnum):
     TOUCHDOWN = 6
 
 
+# Enum members as module constants for the per-substep test (`Kind.X` costs ~0.3 us each).
+_ACCEL, _IDLE, _TOUCHDOWN = Kind.ACCEL, Kind.IDLE, Kind.TOUCHDOWN
+
+
 class Guidance:
     """Targets of N vehicles; `accel()` evaluates them all in one batched call."""
 
@@ -90,8 +94,8 @@ class Guidance:
         would return the setpoint times a scale factor of exactly 1.0 there (`clip_norm`),
         and +0.0 elsewhere: the same bits (tests/emulator/test_host.py). None otherwise."""
         kind = self.kind
-        accel = kind == Kind.ACCEL
-        if not (accel | (kind == Kind.IDLE) | (kind == Kind.TOUCHDOWN)).all():
+        accel = kind == _ACCEL
+        if not (accel | (kind == _IDLE) | (kind == _TOUCHDOWN)).all():
             return None
         target = self.target
         sq = (target * target).sum(-1)
