@@ -43,7 +43,8 @@ from plmarl_sitl.sitl.vehicles import WorldVehicles
 log = logging.getLogger("plmarl.world")
 
 CHUNK_S = 0.08  # sim seconds per advance between yields (4 substeps at 50 Hz)
-FOLLOW_POLL_S = 0.1  # wall: external vehicles silent this long: check the instants and the queue anyway
+FOLLOW_POLL_S = 0.1
+QUIET_SUBSTEPS_MAX = 50  # lockstep: at most a second of substeps in one call (telemetry ends them sooner)  # wall: external vehicles silent this long: check the instants and the queue anyway
 
 
 class PacedWorld(Protocol):
@@ -212,7 +213,14 @@ class LockstepPacer(Pacer):
             if self._place_pending:  # every answer to the start second's telemetry is in
                 self._place_pending = False
                 self._place_at_start()
-            w.vehicles.advance(dt)
+            if joined and w.relay.idle:
+                # Lockstep proper: the substeps up to the next one with work besides physics
+                # (telemetry, the next second or tick) in one go, without a barrier check or
+                # a trip through the event loop between them: nothing could arrive there that
+                # the barrier waits for (issue 25.1).
+                self.host.advance_substeps(QUIET_SUBSTEPS_MAX, min(self.next_second, next_tick))
+            else:
+                w.vehicles.advance(dt)
             if w.now >= self.next_second - 1e-9:
                 self._instant_tup = w.time.tup_s  # the instants of this second follow T_up before its events
                 self._whole_second()

@@ -170,14 +170,16 @@ class EmulatedVehicles:
 
     def uav_rows(self) -> list[dict]:
         states = self.host.true_states()
-        offs = self.host.home_offsets
+        # One tensor op and one tolist for all vehicles (the same elementwise sums as row by row).
+        positions = (states[:, :3] + self.host.home_offsets).tolist()
+        velocities = states[:, 3:].tolist()
         rows = []
         for i, v in enumerate(self.host.vehicles):
-            p = (states[i, :3] + offs[i]).tolist()
+            p = positions[i]
             rows.append({
                 "id": i,
                 "pos": [round(x, 2) for x in p],
-                "vel": [round(x, 3) for x in states[i, 3:].tolist()],
+                "vel": [round(x, 3) for x in velocities[i]],
                 "alt": round(-p[2], 2),
                 "acc": [round(x, 2) for x in v.last_accel()],  # the active setpoint: the agent's last action
                 "mode": v.mode,

@@ -316,3 +316,45 @@ def test_state_changes_are_logged_for_verbose(caplog) -> None:
     assert any(x.startswith("vehicle 1: AUTO.TAKEOFF, armed") for x in lines)
     assert any(x.startswith("vehicle 1: AUTO.LAND, armed, 1") for x in lines)
     assert lines[-1].endswith("disarmed, 0.0 m")
+
+
+def _lockstep_flight(substeps_at_once: bool) -> tuple[list, torch.Tensor, float, str]:
+    """Three vehicles on one telemetry grid flying acceleration setpoints answered at each
+    LOCAL_POSITION_NED, as lockstep agents do; vehicle 2's agent goes silent halfway (its
+    failsafe takes over). Returns what they sent (time, vehicle, message), their states
+    and the clock."""
+    host = AutopilotHost(3, params={"offboard_loss_action": 5, "accel_drag_per_s": 0.0}, stream_phases=1)
+    host.fleet.unix_at_boot = 1.7e9  # SYSTEM_TIME and GPS_RAW_INT alike in both runs
+    clients = [Client(host, i) for i in range(3)]
+    for c in clients:
+        c.accel((0.0, 0.0, 0.0))
+        assert c.mode("OFFBOARD") == d.MAV_RESULT_ACCEPTED
+        assert c.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1) == d.MAV_RESULT_ACCEPTED
+    sent: list = []
+    answered = [0, 0, 0]
+    steps = 0
+    while steps < 600:
+        if substeps_at_once:
+            steps += host.advance_substeps(min(50, 600 - steps))
+        else:
+            host.advance(host.physics_dt)
+            steps += 1
+        for i, c in enumerate(clients):
+            for m in c.sent[answered[i]:]:
+                sent.append((round(host.now, 9), i, m.get_type(), str(m.to_dict())))
+                if m.get_type() == "LOCAL_POSITION_NED" and not (i == 2 and host.now > 6.0):
+                    k = m.time_boot_ms
+                    c.accel((1.5 * math.sin(k / 700 + i), 1.2 * math.cos(k / 900), -2.0 if k < 4000 else 0.3))
+            answered[i] = len(c.sent)
+    return sent, host.true_states(), host.now, clients[2].v.mode
+
+
+def test_quiet_substeps_at_once_are_the_substeps_one_by_one() -> None:
+    """`advance_substeps` (the lockstep world's clock) gives the telemetry, failsafes and
+    states of substep-by-substep `advance`, to the bit."""
+    one_by_one, states_1, now_1, mode_1 = _lockstep_flight(False)
+    at_once, states_n, now_n, mode_n = _lockstep_flight(True)
+    assert now_1 == now_n
+    assert at_once == one_by_one
+    assert torch.equal(states_1, states_n)
+    assert mode_1 == mode_n == "AUTO.LOITER"  # vehicle 2's setpoint-loss failsafe ran in both

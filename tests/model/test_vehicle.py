@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import torch
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -180,3 +181,42 @@ def test_numpy_free_flight_serves_a_cruising_fleet():
     vel[:, 2] = 0.0
     acc = torch.full((20, 3), 0.5, dtype=f64)
     assert vehicle._free_flight_numpy(pos, vel, acc, 0.02, LIM) is not None
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    alt=st.floats(40.0, 150.0), v=vec, a=vec, speed_frac=st.floats(0.0, 1.0),
+    dt=st.sampled_from([0.02, 0.1]), count=st.integers(1, 7), seed=st.integers(0, 2**31 - 1),
+)
+def test_multi_step_free_flight_is_bit_identical_to_step_after_step(alt, v, a, speed_frac, dt, count, seed):
+    """The emulator's quiet substeps in one call give the bits of `count` calls of the
+    single step, or step aside (None) exactly when one of those steps would not apply;
+    near the floor, the ceiling, V_max and at rest."""
+    from plmarl_sitl.model.vehicle import free_flight_step, free_flight_steps
+
+    n = 20
+    gen = torch.Generator().manual_seed(seed)
+    pos = torch.rand(n, 3, generator=gen, dtype=f64) * 100.0
+    pos[:, 2] = -(LIM.alt_min + torch.rand(n, generator=gen, dtype=f64) * (LIM.alt_max - LIM.alt_min))
+    pos[0, 2] = -alt
+    pos[3, 2] = -LIM.alt_min  # resting on the floor ...
+    vel = (torch.rand(n, 3, generator=gen, dtype=f64) - 0.5) * 4.0
+    vel[0] = torch.tensor(v, dtype=f64).clamp(-LIM.max_speed / 2, LIM.max_speed / 2)
+    direction = torch.tensor([0.6, 0.8, 0.0], dtype=f64)
+    vel[1] = direction * LIM.max_speed * speed_frac
+    vel[3] = 0.0
+    acc = (torch.rand(n, 3, generator=gen, dtype=f64) - 0.5) * 2.0
+    acc[0] = torch.tensor(a, dtype=f64).clamp(-LIM.max_accel / 2, LIM.max_accel / 2)
+    acc[1] = direction * LIM.max_accel * speed_frac
+    acc[3] = torch.tensor([0.0, 0.0, 1.0], dtype=f64)  # ... pushed into it
+    p, u, c = pos.numpy(), vel.numpy(), acc.numpy()
+    one = (p, u)
+    for _ in range(count):
+        one = free_flight_step(one[0], one[1], c, dt, LIM) if one is not None else None
+    many = free_flight_steps(p, u, c, dt, count, LIM)
+    if one is None:
+        assert many is None
+    else:
+        assert many is not None
+        assert np.array_equal(many[0], one[0]) and np.array_equal(many[1], one[1])
+        assert all(np.signbit(many[k]).tolist() == np.signbit(one[k]).tolist() for k in (0, 1))

@@ -286,9 +286,26 @@ class AutopilotHost:
         for _ in range(n):
             self._substep(h)
 
+    def advance_substeps(self, most: int, stop_at: float = math.inf) -> int:
+        """Up to `most` substeps of physics_dt, as many `advance(physics_dt)` calls would do
+        them, but the quiet ones (`Fleet.quiet_substeps`: nothing happens in them but
+        physics) integrated in one call. Stops after the first substep at which anything
+        else may happen (telemetry, a failsafe, a watched vehicle) or the clock reaches
+        `stop_at`; returns how many substeps it did. The lockstep world moves its clock with
+        it between telemetry samples."""
+        h = self.physics_dt
+        count = self.fleet.quiet_substeps(h, most, stop_at)
+        self.fleet.step_many(h, count)
+        self._after_physics()
+        return count
+
     def _substep(self, h: float) -> None:
+        self.fleet.step(h)
+        self._after_physics()
+
+    def _after_physics(self) -> None:
+        """A substep's work after its physics: state machines, failsafes, telemetry."""
         f = self.fleet
-        f.step(h)
         for i in f.watched():
             if not self.vehicles[i].update(f.now):
                 f.unwatch(i)

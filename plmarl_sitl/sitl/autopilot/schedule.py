@@ -47,6 +47,10 @@ class Scheduler:
         iv = self._interval.get((vehicle, msgid))
         return 1.0 / iv if iv else 0.0
 
+    def next_due(self) -> float:
+        """Sim time of the earliest scheduled message (a stale entry may make it early, never late)."""
+        return self._heap[0][0] if self._heap else math.inf
+
     def pop_due(self, now: float) -> list[tuple[int, int]]:
         """(vehicle, msgid) pairs due at `now`, each rescheduled one interval later."""
         out = []

@@ -50,6 +50,8 @@ MAX_PEERS = 8
 # ticks), as ArduPilot's load_signing_key does against replays across a reboot.
 SETUP_SIGNING_AHEAD = 60 * 100_000
 # POSITION_TARGET_LOCAL_NED's type_mask for what the vehicle tracks (a landing: a velocity).
+# Enum members as module constants for the per-substep state machine (see fleet.py).
+_IDLE, _LAND, _FALL, _TOUCHDOWN = Kind.IDLE, Kind.LAND, Kind.FALL, Kind.TOUCHDOWN
 ECHO_MASK = {Kind.POSITION: POSITION_ONLY, Kind.VELOCITY: VELOCITY_ONLY, Kind.ACCEL: ACCEL_ONLY, Kind.LAND: VELOCITY_ONLY}
 
 
@@ -177,17 +179,19 @@ class Vehicle:
     def behaviour(self) -> Behaviour:
         return self.mode_spec.behaviour
 
+    # Rows as Python floats in one `tolist` (the same values as float() of each element, at
+    # a third of the cost: every telemetry message and state-machine step reads them).
     def position(self) -> tuple[float, float, float]:
-        p = self.fleet.pos_np[self.index]
-        return float(p[0]), float(p[1]), float(p[2])
+        x, y, z = self.fleet.pos_np[self.index].tolist()
+        return x, y, z
 
     def velocity(self) -> tuple[float, float, float]:
-        v = self.fleet.vel_np[self.index]
-        return float(v[0]), float(v[1]), float(v[2])
+        x, y, z = self.fleet.vel_np[self.index].tolist()
+        return x, y, z
 
     def last_accel(self) -> tuple[float, float, float]:
-        a = self.fleet.acc_np[self.index]
-        return float(a[0]), float(a[1]), float(a[2])
+        x, y, z = self.fleet.acc_np[self.index].tolist()
+        return x, y, z
 
     def altitude(self) -> float:
         return self.fleet.altitude(self.index)
@@ -586,14 +590,14 @@ class Vehicle:
         """
         g = self.fleet.guidance
         kind = int(g.kind[self.index])
-        if kind == Kind.TOUCHDOWN:
+        if kind == _TOUCHDOWN:
             self._touchdown()
             return False
-        if kind == Kind.LAND:
+        if kind == _LAND:
             fast = self.params["max_climb_mps"]
             g.descent[self.index] = fast if self.altitude() > LAND_SLOW_BELOW_M else self.params["land_speed_mps"]
             return True
-        if kind == Kind.FALL:
+        if kind == _FALL:
             return True
         if self.returning:
             x, y, _ = self.position()
@@ -603,7 +607,7 @@ class Vehicle:
                 self._start_land()
             return True
         if self.taking_off:
-            if kind == Kind.IDLE:
+            if kind == _IDLE:
                 if now < self._climb_at:
                     return True
                 x, y, _ = self.position()

@@ -131,6 +131,12 @@ class Relay:
         self._close_instant(k)
 
     # ------------------------------------------------------------------ between chunks of time
+    @property
+    def idle(self) -> bool:
+        """Nothing falls due as vehicle time moves (no delayed delivery, no open instant):
+        `pump` would do nothing until a new state arrives."""
+        return not self._pending and not self._instants
+
     def pump(self) -> None:
         """What falls due as vehicle time moves: overdue instants close, delayed deliveries go out."""
         self.close_overdue()
