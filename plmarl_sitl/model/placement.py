@@ -22,7 +22,7 @@ from plmarl_sitl.model.service import GRID_M, ServiceGrid
 FIRSTS = 4  # greedy starts: the plain greedy and the next 3 peaks of the map
 MOVE = 2  # local improvement: a point moves at most this many candidate steps per move
 SWEEPS = 2  # local improvement passes over all points
-# Above this many points the search is the plain greedy: a new plan at N = 100 over 3 km must
+# Above this many points the search and the learnt placement are the plain greedy: a new plan at N = 100 over 3 km must
 # stay within the agent's 50 ms (one start and one sweep there: ~70 ms beside the greedy's
 # ~15 ms, docs/RESULTS.md session 15); the suite's teams have at most 20
 LARGE_N = 20
@@ -180,9 +180,6 @@ class SearchPlacement:
     def search(self, grid: ServiceGrid, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, float]:
         """The best plan (n,) candidate indices on sub-point weights w (S,), candidates' gains
         gain (C,), and the weight it serves."""
-        if n > LARGE_N:
-            picks = grid.greedy_one(w, gain, n)
-            return picks, float(w[LocalSearch(grid).counts(picks) > 0].sum())
         local = LocalSearch(grid)
         best: tuple[np.ndarray, float] | None = None
         for first in peaks(grid, gain, self.firsts, 2.0 * np.sqrt(grid.r2)) or [0]:
@@ -193,6 +190,8 @@ class SearchPlacement:
         return best
 
     def place(self, grid: ServiceGrid, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if n > LARGE_N:
+            return grid.greedy_place(counts, n)
         pts, served = [], []
         for row in np.asarray(counts, dtype=np.float64):
             picks, got = self.search(grid, grid.sub_weights(row), grid.map_gains(row), n)
@@ -276,14 +275,15 @@ class PickState:
 
 
 class LearnedPlacement:
-    """The greedy whose every pick is the allowed candidate, among the TOP of the largest
+    """Up to LARGE_N points, the greedy whose every pick is the allowed candidate, among the TOP of the largest
     marginal gain, that a learnt scorer (TorchScript, (k, FEATURES) float64 -> (k,)) ranks
     highest (policies/pl-marl/placement.pt, learning/train/placement.py); with no candidate
     of positive gain left, the greedy's own pick. One thread, float64: the same inputs give
     the same scores in every copy."""
 
-    def __init__(self, scorer: torch.jit.ScriptModule) -> None:
+    def __init__(self, scorer: torch.jit.ScriptModule, improve: bool = False) -> None:
         self.scorer = scorer
+        self.improve = improve  # then the search's local improvement (`LocalSearch`, up to LARGE_N points)
 
     @torch.no_grad()
     def choose(self, state: PickState) -> int:
@@ -296,13 +296,19 @@ class LearnedPlacement:
         return int(top[int(s.argmax())])
 
     def place(self, grid: ServiceGrid, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        if n > LARGE_N:  # the greedy: 100 scored picks over 3 km cost ~110 ms of CPU, beyond the agent's 50 ms
+            return grid.greedy_place(counts, n)
         pts, served = [], []
         for row in np.asarray(counts, dtype=np.float64):
             state = PickState(grid, row, n)
             for _ in range(n):
                 state.pick(self.choose(state))
-            pts.append(grid.cands[np.asarray(state.picks)])
-            served.append(state.served())
+            picks, got = np.asarray(state.picks), state.served()
+            if self.improve and n <= LARGE_N:
+                picks, units = LocalSearch(grid).improve(state.w, picks)
+                got = units / (grid.sub * grid.sub)
+            pts.append(grid.cands[picks])
+            served.append(got)
         return np.stack(pts), np.asarray(served)
 
 

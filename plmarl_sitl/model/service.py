@@ -151,6 +151,10 @@ class ServiceGrid:
         whole: one vector operation per pick. With a `placer`, its placement instead."""
         if self.placer is not None:
             return self.placer.place(self, counts, n)
+        return self.greedy_place(counts, n)
+
+    def greedy_place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`place` by the greedy, whatever the placer."""
         w = self._weights(counts)
         if w.shape[0] == 1:
             return self._place_one(w[0], self._gains(counts)[0], n)

@@ -101,11 +101,13 @@ def episodes(maps: int, seed: int, minutes: tuple[int, ...] = (0, 2, 5)) -> list
     return out[:maps] if len(out) > maps else out
 
 
-def samples(eps: list[tuple[ServiceGrid, np.ndarray, np.ndarray, int]]) -> list[tuple[np.ndarray, np.ndarray]]:
+def samples(eps: list[tuple[ServiceGrid, np.ndarray, np.ndarray, int]], teacher_sees: str = "truth") -> list[tuple[np.ndarray, np.ndarray]]:
+    """Teacher `truth`: the search on the users' true sub-points (CTDE); `map`: on the map itself."""
     teacher = SearchPlacement()
     out = []
     for grid, row, tw, n in eps:
-        picks, _ = teacher.search(grid, tw, grid.weight_gains(tw), n)
+        w = tw if teacher_sees == "truth" else grid.sub_weights(row)
+        picks, _ = teacher.search(grid, w, grid.weight_gains(w), n)
         out += teacher_order(PickState(grid, row, n), list(picks))
     return out
 
@@ -118,12 +120,13 @@ def loss_of(model: PlacementScorer, batch: list[tuple[torch.Tensor, torch.Tensor
     return total / len(batch)
 
 
-def train(maps: int, epochs: int, seed: int, out: Path, hidden: int = 32, log=print) -> dict:  # noqa: ANN001 - log
+def train(maps: int, epochs: int, seed: int, out: Path, hidden: int = 32, teacher_sees: str = "truth",
+          log=print) -> dict:  # noqa: ANN001 - log
     """Build the samples, fit, export out/placement.pt and out/placement.yaml; -> the card."""
     torch.manual_seed(seed)
     t0 = time.time()
     eps = episodes(maps, seed)
-    data = [(torch.from_numpy(x), torch.from_numpy(mk)) for x, mk in samples(eps)]
+    data = [(torch.from_numpy(x), torch.from_numpy(mk)) for x, mk in samples(eps, teacher_sees)]
     if not data:
         raise UserError("placement training: no samples (too few --maps)")
     rng = np.random.default_rng(seed)
@@ -155,7 +158,8 @@ def train(maps: int, epochs: int, seed: int, out: Path, hidden: int = 32, log=pr
     export(model, path)
     card = {"what": "placement scorer of `placement: learned` (model/placement.py LearnedPlacement, issue 24.3)",
             "features": "model/placement.py PickState.features", "top": "model/placement.py TOP",
-            "teacher": "SearchPlacement on the users' true sub-point positions (CTDE: the teacher only)",
+            "teacher": ("SearchPlacement on the users' true sub-point positions (CTDE: the teacher only)" if teacher_sees == "truth"
+                        else "SearchPlacement on the demand map (what every agent has)"),
             "training": {"seed": seed, "maps": len(eps), "epochs": epochs, "hidden": hidden, "missions": list(TRAIN_MISSIONS),
                          "samples": len(data), "command": " ".join(["python -m plmarl_sitl.learning.train.placement"] + sys.argv[1:])},
             "result": curve[-1] if curve else {}, "sha256": hashlib.sha256(path.read_bytes()).hexdigest()}
@@ -171,12 +175,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--maps", type=int, default=400)
     ap.add_argument("--epochs", type=int, default=60)
     ap.add_argument("--hidden", type=int, default=32)
+    ap.add_argument("--teacher", choices=("truth", "map"), default="truth",
+                    help="what the teacher's search sees: the true users (CTDE) or the demand map")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
     try:
         if a.maps < 1 or a.epochs < 1 or a.hidden < 1:
             raise UserError("--maps, --epochs and --hidden must be >= 1")
-        train(a.maps, a.epochs, a.seed, a.out, a.hidden)
+        train(a.maps, a.epochs, a.seed, a.out, a.hidden, a.teacher)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

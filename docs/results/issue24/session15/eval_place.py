@@ -18,7 +18,7 @@ from plmarl_sitl.learning.nn.io import load_policy
 
 seed, methods, fams, tups, E, out = int(sys.argv[1]), sys.argv[2].split(","), sys.argv[3], [int(t) for t in sys.argv[4].split(",")], int(sys.argv[5]), Path(sys.argv[6])
 spec, families = load_suite(Path("missions/suite/suite.yaml"))
-names = select(spec, fams)
+names = [n for n in fams.split(",") if n in families] if fams != "all" else select(spec, fams)  # the order given
 doc = json.loads(out.read_text()) if out.exists() else {}
 for name in names:
     fam = families[name]

@@ -29,9 +29,17 @@ fams = {"2of6_a": "missions/suite/failure_2of6_a.yaml", "2of6_b": "missions/suit
         "diffuse": "missions/suite/diffuse_failure.yaml", "paper": "missions/paper_urban.yaml",
         "n8": "missions/suite/n8.yaml", "n20r": "missions/suite/n20_random.yaml", "random": "missions/suite/random_layout.yaml"}
 E = int(sys.argv[1]); seed = int(sys.argv[2]); which = sys.argv[3].split(","); tups = [int(x) for x in sys.argv[4].split(",")]
-makers = {"search": with_placer(SearchPlacement()), "search1": with_placer(SearchPlacement(firsts=1)),
-          "learned": with_placer(LearnedPlacement(load_placement_scorer("policies/pl-marl/placement.pt"))),
-          "greedy": controller_factory("greedy", {}), "clairvoyant": controller_factory("clairvoyant", {})}
+def learned(path, imp):
+    return lambda env: with_placer(LearnedPlacement(load_placement_scorer(path), improve=imp))(env)
+makers = {}
+makers.update({"search": with_placer(SearchPlacement()), "search1": with_placer(SearchPlacement(firsts=1)),
+          "learned": learned("policies/pl-marl/placement.pt", False),
+          "learned+": learned("policies/pl-marl/placement.pt", True),
+          "v1": learned("/tmp/w6/pl_a/placement.pt", False),
+          "v1+": learned("/tmp/w6/pl_a/placement.pt", True),
+          "v2": learned("/tmp/w6/pl_b/placement.pt", False),
+          "v2+": learned("/tmp/w6/pl_b/placement.pt", True),
+          "greedy": controller_factory("greedy", {}), "clairvoyant": controller_factory("clairvoyant", {})})
 for f in which:
     fp = 1.0 if f == "diffuse" else 0.0
     for tup in tups:
