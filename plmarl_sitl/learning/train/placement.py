@@ -153,7 +153,8 @@ def train(maps: int, epochs: int, seed: int, out: Path, hidden: int = 32, teache
             first = float(np.mean([bool(mk[0]) for _, mk in val]))  # the greedy's pick (rank 0) is a teacher point
         curve.append({"epoch": ep, "val_loss": v, "val_top1": hit, "greedy_top1": first})
         log(f"epoch {ep}: val loss {v:.4f}, top-1 {hit:.3f} (greedy's pick {first:.3f})")
-    out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(parents=True, exist_ok=True)
+        torch.save(model.state_dict(), out / "placement_checkpoint.pth")  # a stopped run keeps its last epoch
     path = out / "placement.pt"
     export(model, path)
     card = {"what": "placement scorer of `placement: learned` (model/placement.py LearnedPlacement, issue 24.3)",
