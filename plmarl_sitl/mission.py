@@ -27,6 +27,10 @@ Layout = Literal["fixed", "lattice", "random"]
 # How an agent gets its plan point: the whole team's plan in every agent (model/service.py), or a
 # plan of its own neighbourhood whose cost does not grow with N or the area (model/local_plan.py).
 Coordination = Literal["team", "local"]
+# How the team plan places its points (model/placement.py, issue 24.3): the greedy, the greedy
+# from several starts with local improvement (`search`), or a greedy whose picks a learnt scorer
+# ranks (`learned`, policies/pl-marl/placement.pt).
+Placement = Literal["greedy", "search", "learned"]
 
 
 @dataclass(frozen=True)
@@ -244,6 +248,7 @@ class Mission:
     failures: tuple[Failure, ...] = ()
     events: tuple[Event, ...] = ()
     coordination: Coordination = "team"
+    placement: Placement = "greedy"
 
     def __post_init__(self) -> None:
         for i, ev in enumerate(self.events):
@@ -296,6 +301,9 @@ class Mission:
 
     def with_coordination(self, coordination: str) -> Mission:
         return dataclasses.replace(self, coordination=coordination)
+
+    def with_placement(self, placement: str) -> Mission:
+        return dataclasses.replace(self, placement=placement)
 
     def with_tup(self, tup_s: int) -> Mission:
         return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))

@@ -101,6 +101,7 @@ FIELD_DOCS: dict[str, str] = {
     "events[].tup_s": "`tup_change`: the new T_up (s).",
     "events[].std_m": "`gnss_noise`: standard deviation per axis (m).",
     "coordination": "How each agent gets its point of the plan (a policy that takes the plan, and `service`): `team`, the whole team's plan solved in every agent (model/service.py), or `local`, a plan of the agent's own neighbourhood (model/local_plan.py), whose cost per map does not grow with N or the area but which covers less (docs/RESULTS.md, *Session 13*).",
+    "placement": "How the team plan places its points (`coordination: team`): `greedy`, each point where it serves the most still-unserved users of the map; `search`, that greedy from several first points, each plan improved by moving points locally, the best kept (model/placement.py); `learned`, a greedy whose picks a learnt scorer ranks (policies/pl-marl/placement.pt). The same in every agent and in the twin (docs/RESULTS.md, *Session 15*).",
 }
 
 VEHICLE_DOCS: dict[str, str] = {

@@ -33,6 +33,7 @@ offset), computed by this module in the twin's controllers and in the deployed a
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -54,6 +55,12 @@ LAUNCH_SNAP_M = 0.5
 REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more
 
 
+class Placer(Protocol):
+    """A placement other than the greedy (model/placement.py): (points (B, n, 2), served (B,))."""
+
+    def place(self, grid: ServiceGrid, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 class ServiceGrid:
     """The mission's constants of the plan (area, cells, coverage radius, R_comm, d_safe).
 
@@ -67,7 +74,11 @@ class ServiceGrid:
     table would, so the points are the same to the bit (tests/model/test_service_sparse.py
     checks them against a dense reference)."""
 
-    def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> None:
+    def __init__(self, area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float,
+                 placer: Placer | None = None) -> None:
+        # Who places the points: None, this greedy; else another placement on the same tables
+        # (model/placement.py, issue 24.3), called in the twin and the agent alike through `place`
+        self.placer = placer
         self.cell_m = cell_m
         self.sub = max(1, round(cell_m / GRID_M))  # sub-points per cell side
         self.rows, self.cols = grid_shape(area_n, area_e, cell_m)
@@ -137,7 +148,13 @@ class ServiceGrid:
         newly serves at the candidates that cover those; the link and spacing tests change
         only in the window of candidates within R_link or 2 d_safe of the pick. One map (an
         agent) takes `_place_one`; a batch of maps (the twin's small areas) updates them
-        whole: one vector operation per pick."""
+        whole: one vector operation per pick. With a `placer`, its placement instead."""
+        if self.placer is not None:
+            return self.placer.place(self, counts, n)
+        return self.greedy_place(counts, n)
+
+    def greedy_place(self, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`place` by the greedy, whatever the placer."""
         w = self._weights(counts)
         if w.shape[0] == 1:
             return self._place_one(w[0], self._gains(counts)[0], n)
@@ -167,7 +184,27 @@ class ServiceGrid:
         idx = np.stack(chosen, -1)
         return self.cands[idx], (w * ~unserved).sum(-1) / (self.sub * self.sub)
 
-    def _place_one(self, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    def greedy_one(self, w: np.ndarray, gain: np.ndarray, n: int, first: int | None = None) -> np.ndarray:
+        """(n,) candidate indices of the greedy's picks on sub-point weights w (S,) with the
+        candidates' gains gain (C,) (`map_gains` / `weight_gains`), its first pick forced to
+        candidate `first` when given (a placer's other starts)."""
+        pts, _ = self._place_one(w, np.append(gain, 0.0), n, first)
+        return self._candidate_index(pts[0])
+
+    def map_gains(self, counts: np.ndarray) -> np.ndarray:
+        """(C,) each candidate's gain on one map counts (K,), in sub-point units."""
+        return self._gains(np.asarray(counts)[None])[0, : len(self.cands)]
+
+    def weight_gains(self, w: np.ndarray) -> np.ndarray:
+        """(C,) each candidate's gain on sub-point weights w (S,) (whole numbers: exact)."""
+        owner = np.repeat(np.arange(len(self.cands)), np.diff(self.cover_ptr))
+        return np.bincount(owner, weights=w[self.cover_idx], minlength=len(self.cands))
+
+    def sub_weights(self, counts: np.ndarray) -> np.ndarray:
+        """(S,) users per sub-point of one map counts (K,), in units of 1 / sub^2 user (integers)."""
+        return self._weights(np.asarray(counts)[None])[0]
+
+    def _place_one(self, w: np.ndarray, gain: np.ndarray, n: int, first: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """`place` on one map, weights w (S,) and gains gain (C + 1,) (`_gains`): the same
         picks with about a dozen small numpy calls per pick (an agent's new map at N = 100 is
         100 picks; per-call overhead, not arithmetic, is what a pick costs). Every candidate a pick changes (its gain, link or
@@ -185,7 +222,7 @@ class ServiceGrid:
         ptr, idx = self.cover_ptr, self.cover_idx
         chosen = []
         for step in range(n):
-            best = int(score.argmax())  # ties: lowest candidate index
+            best = int(score.argmax()) if step or first is None else int(first)  # ties: lowest candidate index
             chosen.append(best)
             pt = idx[ptr[best]:ptr[best + 1]]
             wv = left[pt]

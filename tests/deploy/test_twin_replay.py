@@ -34,8 +34,8 @@ TUP = 5
 EPISODE_S = 95  # four demand maps (t = 0, 30, 60, 90)
 
 
-def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False) -> dict[str, int]:
-    m = dataclasses.replace(load_mission(MISSION), n_uavs=4).with_tup(TUP)
+def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, placement: str = "greedy") -> dict[str, int]:
+    m = dataclasses.replace(load_mission(MISSION), n_uavs=4).with_tup(TUP).with_placement(placement)
     m = dataclasses.replace(m, timing=dataclasses.replace(m.timing, episode_s=EPISODE_S))
     lp = load_policy(policy_dir, m)
     n, tau, topics = m.n_uavs, m.timing.decision_every_s, Topics()
@@ -135,6 +135,15 @@ def test_agent_decides_as_the_twin_with_the_predicted_in_range_flag(v2_policy_di
     assert total["plan"] == total["decisions"]  # the fixture's policy takes the team plan
     assert 0 < total["f"] < total["decisions"], total
     assert total["replanned"] > 0, total  # decisions made on a plan re-solved after the failure
+
+
+def test_agent_places_as_the_twin_with_the_search_and_the_learnt_placement(v2_policy_dir: Path) -> None:
+    """`placement: search` and `placement: learned` (model/placement.py, issue 24.3): the
+    agents' plans, re-solved after the failure too, are the twin's at every decision."""
+    for placement in ("search", "learned"):
+        seen = replay(v2_policy_dir, 1, 70.0, placement=placement)
+        assert seen["decisions"] > 90 and seen["plan"] == seen["decisions"], (placement, seen)
+        assert seen["replanned"] > 0, (placement, seen)
 
 
 def test_flag_booked_late_still_equals_the_twins(v2_policy_dir: Path) -> None:

@@ -41,8 +41,8 @@ class MethodRun:
 
 def needed_policies(methods: list[str]) -> set[str]:
     need = {m for m in methods if m in LEARNT}
-    if "dead-reckoning" in methods:
-        need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker
+    if "dead-reckoning" in methods or "pl-marl-learned" in methods:
+        need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker; pl-marl-learned its plan
     return need
 
 
@@ -67,6 +67,14 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         return lambda env: ServiceController(env.mission.with_coordination("local"))
+    if method in ("service-search", "service-learned"):  # the plan follower on another placement (issue 24.3)
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        placement = method.removeprefix("service-")
+        return lambda env: ServiceController(env.mission.with_placement(placement))
+    if method == "pl-marl-learned":  # PL-MARL on the team plan with the learnt placement
+        lp = loaded["pl-marl"]
+        return lambda env: LearnedController(lp.tracker, lp.policy, env.mission.with_placement("learned"))
     if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 

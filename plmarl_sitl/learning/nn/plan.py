@@ -10,13 +10,26 @@ import functools
 import numpy as np
 import torch
 
+from plmarl_sitl.config import PROJECT_POLICIES
+from plmarl_sitl.learning.nn.placement import load_placement_scorer
 from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
+from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
 from plmarl_sitl.model.plan_motion import PlanMotion
-from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts, launch_line, mission_launch_xy, plan_geometry
+from plmarl_sitl.model.service import (
+    Placer,
+    ServiceGrid,
+    TeamPlans,
+    grid_counts,
+    launch_line,
+    mission_launch_xy,
+    plan_geometry,
+)
 from plmarl_sitl.model.vehicle import Limits, goto_accel
+
+PLACEMENT_SCORER = PROJECT_POLICIES / "pl-marl" / "placement.pt"  # `placement: learned`'s scorer and its card
 
 
 def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me: int,
@@ -30,13 +43,24 @@ def heard_launch(ego_xy: np.ndarray, held_xy: np.ndarray, heard: np.ndarray, me:
 
 
 @functools.lru_cache(maxsize=8)
-def _grid(area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float) -> ServiceGrid:
-    return ServiceGrid(area_n, area_e, cell_m, cover_r, comm_m, safe_m)
+def _grid(area_n: float, area_e: float, cell_m: float, cover_r: float, comm_m: float, safe_m: float,
+          placement: str = "greedy") -> ServiceGrid:
+    return ServiceGrid(area_n, area_e, cell_m, cover_r, comm_m, safe_m, placer(placement))
+
+
+def placer(placement: str) -> Placer | None:
+    """The mission's `placement` (model/placement.py): None for the greedy."""
+    if placement == "search":
+        return SearchPlacement()
+    if placement == "learned":
+        return LearnedPlacement(load_placement_scorer(PLACEMENT_SCORER))
+    return None
 
 
 def service_grid(mission) -> ServiceGrid:  # noqa: ANN001 - Mission
-    """The mission's plan grid, built once per set of constants (it is a few MB of tables)."""
-    return _grid(*plan_geometry(mission))
+    """The mission's plan grid, built once per set of constants and placement (it is a few MB
+    of tables); the twin's plan and the deployed agent's both take it from here."""
+    return _grid(*plan_geometry(mission), getattr(mission, "placement", "greedy"))
 
 
 class SignallingInstants:
