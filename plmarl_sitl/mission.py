@@ -248,7 +248,7 @@ class Mission:
     failures: tuple[Failure, ...] = ()
     events: tuple[Event, ...] = ()
     coordination: Coordination = "team"
-    placement: Placement = "greedy"
+    placement: Placement = "search"
 
     def __post_init__(self) -> None:
         for i, ev in enumerate(self.events):

@@ -67,7 +67,7 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         return lambda env: ServiceController(env.mission.with_coordination("local"))
-    if method in ("service-search", "service-learned"):  # the plan follower on another placement (issue 24.3)
+    if method in ("service-greedy", "service-search", "service-learned"):  # the plan follower on a given placement (issue 24.3)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
         placement = method.removeprefix("service-")
