@@ -43,7 +43,7 @@ def test_search_serves_at_least_the_greedy_and_keeps_the_plans_rules() -> None:
     counts = maps(grid, 12, 0)
     better = 0
     for n in (3, 4, 6, 9):
-        greedy_pts, greedy_served = grid.place(counts, n)
+        greedy_pts, greedy_served = grid.greedy_place(counts, n)
         pts, served = SearchPlacement().place(grid, counts, n)
         assert (served >= greedy_served).all()
         better += int((served > greedy_served).sum())
@@ -67,7 +67,7 @@ def test_screened_sweep_equals_the_plain_sequential_sweep(monkeypatch: pytest.Mo
 def test_search_above_large_n_is_the_greedy() -> None:
     grid = service_grid(load_mission(MISSION))
     counts = maps(grid, 2, 2)
-    assert np.array_equal(SearchPlacement().place(grid, counts, LARGE_N + 1)[0], grid.place(counts, LARGE_N + 1)[0])
+    assert np.array_equal(SearchPlacement().place(grid, counts, LARGE_N + 1)[0], grid.greedy_place(counts, LARGE_N + 1)[0])
 
 
 class RankScorer(torch.nn.Module):
@@ -84,7 +84,7 @@ def test_learnt_placement_with_the_greedys_ranking_is_the_greedy(tmp_path: Path)
     learned = LearnedPlacement(load_placement_scorer(tmp_path / "rank.pt"))
     for n in (1, 4, 6):
         a, sa = learned.place(grid, counts, n)
-        b, sb = grid.place(counts, n)
+        b, sb = grid.greedy_place(counts, n)
         assert np.array_equal(a, b) and np.array_equal(sa, sb)
 
 
