@@ -364,47 +364,22 @@ def free_flight_steps(
         return free_flight_step(p, v, acc, dt, lim) if count == 1 else (p, v)
     if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
         return None
+    free, inside = _free_in_numpy(p, v, acc, dt, lim)
+    if not free.all():
+        return None
     dt = float(dt)
-    acc_sq = (acc * acc).sum(-1)
-    inner = 1.0 - 1e-9
-    if not (np.isfinite(acc_sq).all() and acc_sq.max() <= (lim.max_accel * inner) ** 2):
-        return None
-    margin = 1e3 * 16.0 * np.finfo(np.float64).eps * max(1.0, lim.alt_max)
-    acc_reach = np.sqrt(acc_sq) * dt
-    acc_reach_h = 0.5 * np.abs(acc[:, 2]) * dt * dt
-    resting_cmd = (acc[:, 0] == 0) & (acc[:, 1] == 0) & (acc[:, 2] >= 0)
-
-    def tests(pp: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """(inside, resting) of every state in the stack, as free_flight_step decides them."""
-        vel_sq = (vv * vv).sum(-1)
-        alt = -pp[..., 2]
-        if not (
-            np.isfinite(vel_sq).all() and np.isfinite(alt).all()
-            and vel_sq.max() <= (lim.max_speed * inner) ** 2 and alt.min() >= lim.alt_min and alt.max() <= lim.alt_max
-        ):
-            return None
-        reach_v = np.sqrt(vel_sq) + acc_reach
-        reach_h = np.abs(vv[..., 2]) * dt + acc_reach_h
-        inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * np.finfo(np.float64).eps)) & (
-            alt - reach_h > lim.alt_min + margin) & (alt + reach_h < lim.alt_max - margin)
-        resting = (vv == 0).all(-1) & resting_cmd & (alt <= lim.alt_min)
-        return inside, resting
-
-    first = tests(p, v)
-    if first is None or not (first[0] | first[1]).all():
-        return None
-    inside = first[0]
-    a = acc if inside.all() else acc * inside[:, None].astype(np.float64)
-    half_a_dt2 = 0.5 * a * dt * dt  # the same bits in every substep: one command, one dt
-    a_dt = a * dt
-    ps, vs = [p], [v]
+    a = acc * inside[:, None].astype(np.float64)  # `_ballistic`'s command
+    half_a_dt2, a_dt = 0.5 * a * dt * dt, a * dt  # the same bits in every substep: one command, one dt
+    ps, vs = [], []
     for _ in range(count):
         p = p + v * dt + half_a_dt2
         v = v + a_dt
         ps.append(p)
         vs.append(v)
-    later = tests(np.stack(ps[1:-1]), np.stack(vs[1:-1]))
-    if later is None or not ((later[0] == inside) & (later[0] | later[1])).all():
+    # every later substep must pass the same test with the same vehicles inside
+    later_free, later_inside = _free_in_numpy(
+        np.concatenate(ps[:-1]), np.concatenate(vs[:-1]), np.tile(acc, (count - 1, 1)), dt, lim)
+    if not (later_free.all() and (later_inside.reshape(count - 1, -1) == inside).all()):
         return None
     return p, v
 
