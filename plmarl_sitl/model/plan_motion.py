@@ -145,6 +145,10 @@ class PlanMotion:
         not after t; the current state if t is later than every kept one)."""
         return torch.from_numpy(self._at(t))
 
+    def at_array(self, t: int) -> np.ndarray:
+        """`at` as the numpy array itself (valid until the next `advance`, `replay` or `restart_copy`)."""
+        return self._at(t)
+
     def sources(self, b: int, a: int, t: int, ids: np.ndarray) -> np.ndarray:
         """(len(ids), 2) predicted positions of identities `ids` at instant t in copy (b, a),
         rounded to ROUND_M so every copy's assignment breaks ties alike."""

@@ -116,14 +116,14 @@ def test_link_tables_are_kept_while_the_predictions_are_and_recomputed_when_they
     from plmarl_sitl.deploy.agent.plan import LinkTables
 
     tables, calls = LinkTables(), []
-    pred = torch.zeros(1, 1, 4, 3, dtype=torch.float64)
+    pred = np.zeros((1, 1, 4, 3))
 
     def compute():
         calls.append(1)
         return pred[..., 0] > len(calls)
 
     first = tables.get(("clear", 15), (pred,), compute)
-    assert tables.get(("clear", 15), (pred.clone(),), compute) is first and len(calls) == 1
+    assert tables.get(("clear", 15), (pred.copy(),), compute) is first and len(calls) == 1
     pred[0, 0, 2, 1] = 1e-9  # a re-plan re-flew the prediction in place: the table is stale
     assert tables.get(("clear", 15), (pred,), compute) is not first and len(calls) == 2
     for k in range(LinkTables.KEEP + 3):

@@ -109,7 +109,7 @@ class Agent:
         t_in = time.perf_counter()
         c_in = time.thread_time()
         self.clock.observe(m.time_boot_ms / 1000.0, time.perf_counter())
-        self.decision.ego = self.session.mission_state(m)
+        self.decision.observe(self.session.mission_state(m))
         if self.clock.t0 is not None:
             for k in self.clock.states_due(self.clock.mission_s()):
                 self.publish_state(k)
@@ -146,7 +146,7 @@ class Agent:
 
     def publish_state(self, k: int) -> None:
         """This agent's state (the latest telemetry) for signalling instant k, to tx/<id>."""
-        state = tuple(float(x) for x in self.decision.ego.tolist())
+        state = tuple(self.decision.ego_np.tolist())
         known = self.decision.table.knowledge.view(before=k)  # what it knew before the instant (model/gossip.py)
         msg = StateMsg.with_knowledge(self.me, self.cfg.session_id, self.seq, k * 1000, state, known)  # type: ignore[arg-type]
         self.seq += 1

@@ -22,6 +22,7 @@ import collections
 import logging
 import math
 
+import numpy as np
 import torch
 
 from plmarl_sitl.deploy.agent.clock import EPS, MissionClock
@@ -64,14 +65,19 @@ class Decision:
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
-        self.ego = torch.zeros(6)  # mission frame [p, v], latest telemetry
+        # The latest telemetry's state, mission frame [p, v] float32: a numpy array per
+        # sample (`observe`), its torch view (`ego`) made only when a second reads it. A
+        # telemetry sample costs tens of microseconds of torch calls in a process that
+        # slept since the last one (cold caches), ten times a second.
+        self.ego_np = np.zeros(6, dtype=np.float32)
+        self._ego: torch.Tensor | None = None
         self.hold_target: torch.Tensor | None = None  # pre-mission hold point (None: where the vehicle is)
         # Lockstep SITL: hold by damping only. The world places every vehicle at rest at the
         # twin's start state when it announces the start; a zero command then keeps it there
         # exactly, where a position hold would pull it back to where offboard control began.
         self.hold_damping_only = lockstep
         self.accel = (0.0, 0.0, 0.0)  # the command in force (before the band guard)
-        self.ego_at: dict[int, torch.Tensor] = {}  # the state at the first sample of each second not yet processed
+        self.ego_at: dict[int, np.ndarray | torch.Tensor] = {}  # the state at the first sample of each second not yet processed
         self.buf: torch.Tensor | None = None  # the tracker's state
         self.seen: torch.Tensor | None = None
         self.belief = torch.zeros(self.n, 6)
@@ -81,6 +87,21 @@ class Decision:
         self.sense_history: SenseHistory = collections.deque(maxlen=8)
         self.used_sense_t: float | None = None
         self.sense_warned = False
+
+    @property
+    def ego(self) -> torch.Tensor:
+        """(6,) float32 the latest telemetry's state (a view of `ego_np`)."""
+        if self._ego is None:
+            self._ego = torch.from_numpy(self.ego_np)
+        return self._ego
+
+    @ego.setter
+    def ego(self, state: torch.Tensor) -> None:
+        self._ego, self.ego_np = state, state.numpy()
+
+    def observe(self, state: np.ndarray) -> None:
+        """The latest telemetry's state, (6,) float32 numpy (`VehicleSession.mission_state`)."""
+        self.ego_np, self._ego = state, None
 
     @torch.inference_mode()
     def warm_up(self, calls: int = 4) -> None:
@@ -107,8 +128,10 @@ class Decision:
         """Mission time tm (the latest telemetry, `ego`): process every second now due;
         True if one of them decided."""
         clock = self.clock
+        if tm < clock.next_k - EPS:
+            return False  # within a second already processed: nothing is due (most samples)
         for k in range(clock.next_k, math.floor(tm + EPS) + 1):
-            self.ego_at.setdefault(k, self.ego.clone())  # state at the first sample of second k
+            self.ego_at.setdefault(k, self.ego_np.copy())  # state at the first sample of second k
         decided = False
         while clock.second_due(clock.next_k, tm, self.awaiting_sensing(), self.delivered,
                                awaiting_demand=self.form.takes_demand and self.demand.awaiting(clock.next_k)):
@@ -138,9 +161,14 @@ class Decision:
         near = (d * d).sum(-1) <= r2
         return [j for j in others if self.table.in_set(j) and bool(near[j])]
 
-    @torch.inference_mode()
     def _book_misses(self, k: int, sub_s: float) -> None:
-        for inst in self.clock.instants_to_book(k, sub_s):
+        instants = self.clock.instants_to_book(k, sub_s)
+        if instants:  # one second in T_up
+            self._book(k, instants)
+
+    @torch.inference_mode()
+    def _book(self, k: int, instants: list[int]) -> None:
+        for inst in instants:
             dropped = self.table.close_instant(float(inst))
             for j in dropped:
                 log.warning("neighbour %d dropped at t = %d s (%d signalling instants missed)", j, k, self.table.drop)
@@ -157,7 +185,7 @@ class Decision:
             self.buf, self.seen = self.tracker.init_state(held)
         self.belief, self.aoi, self.buf, self.seen = self.tracker(float(k), held, t_rx, self.buf, self.seen)
         decided = self.clock.is_decision(k)
-        ego = self.ego_at.pop(k, self.ego)
+        ego = torch.as_tensor(self.ego_at.pop(k, self.ego_np))  # no copy: a numpy float32 array becomes its view
         for old in [s for s in self.ego_at if s < k]:
             del self.ego_at[old]
         mask = self.table.mask()
@@ -168,7 +196,8 @@ class Decision:
             if bool(inputs.fail) and not self.fail:
                 log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
             self.fail = bool(inputs.fail)
-            self.accel = (float(a[0]), float(a[1]), float(a[2]))
+            ax, ay, az = a.tolist()  # one call, not three tensor indexings
+            self.accel = (ax, ay, az)
             self.stats.decisions += 1
         if self.trace.active:
             self.trace.write({
@@ -222,13 +251,14 @@ class Decision:
             return torch.zeros(SENSING_FEATURES)
         t, users = next(((t, u) for t, u in reversed(self.sense_history) if t <= k + 1e-6), self.sense_history[0])
         self.used_sense_t = t
+        users = torch.as_tensor(users, dtype=torch.float32).reshape(-1, 2)  # as received (inbox.SenseHistory)
         return sensing_features(ego[:3].unsqueeze(0), users, m.radii.sensing_m, m.users.cluster_size)[0]
 
     def command(self) -> tuple[float, float, float]:
         """The acceleration to send now (NED, m/s^2)."""
         vm = self.vm
-        ego = self.ego.numpy()  # once per sample: numpy scalars, not two torch indexings
-        alt, v_up = -float(ego[2]), -float(ego[5])
+        ego = self.ego_np.tolist()  # once per sample: Python floats (the float32 values), no torch
+        alt, v_up = -ego[2], -ego[5]
         if not self.clock.in_mission():
             # Before the mission: hold where offboard control began (PD on position).
             tgt = self.hold_target if self.hold_target is not None and not self.hold_damping_only else self.ego[:3]
@@ -247,5 +277,5 @@ class Decision:
             # docs/CONFORMANCE.md); the drag is what bounds it, and cancelling the drag
             # integrated it into +-8 m/s swings over 70-170 m (measured on real PX4).
             k = self.drag_per_s
-            a = (a[0] + k * float(ego[3]), a[1] + k * float(ego[4]), a[2])
+            a = (a[0] + k * ego[3], a[1] + k * ego[4], a[2])
         return a

@@ -26,8 +26,10 @@ from plmarl_sitl.deploy.mqtt.wire import Wire
 
 log = logging.getLogger("plmarl.agent")
 
-# (mission second, (K, 2) positions of the users in sensing range)
-SenseHistory = deque[tuple[float, torch.Tensor]]
+# (mission second, the users in sensing range: K (north, east) pairs as received, or a
+# (K, 2) tensor). Kept as received: a decision (one second in tau) reads one of them
+# (`Decision._sense` makes the tensor), the other messages are never read.
+SenseHistory = deque[tuple[float, "torch.Tensor | tuple[tuple[float, float], ...]"]]
 
 
 def subscriptions(topics: Topics, me: int, bus_mode: str, lockstep: bool = False) -> list[str]:
@@ -99,7 +101,7 @@ class Inbox:
         if msg.receiver != self.me:
             self.rx.refused("misattributed", "sense")
             return
-        self.sense_history.append((msg.t_ms / 1000.0, torch.tensor(msg.users, dtype=torch.float32).reshape(-1, 2)))
+        self.sense_history.append((msg.t_ms / 1000.0, msg.users))
 
     def _on_demand(self, payload: bytes) -> None:
         if not payload:

@@ -32,6 +32,9 @@ class NeighbourTable:
         self.dropped: list[int] = []  # ids dropped, in order (for logs and tests)
         self.closed: int | None = None  # the newest signalling instant whose misses are booked
         self.knowledge = Knowledge(me)  # failures known, merged from the states received (model/gossip.py)
+        # N_i as a tensor, made again only after a state or an instant changed it: every
+        # mission second reads it, and most seconds neither arrives.
+        self._mask: torch.Tensor | None = None
 
     def on_state(self, j: int, t_s: float, state: tuple[float, ...], known: Known = NOTHING) -> bool:
         """Take a received state and the sender's knowledge (failed set, epoch, incarnations)
@@ -43,17 +46,22 @@ class NeighbourTable:
         self.t_rx[j] = t_s
         self.ever[j] = True
         self.missed[j] = 0  # delivered for instant t_s
+        self._mask = None
         return True
 
     def in_set(self, j: int) -> bool:
         return j != self.me and self.ever[j] and self.missed[j] < self.drop
 
     def mask(self) -> torch.Tensor:
-        return torch.tensor([self.in_set(j) for j in range(self.n)], dtype=torch.bool)
+        """(n,) bool N_i (shared until the table changes: read it, do not write it)."""
+        if self._mask is None:
+            self._mask = torch.tensor([self.in_set(j) for j in range(self.n)], dtype=torch.bool)
+        return self._mask
 
     def close_instant(self, t_s: float) -> list[int]:
         """Account for signalling instant t; returns the neighbours dropped by it."""
         newly = []
+        self._mask = None
         self.closed = int(t_s) if self.closed is None else max(self.closed, int(t_s))
         for j in range(self.n):
             if j == self.me:

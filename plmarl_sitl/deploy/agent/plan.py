@@ -49,16 +49,16 @@ class LinkTables:
     KEEP = 8  # tables: a few instants' worth
 
     def __init__(self) -> None:
-        self.tables: dict[tuple, tuple[tuple[np.ndarray, ...], torch.Tensor]] = {}
+        self.tables: dict[tuple, tuple[tuple[np.ndarray, ...], np.ndarray]] = {}
 
-    def get(self, key: tuple, inputs: tuple[torch.Tensor, ...], compute: Callable[[], torch.Tensor]) -> torch.Tensor:
+    def get(self, key: tuple, inputs: tuple[np.ndarray, ...], compute: Callable[[], np.ndarray]) -> np.ndarray:
         """The table under key, computed anew unless it was computed from inputs equal to these."""
         held = self.tables.get(key)
-        if held is not None and all(np.array_equal(a, b.numpy()) for a, b in zip(held[0], inputs, strict=True)):
+        if held is not None and all(np.array_equal(a, b) for a, b in zip(held[0], inputs, strict=True)):
             return held[1]
         table = compute()
         self.tables.pop(key, None)
-        self.tables[key] = (tuple(x.numpy().copy() for x in inputs), table)
+        self.tables[key] = (tuple(x.copy() for x in inputs), table)
         while len(self.tables) > self.KEEP:
             del self.tables[next(iter(self.tables))]
         return table
@@ -82,6 +82,8 @@ class AgentPlan:
         self.started = False
         self.point: torch.Tensor | None = None  # this agent's point, recomputed only when the plan changes
         self.links = LinkTables()  # the failure check's link tables, per signalling instant
+        self.me_t = torch.tensor([self.me])  # this agent's identity, as the link functions take it
+        self.goals: np.ndarray | None = None  # (1, 1, n, 2) every identity's point: the plan's, kept until it changes
 
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
                demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None,
@@ -106,7 +108,7 @@ class AgentPlan:
             self.plans.start(self.launch[None, None], counts, k)
             self.started, self.first_counts = True, counts
         else:
-            self.plans.motion.advance(k, self.plans.all_targets())
+            self.plans.motion.advance(k, self.goals)  # the points held since the last decision
             if new_map:
                 self.plans.on_map(counts, round(t_map))
                 self.first_counts = None  # the plan has moved on: too late to restart it
@@ -119,6 +121,7 @@ class AgentPlan:
         if mask is not None:
             changed |= self.on_failures(k, t_rx, self.instants.last(k) if closed is None else min(closed, k))
         if changed:
+            self.goals = self.plans.all_targets()
             own = self.plans.targets(np.array([self.me]))[0, 0]
             if not np.isnan(own).any():  # a copy that counts this agent as failed: it keeps its point
                 self.point = torch.from_numpy(own).to(torch.float32)
@@ -145,23 +148,26 @@ class AgentPlan:
                   if j not in known.failed and may_predict(j)] \
             if heard and len(missed) == self.declare_after and missed[-1] > 0 else []
         if silent:
-            silent_t = torch.zeros(1, 1, self.n, dtype=torch.bool)
-            silent_t[0, 0, silent] = True
-            sus = silent_t
-            me = torch.tensor([self.me])
+            # (n,) numpy bool vectors throughout (the link tables are kept as numpy rows of
+            # this agent's copy): a handful of torch calls on 20 booleans cost more than the
+            # check's arithmetic in a process whose caches went cold since the last second.
+            silent_v = np.zeros(self.n, dtype=bool)
+            silent_v[silent] = True
+            sus = silent_v
+            me = self.me_t
             for at in missed:  # model.gossip.suspects, its link table kept while the prediction is
-                pred = self.plans.motion.at(at)[..., :3]
-                sus = sus & self.links.get(("clear", at), (pred,),
-                                           lambda p=pred: clear_hearing(p, me, p[:, :, self.me], self.channel, self.comm_m))
+                pred = self.plans.motion.at_array(at)[..., :3]
+                sus = sus & self.links.get(("clear", at), (pred,), lambda p=pred: clear_hearing(
+                    torch.from_numpy(p), me, torch.from_numpy(p)[:, :, self.me], self.channel, self.comm_m)[0, 0].numpy())
             if len(recent) > self.declare_after:  # or heard at the instant before, on a steady link (model/gossip.py::steady)
-                st = silent_t & (t_rx == recent[-1]).view(1, 1, -1)
-                before = self.plans.motion.at(recent[-1])[..., :3]
+                st = silent_v & (rx == recent[-1])
+                before = self.plans.motion.at_array(recent[-1])[..., :3]
                 for at in missed:
-                    now = self.plans.motion.at(at)[..., :3]
-                    st = st & self.links.get(("steady", at, recent[-1]), (now, before),
-                                             lambda n=now: steady_links(n, before, me, self.channel, self.comm_m))
+                    now = self.plans.motion.at_array(at)[..., :3]
+                    st = st & self.links.get(("steady", at, recent[-1]), (now, before), lambda n=now: steady_links(
+                        torch.from_numpy(n), torch.from_numpy(before), me, self.channel, self.comm_m)[0, 0].numpy())
                 sus = sus | st
-            ids = np.flatnonzero(sus[0, 0].numpy())
+            ids = np.flatnonzero(sus)
             if len(ids):
                 self.knowledge.learn(k, known.declared([int(j) for j in ids], self.instants.last(k)))
                 known = self.knowledge.view(before=k + 1)

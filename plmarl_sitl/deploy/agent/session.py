@@ -150,15 +150,15 @@ class VehicleSession:
         self._mode_acked = -math.inf
         self._reengage_task: asyncio.Task | None = None
 
-    def mission_state(self, m: Any) -> torch.Tensor:
-        """[p, v] in the mission frame from a LOCAL_POSITION_NED (float32).
+    def mission_state(self, m: Any) -> np.ndarray:
+        """(6,) float32 [p, v] in the mission frame from a LOCAL_POSITION_NED.
 
-        Once per telemetry sample: built in numpy and handed over without a copy (three
-        torch calls on a 6-vector cost more than the rest of the answer); the float32 sum
-        is the same IEEE addition torch would do, bit for bit."""
+        Once per telemetry sample: numpy only (`Decision.observe` makes a torch view when a
+        second reads it; torch calls on a 6-vector cost more than the rest of the answer);
+        the float32 sum is the same IEEE addition torch would do, bit for bit."""
         state = np.array((m.x, m.y, m.z, m.vx, m.vy, m.vz), dtype=np.float32)
         state[:3] += self._origin_np
-        return torch.from_numpy(state)
+        return state
 
     def height_above_home(self) -> float:
         """Metres above home, from the latest telemetry (the local frame: no geodesy)."""
