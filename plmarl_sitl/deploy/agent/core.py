@@ -188,6 +188,8 @@ class Agent:
         finally:
             await self.session.hold()
             self.session.close()
+            if self.trace.active:
+                self.decision.track()  # the trace lines of the seconds since the last decision
             self.trace.close()
             self._write_stats()
             # The last line says why the agent stopped: a signal, a failure, or the flight's end.

@@ -2,7 +2,9 @@
 
 At each due second k (see `MissionClock.second_due`): book the misses of the instants
 whose grace has passed (failure state f), advance Algorithm 1's tracker one second
-(`predictor.pt`: beliefs and P-AoI from the held states), and every tau seconds perceive
+(`predictor.pt`: beliefs and P-AoI from the held states; the steps of the seconds between
+decisions run at the next decision, back to back, from copies of what was held then, as
+nothing reads their beliefs sooner: `Decision.track`), and every tau seconds perceive
 (`perceive`: ego at the first sample of second k, beliefs, N_i mask, sensing features, f,
 demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
 takes it, as one `PolicyInputs`) and run `policy.pt` on it through the typed call
@@ -79,6 +81,12 @@ class Decision:
         self.accel = (0.0, 0.0, 0.0)  # the command in force (before the band guard)
         self.ego_at: dict[int, np.ndarray | torch.Tensor] = {}  # the state at the first sample of each second not yet processed
         self.buf: torch.Tensor | None = None  # the tracker's state
+        # The seconds processed since the last decision whose tracker step is still to run
+        # (`track`): (second, held states, t_rx, its trace line without the P-AoI). Their
+        # beliefs are read only at the next decision (and, free-running, at an instant's
+        # delivery check), so their steps run there, back to back: a TorchScript call costs
+        # a few times more alone, after the process slept, than right after another (issue 25.1).
+        self.untracked: list[tuple[int, torch.Tensor, torch.Tensor, dict | None]] = []
         self.seen: torch.Tensor | None = None
         self.belief = torch.zeros(self.n, 6)
         self.aoi = torch.ones(self.n)
@@ -156,6 +164,7 @@ class Decision:
         others = [j for j in range(self.n) if j != self.me]
         if k == self.clock.first_k:
             return others
+        self.track()  # the beliefs as of the last second processed
         r2 = self.mission.radii.comm_m ** 2
         d = self.belief[:, :3] - self.ego[:3]
         near = (d * d).sum(-1) <= r2
@@ -176,48 +185,70 @@ class Decision:
                 self.flag.on_dropped(inst, dropped)
 
     def second(self, k: int, sub_s: float = 0.0) -> bool:
-        """Mission second k (processed `sub_s` late): close the instant, advance the
-        tracker, maybe decide; True if it decided."""
+        """Mission second k (processed `sub_s` late): close the instant and, at a decision,
+        advance the tracker to k (`track`) and decide; True if it decided."""
         self.stats.seconds += 1
         self._book_misses(k, sub_s)
-        held, t_rx = self.table.state, self.table.t_rx
-        if self.buf is None:
-            self.buf, self.seen = self.tracker.init_state(held)
-        self.belief, self.aoi, self.buf, self.seen = self.tracker(float(k), held, t_rx, self.buf, self.seen)
         decided = self.clock.is_decision(k)
         ego = torch.as_tensor(self.ego_at.pop(k, self.ego_np))  # no copy: a numpy float32 array becomes its view
         for old in [s for s in self.ego_at if s < k]:
             del self.ego_at[old]
         mask = self.table.mask()
         self.new_map = None
-        if decided:
-            inputs = self.perceive(k, ego, mask)
-            a = self.policy(inputs)
-            if bool(inputs.fail) and not self.fail:
-                log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
-            self.fail = bool(inputs.fail)
-            ax, ay, az = a.tolist()  # one call, not three tensor indexings
-            self.accel = (ax, ay, az)
-            self.stats.decisions += 1
+        if not decided:  # the tracker's step waits for the next decision (`untracked`); the table changes in place: copies
+            line = self._trace_line(k, ego, mask, decided) if self.trace.active else None
+            self.untracked.append((k, self.table.state.clone(), self.table.t_rx.clone(), line))
+            return False
+        self.untracked.append((k, self.table.state, self.table.t_rx, None))
+        self.track()
+        inputs = self.perceive(k, ego, mask)
+        a = self.policy(inputs)
+        if bool(inputs.fail) and not self.fail:
+            log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
+        self.fail = bool(inputs.fail)
+        ax, ay, az = a.tolist()  # one call, not three tensor indexings
+        self.accel = (ax, ay, az)
+        self.stats.decisions += 1
         if self.trace.active:
-            self.trace.write({
-                "t": k,
-                "boot_s": round(self.clock.boot_s, 3),
-                "aoi": [round(x, 2) for x in self.aoi.tolist()],  # tolist: iterating a tensor makes a tensor per element
-                "mask": mask.tolist(),
-                "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
-                "fail": self.table.lost,  # a neighbour was dropped
-                "f": self.fail,  # the failure flag the policy got at the last decision
-                "ego": [round(x, 2) for x in ego.tolist()],
-                "accel": [round(x, 3) for x in self.accel],  # the policy's command
-                "cmd": [round(x, 3) for x in self.command()],  # after the band guard
-                "decided": decided,
-                "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
-                "demand_t": self.used_demand_t,  # the snapshot time of the map the last decision saw
-                **({} if self.target is None else {"target": [round(x, 1) for x in self.target.tolist()]}),
-                **({} if self.new_map is None else {"demand": self.new_map.tolist()}),  # that map's cells, when first used
-            })
-        return decided
+            line = self._trace_line(k, ego, mask, decided)
+            line["aoi"] = self._aoi_line()
+            self.trace.write(line)
+        return True
+
+    def track(self) -> None:
+        """Run the tracker's steps of the seconds processed so far (`untracked`, oldest
+        first) and write their trace lines: `belief` and `aoi` are then as of the last one."""
+        for k, held, t_rx, line in self.untracked:
+            if self.buf is None:
+                self.buf, self.seen = self.tracker.init_state(held)
+            self.belief, self.aoi, self.buf, self.seen = self.tracker(float(k), held, t_rx, self.buf, self.seen)
+            if line is not None:
+                line["aoi"] = self._aoi_line()
+                self.trace.write(line)
+        self.untracked.clear()
+
+    def _aoi_line(self) -> list[float]:
+        return [round(x, 2) for x in self.aoi.tolist()]  # tolist: iterating a tensor makes a tensor per element
+
+    def _trace_line(self, k: int, ego: torch.Tensor, mask: torch.Tensor, decided: bool) -> dict:
+        """Second k's trace line, as of now; its P-AoI ("aoi") is filled in after the tracker's step."""
+        return {
+            "t": k,
+            "boot_s": round(self.clock.boot_s, 3),
+            "aoi": None,
+            "mask": mask.tolist(),
+            "t_rx": [None if x < -1e8 else float(x) for x in self.table.t_rx.tolist()],
+            "fail": self.table.lost,  # a neighbour was dropped
+            "f": self.fail,  # the failure flag the policy got at the last decision
+            "ego": [round(x, 2) for x in ego.tolist()],
+            "accel": [round(x, 3) for x in self.accel],  # the policy's command
+            "cmd": [round(x, 3) for x in self.command()],  # after the band guard
+            "decided": decided,
+            "sense_t": self.used_sense_t,  # the mission second of the users the last decision saw
+            "demand_t": self.used_demand_t,  # the snapshot time of the map the last decision saw
+            **({} if self.target is None else {"target": [round(x, 1) for x in self.target.tolist()]}),
+            **({} if self.new_map is None else {"demand": self.new_map.tolist()}),  # that map's cells, when first used
+        }
 
     def perceive(self, k: int, ego: torch.Tensor, mask: torch.Tensor) -> PolicyInputs:
         """The policy's inputs at decision k (the tracker has advanced to k): what the twin's
