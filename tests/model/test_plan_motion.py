@@ -144,3 +144,40 @@ def test_numpy_step_of_a_hovering_team_equals_torch():
         want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
         got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
         assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 20), (2, 3, 6)])
+def test_seconds_flown_when_read_equal_seconds_flown_at_each_advance(shape):
+    """`advance` only books the seconds; they are flown when a state is read. A motion read
+    only at some instants (as a deployed agent's failure check reads it) holds the same
+    states, kept instants and re-flown copies as one read after every advance, through
+    transit, a new plan held for several decisions, a re-plan replayed from an epoch and a
+    failed identity's NaN point (flown at once: it stays where it is at the call)."""
+    rng = np.random.default_rng(sum(shape) + 7)
+    launch = rng.uniform(0, 1500, shape + (2,))
+    eager = PlanMotion(LIM, 100.5, 60.0, TAU, lambda t: t % 15 == 0)
+    lazy = PlanMotion(LIM, 100.5, 60.0, TAU, lambda t: t % 15 == 0)
+    eager.start(launch)
+    lazy.start(launch)
+    t, deferred = 0, 0
+    for leg in range(5):
+        targets = rng.uniform(0, 1500, shape + (2,))
+        if leg == 3:
+            targets[..., 1, :] = np.nan
+        for _ in range(12):
+            t += TAU
+            eager.advance(t, targets)
+            lazy.advance(t, targets.copy())  # equal points in another array: still one stretch
+            deferred += lazy.flown < lazy.t
+            assert lazy.t == eager.t == t
+            eager.now  # noqa: B018 - read: flown now
+            if t % 15 == 6:  # the failure check's read: an instant before now
+                assert np.array_equal(lazy.at_array(t - 6), eager.at_array(t - 6))
+            if leg == 4 and t % 30 == 0:  # a re-plan re-flies copy (0, 0) from the last instant
+                new = rng.uniform(0, 1500, shape[2:] + (2,))
+                eager.replay(0, 0, t - 15, new)
+                lazy.replay(0, 0, t - 15, new)
+    assert deferred > 20  # the lazy motion did defer
+    assert np.array_equal(lazy.now, eager.now)
+    assert sorted(lazy.kept) == sorted(eager.kept)
+    assert all(np.array_equal(lazy.kept[s], eager.kept[s]) for s in eager.kept)
