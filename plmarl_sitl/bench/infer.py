@@ -205,6 +205,7 @@ class _SizeBench:
         import torch
 
         from plmarl_sitl.deploy.agent.coordination import agent_plan
+        from plmarl_sitl.deploy.agent.plan import AgentPlan
         from plmarl_sitl.learning.nn.contract import PolicyCall, PolicyInputs
         from plmarl_sitl.model.coverage import SENSING_FEATURES
 
@@ -224,7 +225,7 @@ class _SizeBench:
         self.pi = pi = plan_inputs(n, seed, area_m) if with_plan else None
         self.demand = pi.maps[0] if pi is not None else torch.cat(
             [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
-        self.plans, self.target = {}, None
+        self.plans, self.motions, self.target = {}, {}, None
         if pi is not None:
             # What an agent pays at each decision (deploy/agent/decision.py): `target` at second k,
             # k advancing by tau (the team plan's plan-aware prediction flies the team that far),
@@ -236,6 +237,7 @@ class _SizeBench:
                 plan = agent_plan(pi.mission.with_coordination(coord), 0)
                 self.target = plan.target(0, pi.ego, pi.held, pi.t_rx, (0.0, pi.maps[0]), self.full)  # the plan starts
                 self.plans[coord] = (plan, [0, 0])  # (plan, [second k, map number])
+                self.motions[coord] = plan.plans.motion if isinstance(plan, AgentPlan) else None  # the team plan's prediction
         self.times: dict[str, list[int]] = {m: [] for m in mods}
         self.cpu: dict[str, list[int]] = {m: [] for m in mods}  # the thread's CPU time: what a loaded machine does not inflate
         if pi is not None:
@@ -254,6 +256,13 @@ class _SizeBench:
         kt[0] += self.tau
         pi = self.pi
         plan.target(kt[0], pi.ego, pi.held, pi.t_rx, (float(kt[1]), pi.maps[kt[1] % 2]), self.full)
+        motion = self.motions[coord]
+        if motion is not None:
+            # The team plan's prediction flies the seconds `advance` booked when a state is read
+            # (model/plan_motion.py): in the agent, the failure check reads it at each instant;
+            # here no neighbour is silent and nothing would: read it, so each decision pays for
+            # its own seconds, as before session 16, not one decision in a map period for all.
+            motion.at_array(kt[0])
 
     def plan_map(self, coord: str) -> None:
         self.plans[coord][1][1] += 1
