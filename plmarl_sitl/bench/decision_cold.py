@@ -1,6 +1,9 @@
 """One agent's decision (`Decision.second` at a decision second, N = 20) timed in isolation,
 back to back and with a sleep before each call: how much of the loop's cost is a cold
-cache after the process slept (docs/RESULTS.md, issue 5, "Loop p99").
+cache after the process slept (docs/RESULTS.md, issue 5, "Loop p99"). Also the mean CPU
+of every mission second, decided or not: since session 16 the tracker steps of the seconds
+between decisions run at the decision (`Decision.track`), so the decision's own figure
+includes them and the per-second mean is the one to compare across that change.
 
     python -m plmarl_sitl.bench.decision_cold [--sleeps-ms 0,10,100] [--calls 300]
 """
@@ -46,7 +49,7 @@ def main() -> None:
     k = 0
     print(f"seed {args.seed}; N = 20, decision seconds only")
     for sleep_ms in args.sleeps_ms:
-        wall, cpu = [], []
+        wall, cpu, every = [], [], []
         while len(wall) < args.calls:
             if k % 15 == 0:  # every neighbour signals at each instant
                 for j in range(1, 20):
@@ -54,6 +57,8 @@ def main() -> None:
             time.sleep(sleep_ms / 1e3)
             t, c = time.perf_counter(), time.thread_time()
             decided = decision.second(k)
+            if k >= 30:
+                every.append((time.thread_time() - c) * 1e3)
             if decided and k >= 30:
                 wall.append((time.perf_counter() - t) * 1e3)
                 cpu.append((time.thread_time() - c) * 1e3)
@@ -61,7 +66,8 @@ def main() -> None:
         wall.sort()
         cpu.sort()
         print(f"sleep {sleep_ms:g} ms before each second: decision wall p50 {statistics.median(wall):.3f} ms "
-              f"p99 {wall[int(0.99 * len(wall))]:.3f} ms, CPU p50 {statistics.median(cpu):.3f} ms")
+              f"p99 {wall[int(0.99 * len(wall))]:.3f} ms, CPU p50 {statistics.median(cpu):.3f} ms; "
+              f"every second: CPU mean {statistics.mean(every):.3f} ms")
 
 
 if __name__ == "__main__":
