@@ -91,6 +91,7 @@ class ServiceGrid:
         offs = (np.arange(self.sub) + 0.5) / self.sub * cell_m - 0.5 * cell_m
         sub = np.stack(np.meshgrid(offs, offs, indexing="ij"), -1).reshape(-1, 2)  # (sub^2, 2)
         self.subpts = (centres[:, None, :] + sub[None]).reshape(-1, 2)  # (K * sub^2, 2), cell-major
+        self.sub_n, self.sub_e = (np.ascontiguousarray(a) for a in self.subpts.T)  # columns: gathers ~5x faster
         self.r2 = cover_r * cover_r
         self.link_m = LINK_FRAC * comm_m  # a point within this of an earlier one keeps the plan connected
         self.apart_m = 2.0 * safe_m
