@@ -42,43 +42,6 @@ def test_setpoints_only_steps_aside_for_other_kinds() -> None:
     assert torch.equal(a[0], torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
 
 
-def test_fleet_step_under_position_loops_is_the_torch_step_bit_for_bit() -> None:
-    """Take-off, holds and landings (the guidance's torch branches): the fleet steps them per
-    vehicle in numpy (`step_point_mass_numpy`); a whole-fleet `step_point_mass` gives the same bits,
-    through climbs at the speed limit, arrivals at the floor and the ceiling."""
-    from plmarl_sitl.model.vehicle import Limits, step_point_mass
-    from plmarl_sitl.sitl.autopilot.fleet import Fleet
-
-    lim = Limits(max_speed=12.0, max_accel=5.0, alt_min=0.0, alt_max=120.0)
-    rng = np.random.default_rng(16)
-    kinds = (Kind.POSITION, Kind.VELOCITY, Kind.LAND, Kind.FALL, Kind.IDLE, Kind.ACCEL)
-    fleet = Fleet(12, lim, {})
-    fleet.guidance.max_speed[:] = 12.0
-    fleet.guidance.max_accel[:] = 5.0
-    fleet.guidance.descent[:] = 1.5
-    at_limit = 0  # vehicle-steps on a band edge it flew into
-    for step in range(400):
-        if step % 40 == 0:  # new targets: climbs to the ceiling, descents to the ground, holds
-            for i in range(12):
-                kind = kinds[(i + step // 40) % len(kinds)]
-                target = (rng.normal() * 50, rng.normal() * 50, -rng.choice([0.0, 5.0, 30.0, 119.99, 150.0]))
-                if kind == Kind.VELOCITY:
-                    target = tuple(rng.normal(size=3) * 8)
-                if kind == Kind.ACCEL:
-                    target = tuple(rng.normal(size=3) * 3)
-                fleet.guidance.set(i, kind, target)
-        pos, vel = fleet.pos.clone(), fleet.vel.clone()
-        with torch.inference_mode():
-            acc = fleet.guidance.accel(pos, vel, lim.max_accel)
-            want_p, want_v = step_point_mass(pos, vel, acc, 0.02, lim)
-        fleet._integrate_torch(0.02)
-        assert torch.equal(fleet.pos, want_p) and torch.equal(fleet.vel, want_v), step
-        assert torch.equal(fleet.acc, acc)
-        alt = -fleet.pos[:, 2]
-        at_limit += int(((alt == lim.alt_max) | ((alt == lim.alt_min) & (torch.from_numpy(fleet.guidance.kind) == Kind.FALL))).sum())
-    assert at_limit > 0  # the event solver's part (band edges reached in flight) was exercised too
-
-
 def test_fleet_quiet_substeps_with_drag_are_substep_by_substep_bit_for_bit() -> None:
     """PX4's acceleration setpoints with airframe drag (the command changes with the velocity
     every substep): `step_many` in one call gives `step` after `step`'s bits, and steps aside

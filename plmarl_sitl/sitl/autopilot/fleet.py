@@ -8,7 +8,7 @@ row at events (a setpoint arrives, a mode changes) and reads it for telemetry. V
 depend on the fleet, not on the host.
 
 All vehicles are stepped in one batched call of the shared point-mass dynamics
-(`plmarl_sitl.model.vehicle.step_point_mass`, or its numpy forms, the same bits), float64, shape (N, 3).
+(`plmarl_sitl.model.vehicle.step_point_mass`), float64, shape (N, 3).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from plmarl_sitl.model.vehicle import (
     free_flight_step,
     free_flight_steps,
     free_flight_steps_under,
-    step_point_mass_numpy,
+    step_point_mass,
 )
 from plmarl_sitl.sitl.autopilot.boot import Boot
 from plmarl_sitl.sitl.autopilot.guidance import Guidance, Kind
@@ -162,15 +162,9 @@ class Fleet:
 
     @torch.inference_mode()  # no autograd bookkeeping: ~15 % off the physics call
     def _integrate_torch(self, h: float) -> None:
-        # The guidance (take-off, hold, landing: position and velocity loops) in torch; the
-        # step itself per vehicle (`step_point_mass_numpy`: the free ones in numpy, only
-        # those at a limit through the event solver), the same bits as `step_point_mass`
-        # on the whole fleet. The climb and the holds before and after a mission are most
-        # of the substeps that come here (issue 25.1).
-        acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel)
-        acc_np = acc.numpy()
-        pos, vel = step_point_mass_numpy(self.pos_np, self.vel_np, acc_np, h, self.limits)
-        self._set_state(pos, vel, acc_np)
+        self.acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel)
+        self.pos, self.vel = step_point_mass(self.pos, self.vel, self.acc, h, self.limits)
+        self._refresh_views()
 
     def _ground_contact(self) -> None:
         """A landing or a fall that reached the ground stops there: the kind becomes TOUCHDOWN,
