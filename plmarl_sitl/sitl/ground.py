@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from plmarl_sitl.deploy.mqtt.schema import Topics
@@ -98,12 +99,21 @@ class Ground:
         emulated outage)."""
         if not self.publish_sense or self.outbox.cut:
             return
-        users = self.users.xy[0]
         t_ms = k * 1000
-        r2 = self.mission.radii.sensing_m**2
-        for i in range(pos.shape[0]):
-            if not bool(alive[i]):
-                continue
-            d = users - pos[i, :2]
-            inside = users[(d * d).sum(-1) <= r2]
-            self.outbox.publish(self.topics.sense(i), self.wire.sense(i, t_ms, inside.tolist()))
+        for i, inside in enumerate(sensed_users(self.users.xy[0], pos, alive, self.mission.radii.sensing_m)):
+            if inside is not None:
+                self.outbox.publish(self.topics.sense(i), self.wire.sense(i, t_ms, inside))
+
+
+def sensed_users(users: torch.Tensor, pos: torch.Tensor, alive: torch.Tensor, radius_m: float) -> list[list | None]:
+    """Per vehicle, the users (U, 2) float32 within `radius_m` of its (N, 3) float32
+    position, as [[x, y], ...] (None for a dead vehicle): all vehicles in one numpy pass.
+    The same float32 operations as the twin's per-vehicle torch test (squared distance
+    d_x^2 + d_y^2, compared with R_s^2 rounded to float32), so the same users, bit for
+    bit, at a fraction of twenty vehicles' torch calls per second."""
+    u = users.numpy()
+    p = pos.numpy()
+    dx = u[:, 0][None, :] - p[:, 0:1]  # (N, U), contiguous rows
+    dy = u[:, 1][None, :] - p[:, 1:2]
+    near = dx * dx + dy * dy <= np.float32(radius_m**2)
+    return [u[near[i]].tolist() if a else None for i, a in enumerate(alive.tolist())]

@@ -40,3 +40,42 @@ def test_setpoints_only_steps_aside_for_other_kinds() -> None:
     a = g.accel(pos, pos, 9.8)
     assert a[1].abs().sum() > 0  # the position controller ran
     assert torch.equal(a[0], torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64))
+
+
+def test_fleet_quiet_substeps_with_drag_are_substep_by_substep_bit_for_bit() -> None:
+    """PX4's acceleration setpoints with airframe drag (the command changes with the velocity
+    every substep): `step_many` in one call gives `step` after `step`'s bits, and steps aside
+    (the same bits still) when a vehicle meets a limit within the run."""
+    from plmarl_sitl.model.vehicle import Limits
+    from plmarl_sitl.sitl.autopilot.fleet import Fleet
+
+    lim = Limits(max_speed=12.0, max_accel=5.0, alt_min=0.0, alt_max=120.0)
+    rng = np.random.default_rng(161)
+    fused = 0
+
+    def fleet_at(pos, vel, kinds, targets) -> Fleet:
+        f = Fleet(20, lim, {})
+        f.guidance.max_speed[:] = 12.0
+        f.guidance.max_accel[:] = 5.0
+        f.guidance.drag[:] = 1.0
+        f.pos_np[:], f.vel_np[:] = pos, vel
+        for i in range(20):
+            f.guidance.set(i, kinds[i], tuple(targets[i]))
+        return f
+
+    for trial in range(300):
+        pos = np.column_stack([rng.normal(size=(20, 2)) * 100, -rng.uniform(0.0, 120.0, 20)])
+        if trial % 3 == 0:
+            pos[:, 2] = -rng.uniform(30.0, 90.0, 20)  # well inside the band: the fused path applies
+        vel = rng.normal(size=(20, 3)) * rng.choice([0.5, 3.0, 7.0])
+        kinds = [Kind.ACCEL if rng.random() < 0.9 else Kind.IDLE for _ in range(20)]
+        targets = rng.normal(size=(20, 3)) * rng.choice([0.5, 2.0, 4.9])
+        one, many = fleet_at(pos, vel, kinds, targets), fleet_at(pos, vel, kinds, targets)
+        count = int(rng.integers(2, 8))
+        fused += many._free_steps(0.02, count) is not None
+        many.step_many(0.02, count)
+        for _ in range(count):
+            one.step(0.02)
+        assert np.array_equal(one.pos_np, many.pos_np) and np.array_equal(one.vel_np, many.vel_np), trial
+        assert np.array_equal(one.acc_np, many.acc_np) and one.now == many.now, trial
+    assert 10 < fused < 290  # both ways were exercised

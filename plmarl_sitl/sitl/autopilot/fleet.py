@@ -21,7 +21,13 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from plmarl_sitl.model.vehicle import Limits, free_flight_step, free_flight_steps, step_point_mass
+from plmarl_sitl.model.vehicle import (
+    Limits,
+    free_flight_step,
+    free_flight_steps,
+    free_flight_steps_under,
+    step_point_mass,
+)
 from plmarl_sitl.sitl.autopilot.boot import Boot
 from plmarl_sitl.sitl.autopilot.guidance import Guidance, Kind
 from plmarl_sitl.sitl.autopilot.schedule import STREAM_PHASES, Scheduler
@@ -118,17 +124,26 @@ class Fleet:
         """`count` substeps of `h` with nothing between them (the host's quiet substeps): one
         call of the multi-step free flight when the whole swarm flies undisturbed, else
         `step` after `step`. The same bits either way."""
-        if count > 1 and not self._watched and not self.guidance.drag.any():
-            acc = self.guidance.accel_setpoints_only(self.vel_np)  # no drag: the same in every substep
-            if acc is not None:
-                stepped = free_flight_steps(self.pos_np, self.vel_np, acc, h, count, self.limits)
-                if stepped is not None:
-                    self._set_state(stepped[0], stepped[1], acc)
-                    for _ in range(count):
-                        self.now += h  # the clock's sum, substep by substep
-                    return
+        if count > 1 and not self._watched:
+            stepped = self._free_steps(h, count)
+            if stepped is not None:
+                self._set_state(*stepped)
+                for _ in range(count):
+                    self.now += h  # the clock's sum, substep by substep
+                return
         for _ in range(count):
             self.step(h)
+
+    def _free_steps(self, h: float, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(pos, vel, acc) after `count` free-flight substeps in one call, or None."""
+        g = self.guidance
+        if g.drag.any():  # PX4: the command is recomputed from each substep's velocity
+            return free_flight_steps_under(self.pos_np, self.vel_np, g.accel_setpoints_only, h, count, self.limits)
+        acc = g.accel_setpoints_only(self.vel_np)  # no drag: the same in every substep
+        if acc is None:
+            return None
+        stepped = free_flight_steps(self.pos_np, self.vel_np, acc, h, count, self.limits)
+        return None if stepped is None else (stepped[0], stepped[1], acc)
 
     def _set_state(self, pos: np.ndarray, vel: np.ndarray, acc: np.ndarray) -> None:
         self.pos_np, self.vel_np, self.acc_np = pos, vel, acc

@@ -46,6 +46,7 @@ PX4_AUTO_CLIMB_MPS = 3.0
 RETURNED_M = 0.5  # RTL: this close to home (horizontally), it lands
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
+_TLOG_STAMP = struct.Struct(">Q")  # a .tlog record: big-endian unix time in us, then the frame
 # SETUP_SIGNING: a vehicle's signing timestamp starts this far past the one given (10 us
 # ticks), as ArduPilot's load_signing_key does against replays across a reboot.
 SETUP_SIGNING_AHEAD = 60 * 100_000
@@ -248,11 +249,13 @@ class Vehicle:
         t = self.transport
         if t is None or self.killed or t.is_closing():
             return
-        frames = [self.codec.encode(m) for m in msgs if m is not None]
-        for f in frames:
-            self.record(f)
-        if frames:
-            self._broadcast(t, b"".join(frames))
+        encode = self.codec.encode
+        frames = [encode(m) for m in msgs if m is not None]
+        if not frames:
+            return
+        if self.tlog is not None:
+            self.record_all(frames)
+        self._broadcast(t, frames[0] if len(frames) == 1 else b"".join(frames))
 
     def _broadcast(self, t: asyncio.DatagramTransport, buf: bytes) -> None:
         """One datagram to every peer and to the ground station."""
@@ -266,7 +269,13 @@ class Vehicle:
         """Append one MAVLink frame to the .tlog: 8-byte big-endian unix time in us, then
         the frame (the format pymavlink and MAVExplorer read)."""
         if self.tlog is not None and raw[:1] in (b"\xfd", b"\xfe"):
-            self.tlog.write(struct.pack(">Q", int(time.time() * 1e6)) + raw)
+            self.tlog.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + raw)
+
+    def record_all(self, frames: list[bytes]) -> None:
+        """`record` for the frames of one datagram: one clock reading and one write for all."""
+        if self.tlog is not None:
+            stamp = _TLOG_STAMP.pack(int(time.time() * 1e6))
+            self.tlog.write(b"".join(stamp + f for f in frames if f[:1] in (b"\xfd", b"\xfe")))
 
     def statustext(self, text: str, severity: int = d.MAV_SEVERITY_INFO) -> None:
         if self.texts is not None:
