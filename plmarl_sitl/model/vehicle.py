@@ -353,36 +353,12 @@ def free_flight_steps(
     p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, count: int, lim: Limits
 ) -> tuple[np.ndarray, np.ndarray] | None:
     """`count` successive `free_flight_step` steps under one constant command, bit for bit,
-    or None if any one of them would not apply.
-
-    Between two telemetry samples the autopilot emulator's fleet flies constant commands
-    for five substeps: the ballistic updates are done in sequence (the same operations, so
-    the same bits as five calls), and the free-flight test of every substep in one
-    vectorised pass over the stacked states, instead of five passes of ~30 numpy calls
-    each. A vehicle the first test holds still (resting) stays still, so one mask serves
-    every substep; every later test must agree with it."""
+    or None if any one of them would not apply (`free_flight_steps_under` with a command
+    that does not depend on the velocity: an ArduPilot fleet between two telemetry samples)."""
     if count <= 1:
         return free_flight_step(p, v, acc, dt, lim) if count == 1 else (p, v)
-    if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
-        return None
-    free, inside = _free_in_numpy(p, v, acc, dt, lim)
-    if not free.all():
-        return None
-    dt = float(dt)
-    a = acc * inside[:, None].astype(np.float64)  # `_ballistic`'s command
-    half_a_dt2, a_dt = 0.5 * a * dt * dt, a * dt  # the same bits in every substep: one command, one dt
-    ps, vs = [], []
-    for _ in range(count):
-        p = p + v * dt + half_a_dt2
-        v = v + a_dt
-        ps.append(p)
-        vs.append(v)
-    # every later substep must pass the same test with the same vehicles inside
-    later_free, later_inside = _free_in_numpy(
-        np.concatenate(ps[:-1]), np.concatenate(vs[:-1]), np.tile(acc, (count - 1, 1)), dt, lim)
-    if not (later_free.all() and (later_inside.reshape(count - 1, -1) == inside).all()):
-        return None
-    return p, v
+    stepped = free_flight_steps_under(p, v, lambda _v: acc, dt, count, lim)
+    return None if stepped is None else (stepped[0], stepped[1])
 
 
 def free_flight_steps_under(
@@ -394,11 +370,12 @@ def free_flight_steps_under(
     (position, velocity, the last substep's command), or None if `command` or any one
     step would not apply.
 
-    As `free_flight_steps`: the ballistic updates in sequence (the same operations as that
-    many `free_flight_step` calls), then the free-flight test of every later substep in one
-    vectorised pass over the stacked states and their commands, which must agree with the
-    first substep's (the same vehicles inside). Between two telemetry samples a PX4 fleet
-    otherwise stepped substep by substep: ~45 numpy calls each (issue 25.1)."""
+    The ballistic updates are done in sequence (the same operations, so the same bits as
+    that many `free_flight_step` calls), then the free-flight test of every later substep in
+    one vectorised pass over the stacked states and their commands, instead of a pass of
+    ~30-45 numpy calls per substep (issue 25.1). A vehicle the first test holds still
+    (resting) stays still, so one mask serves every substep; every later test must agree
+    with it (the same vehicles inside)."""
     if p.shape[0] > _FREE_FLIGHT_MAX_BATCH:
         return None
     acc = command(v)
