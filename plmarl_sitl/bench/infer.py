@@ -55,9 +55,11 @@ import dataclasses
 import os
 import time
 from pathlib import Path
+from typing import get_args
 
 from plmarl_sitl.cmdline import comma_list, seed_arg
 from plmarl_sitl.machine import machine_info
+from plmarl_sitl.mission import Placement
 
 DEFAULT_N = "4,8,12,16,20"
 WAVE1 = "pl-marl-wave1"  # the map-memorising PL-MARL shipped before issue 12 (version-1 inputs)
@@ -97,6 +99,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--area", type=area_side, default=None, metavar="M",
                    help="side of the square area of the team plan's map and of the neighbours' positions, metres "
                         "(default: the paper mission's, 1000); e.g. --n 4,100 --area 3000 for the cost of N = 100 over 3 km")
+    p.add_argument("--placement", choices=get_args(Placement), default=None,
+                   help="how the team plan places its points (the mission key `placement`; default: the mission default, "
+                        "`search` up to 20 points, the greedy above); e.g. --placement greedy to time the same placement "
+                        "at every N")
 
 
 def parse_methods(text: str, policies: Path) -> dict[str, tuple[str, Path]]:
@@ -150,9 +156,10 @@ def area_side(text: str) -> float:
     return v
 
 
-def lattice_mission(n: int, area_m: float | None = None):  # noqa: ANN201 - Mission
+def lattice_mission(n: int, area_m: float | None = None, placement: str | None = None):  # noqa: ANN201 - Mission
     """The paper's area (or a square of side area_m, launch line through its centre) with N
-    UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml)."""
+    UAVs and N clusters of 60 users on a 200 m lattice (missions/suite/n20.yaml), its plan
+    placed by `placement` (None: the mission default)."""
     from plmarl_sitl.mission import Area, load_mission
 
     m = load_mission(PAPER)
@@ -162,7 +169,8 @@ def lattice_mission(n: int, area_m: float | None = None):  # noqa: ANN201 - Miss
     if area_m is not None:
         m = dataclasses.replace(m, area=Area(area_m, area_m))
         launch = dataclasses.replace(launch, north_m=area_m / 2, east_m=area_m / 2)
-    return dataclasses.replace(m, n_uavs=n, users=users, launch=launch)
+    m = dataclasses.replace(m, n_uavs=n, users=users, launch=launch)
+    return m if placement is None else m.with_placement(placement)
 
 
 @dataclasses.dataclass
@@ -177,13 +185,13 @@ class PlanInputs:
     decisions_per_map: int
 
 
-def plan_inputs(n: int, seed: int, area_m: float | None = None) -> PlanInputs:
+def plan_inputs(n: int, seed: int, area_m: float | None = None, placement: str | None = None) -> PlanInputs:
     import torch
 
     from plmarl_sitl.model.demand import map_period
     from plmarl_sitl.twin.env import CoverageEnv
 
-    m = lattice_mission(n, area_m)
+    m = lattice_mission(n, area_m, placement)
     env = CoverageEnv(m, 1, seed)
     obs = env.reset()
     first = (obs.ego[0, 0].clone(), obs.nbr_state[0, 0].clone(), obs.nbr_t_rx[0, 0].clone())
@@ -201,7 +209,8 @@ class _SizeBench:
     decision of every method (and the plan's decision or new map). `run` steps the sizes in
     turn, call by call, so a change of the machine's load falls on every size alike."""
 
-    def __init__(self, mods: dict, n: int, gen, seed: int, area_m: float | None = None) -> None:  # noqa: ANN001
+    def __init__(self, mods: dict, n: int, gen, seed: int, area_m: float | None = None,  # noqa: ANN001
+                 placement: str | None = None) -> None:
         import torch
 
         from plmarl_sitl.deploy.agent.coordination import agent_plan
@@ -222,7 +231,7 @@ class _SizeBench:
         self.fail = torch.tensor(False)
         self.policy_calls = {m: PolicyCall(p) for m, (_, p, _) in mods.items()}  # once: attribute reads are slow
         with_plan = any(c.form.takes_plan for c in self.policy_calls.values())
-        self.pi = pi = plan_inputs(n, seed, area_m) if with_plan else None
+        self.pi = pi = plan_inputs(n, seed, area_m, placement) if with_plan else None
         self.demand = pi.maps[0] if pi is not None else torch.cat(
             [torch.rand(16, 2, generator=gen) * 1000.0, 1.0 + 10.0 * torch.rand(16, 1, generator=gen)], -1)
         self.plans, self.motions, self.target = {}, {}, None
@@ -324,12 +333,13 @@ class _SizeBench:
         return rows
 
 
-def time_sizes(mods: dict, ns: list[int], calls: int, gen, seed: int, area_m: float | None = None) -> list[dict]:  # noqa: ANN001
+def time_sizes(mods: dict, ns: list[int], calls: int, gen, seed: int, area_m: float | None = None,  # noqa: ANN001
+               placement: str | None = None) -> list[dict]:
     """Every size set up first (in order, so the generator's draws are each size's own), warmed
     up, then timed call by call in turn."""
     import torch
 
-    benches = [_SizeBench(mods, n, gen, seed, area_m) for n in ns]
+    benches = [_SizeBench(mods, n, gen, seed, area_m, placement) for n in ns]
     with torch.inference_mode():
         for i in range(300):
             for b in benches:
@@ -351,10 +361,12 @@ def run(args: argparse.Namespace) -> dict:
     methods = parse_methods(args.methods or default_methods(), policies)
     mods = {label: _modules(name, d) for label, (name, d) in methods.items()}
     gen = torch.Generator().manual_seed(args.seed)
-    rows = time_sizes(mods, list(args.n), args.calls, gen, args.seed, getattr(args, "area", None))
+    placement = getattr(args, "placement", None)
+    rows = time_sizes(mods, list(args.n), args.calls, gen, args.seed, getattr(args, "area", None), placement)
     weights = {m: mods[m][2] for m in mods}
     return {"rows": rows, "weights": weights, "dirs": {m: str(d) for m, (_, d) in methods.items()},
             "machine": machine_info(), "torch_threads": 1, "calls": args.calls, "area_m": getattr(args, "area", None) or 1000.0,
+            "placement": placement or "the mission default",
             "openblas_threads": os.environ.get("OPENBLAS_NUM_THREADS", "default"),
             "load_avg_start": load_start, "load_avg": [float(x) for x in os.getloadavg()]}
 
@@ -380,7 +392,8 @@ def print_table(res: dict) -> None:
                 Console().print(f"{m} (the decision including the coordination) N={ns[-1]} / N={ns[0]}: "
                                 f"{by[(m, ns[-1])] / by[(m, ns[0])]:.2f} (CPU {by_cpu[(m, ns[-1])] / by_cpu[(m, ns[0])]:.2f}); "
                                 f"a new map at N={ns[-1]}: {by[(new_map, ns[-1])] / 1e3:.1f} ms "
-                                f"(CPU {by_cpu[(new_map, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m")
+                                f"(CPU {by_cpu[(new_map, ns[-1])] / 1e3:.1f} ms), area {res['area_m']:g} m, "
+                                f"placement: {res.get('placement', 'the mission default')}")
     if ("pl-marl", ns[0]) in by and ("pl-marl", ns[-1]) in by:
         msg = f"pl-marl N={ns[-1]} / N={ns[0]}: {by[('pl-marl', ns[-1])] / by[('pl-marl', ns[0])]:.2f}"
         if ("gru", ns[-1]) in by:

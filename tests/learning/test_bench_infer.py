@@ -113,3 +113,23 @@ def test_a_bad_area_is_one_line_and_exit_2(bad: str) -> None:
     assert r.returncode == 2
     assert r.stderr.strip().splitlines()[-1].endswith(f"argument --area: {bad!r} is not a side of at least 100 m")
     assert "Traceback" not in r.stderr
+
+
+def test_placement_option_sets_the_plan_placement_and_a_wrong_one_is_one_line() -> None:
+    """`--placement greedy` times the greedy at every N (the mission default is the search up to
+    20 points); the placement reaches the team plan's mission and the JSON says which it was."""
+    import subprocess
+    import sys
+
+    assert infer.plan_inputs(6, 0).mission.placement == "search"
+    assert infer.plan_inputs(6, 0, placement="greedy").mission.placement == "greedy"
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--n", "4", "--calls", "3", "--json",
+                        "--methods", "pl-marl", "--placement", "greedy"], capture_output=True, text=True, timeout=300,
+                       cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["placement"] == "greedy"
+    assert {row["method"] for row in res["rows"]} >= {infer.PLAN_MAP, infer.PLAN_DECISION}
+    r = subprocess.run([sys.executable, "-m", "plmarl_sitl.cli", "bench", "infer", "--placement", "best"],
+                       capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert r.returncode == 2 and "--placement: invalid choice: 'best'" in r.stderr and "Traceback" not in r.stderr
