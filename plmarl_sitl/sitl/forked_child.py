@@ -11,7 +11,6 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy.ma  # noqa: E402, F401  (numpy's np.unique imports it at an agent's first plan: ~10 ms each, and its pages unshared)
 import psutil  # noqa: E402, F401  (the agent reports its RSS with it)
 import torch  # noqa: E402, F401
 
