@@ -266,13 +266,13 @@ class Vehicle:
             t.sendto(buf, gcs)
 
     def record(self, raw: bytes) -> None:
-        """Append one MAVLink frame to the .tlog: 8-byte big-endian unix time in us, then
-        the frame (the format pymavlink and MAVExplorer read)."""
-        if self.tlog is not None and raw[:1] in (b"\xfd", b"\xfe"):
-            self.tlog.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + raw)
+        """Append one MAVLink frame (or datagram) to the .tlog (`record_all`)."""
+        self.record_all([raw])
 
     def record_all(self, frames: list[bytes]) -> None:
-        """`record` for the frames of one datagram: one clock reading and one write for all."""
+        """Append MAVLink frames to the .tlog, each as 8-byte big-endian unix time in us, then
+        the frame (the format pymavlink and MAVExplorer read): one clock reading and one write
+        for the frames of one datagram; anything not a MAVLink frame is left out."""
         if self.tlog is not None:
             stamp = _TLOG_STAMP.pack(int(time.time() * 1e6))
             self.tlog.write(b"".join(stamp + f for f in frames if f[:1] in (b"\xfd", b"\xfe")))
