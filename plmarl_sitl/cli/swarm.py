@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from plmarl_sitl.sitl.forked import THREADS_ENV
+from plmarl_sitl.sitl.fork_protocol import THREADS_ENV
 
 # `swarm up` forks its agents' server from this process (sitl/forked.py), which must then run
 # one thread: one BLAS/OpenMP thread, as every agent has, set before numpy loads (just below),

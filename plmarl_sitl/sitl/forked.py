@@ -47,12 +47,7 @@ import threading
 from concurrent.futures import Future
 from pathlib import Path
 
-# As `plmarl agent` does: one BLAS/OpenMP thread per agent. Read once, when numpy and torch
-# load; the launcher shares them with the server it forks, so it runs with one too (its
-# world sets one torch thread anyway: sitl/world.py).
-THREADS_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-MAX_MESSAGE = 1 << 16  # a fork request is ~1 kB (argv, log path, environment)
-SERVER_NAME = "plmarl-forksrv"  # what ps and top show for the server (not "plmarl-agent*": it is none)
+from plmarl_sitl.sitl.fork_protocol import MAX_MESSAGE, THREADS_ENV
 
 
 def single_threaded() -> bool:

@@ -16,10 +16,12 @@ import signal
 import socket
 import sys
 
+from plmarl_sitl.sitl.fork_protocol import MAX_MESSAGE, SERVER_NAME, THREADS_ENV
+
 # As `plmarl agent` does: one BLAS/OpenMP thread per agent, set before torch loads (a server
 # forked from the launcher shares the launcher's, which `forked.start_server` set alike).
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+for _name, _value in THREADS_ENV.items():
+    os.environ.setdefault(_name, _value)
 
 import psutil  # noqa: E402  (the agent reports its RSS with it)
 import torch  # noqa: E402, F401
@@ -32,7 +34,6 @@ import plmarl_sitl.deploy.mqtt.transport  # noqa: E402, F401
 import plmarl_sitl.learning.nn.io  # noqa: E402, F401
 import plmarl_sitl.mission  # noqa: E402, F401
 from plmarl_sitl.proc import agent_child_setup, die_with_parent, output_to, set_process_name, sigterm_when_gone  # noqa: E402
-from plmarl_sitl.sitl.forked import MAX_MESSAGE, SERVER_NAME  # noqa: E402
 
 
 def _share() -> None:
