@@ -79,8 +79,8 @@ class AgentServer:
         self._reader.start()
 
     def request(self, op: str, **args: object) -> Future:
-        """Send one request; its answer (the preload's error or None, a fork's pid) comes back
-        on the returned future, in the order sent."""
+        """Send one request; its answer (the preload's error or None, a fork's pid; RuntimeError
+        when the server could not fork) comes back on the returned future, in the order sent."""
         data = json.dumps({"op": op, **args}).encode()
         if len(data) > MAX_MESSAGE:
             raise ValueError(f"fork server request of {len(data)} bytes (at most {MAX_MESSAGE})")
@@ -104,7 +104,11 @@ class AgentServer:
             if msg["op"] == "exited":
                 self.exits[msg["pid"]] = msg["code"]
                 continue
-            self._pending.popleft().set_result(msg.get("result"))  # (deque: atomic; no lock a blocked send holds)
+            fut = self._pending.popleft()  # (deque: atomic; no lock a blocked send holds)
+            if msg["op"] == "failed":
+                fut.set_exception(RuntimeError(msg["result"]))
+            else:
+                fut.set_result(msg["result"])
         with self._send_lock:
             self.gone = True
             pending, self._pending = list(self._pending), collections.deque()

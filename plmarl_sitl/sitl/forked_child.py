@@ -70,25 +70,32 @@ def serve(sock: socket.socket, launcher: int) -> None:
     def send(msg: dict) -> None:
         sock.sendall(json.dumps(msg).encode())
 
-    while True:
-        for key, _ in sel.select():
-            if key.fileobj is wake_r:
-                os.read(wake_r, 4096)
-                _report_exits(send)
-                continue
-            data = sock.recv(MAX_MESSAGE)
-            if not data:
-                return
-            req = json.loads(data)
-            if req["op"] == "preload":
-                send({"op": "preloaded", "result": _preload(req["policy"], req["mission"])})
-            elif req["op"] == "fork":
-                pid = os.fork()
-                if pid == 0:
-                    _agent(req, closing=(sel, sock, wake_r, wake_w))
-                send({"op": "forked", "result": pid})
-            else:
-                send({"op": "error", "result": f"unknown request {req['op']!r}"})
+    try:
+        while True:
+            for key, _ in sel.select():
+                if key.fileobj is wake_r:
+                    os.read(wake_r, 4096)
+                    _report_exits(send)
+                    continue
+                data = sock.recv(MAX_MESSAGE)
+                if not data:
+                    return
+                req = json.loads(data)
+                if req["op"] == "preload":
+                    send({"op": "preloaded", "result": _preload(req["policy"], req["mission"])})
+                elif req["op"] == "fork":
+                    try:
+                        pid = os.fork()
+                    except OSError as exc:  # out of memory or processes: this agent fails, the server goes on
+                        send({"op": "failed", "result": f"cannot fork {req['name']}: {exc}"})
+                        continue
+                    if pid == 0:
+                        _agent(req, closing=(sel, sock, wake_r, wake_w))
+                    send({"op": "forked", "result": pid})
+                else:
+                    send({"op": "failed", "result": f"unknown request {req['op']!r}"})
+    except (BrokenPipeError, ConnectionResetError):  # the launcher is gone: as at end of file
+        return
 
 
 def _report_exits(send) -> None:  # noqa: ANN001
