@@ -179,6 +179,7 @@ def start_server() -> AgentServer:
         if pid == 0:  # the server; it never returns into the launcher's code
             code = 1
             try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C during its imports: the launcher's to handle
                 from plmarl_sitl.proc import die_with_parent
 
                 die_with_parent()  # before the agent's imports: a launcher that fails at once takes it along
