@@ -71,6 +71,8 @@ class AgentServer:
 
     def __init__(self, sock: socket.socket, pid: int, popen: subprocess.Popen | None = None) -> None:
         self.pid, self._sock, self._popen = pid, sock, popen
+        # For the launcher's log: an exec'd server costs a second `import torch`.
+        self.how = "exec'd (its launcher ran threads)" if popen is not None else "forked from its launcher"
         self._send_lock = threading.Lock()  # a request's place in `_pending` is its place on the wire
         self._pending: collections.deque[Future] = collections.deque()
         self.exits: dict[int, int] = {}  # agent pid -> exit code (-N: killed by signal N)
