@@ -29,7 +29,7 @@ ALLOWED["cli"] = set(ALLOWED) - {"cli"}
 
 # Underscore names that are public API by convention (namedtuple methods), and the
 # few library types that have no public name.
-PUBLIC_UNDERSCORE = {"_asdict", "_replace", "_fields", "_make"}
+PUBLIC_UNDERSCORE = {"_asdict", "_replace", "_fields", "_make", "_exit"}  # _exit: os._exit, a forked child's end
 LIBRARY_TYPES = {
     "_SubParsersAction",  # argparse: the type of add_subparsers()
     "_C",  # torch._C.Graph: the frozen TorchScript graph nn/fused.py inspects

@@ -5,11 +5,20 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 from pathlib import Path
 
-from plmarl_sitl.cmdline import add_flags, from_flags, swarm_name_arg
-from plmarl_sitl.sitl.options import SwarmOptions, UpOptions
+from plmarl_sitl.sitl.fork_protocol import THREADS_ENV
+
+# `swarm up` forks its agents' server from this process (sitl/forked.py), which must then run
+# one thread: one BLAS/OpenMP thread, as every agent has, set before numpy loads (just below),
+# or OpenBLAS starts a second one.
+for _name, _value in THREADS_ENV.items():
+    os.environ.setdefault(_name, _value)
+
+from plmarl_sitl.cmdline import add_flags, from_flags, swarm_name_arg  # noqa: E402
+from plmarl_sitl.sitl.options import SwarmOptions, UpOptions  # noqa: E402
 
 SWARM_FIELDS = [f.name for f in dataclasses.fields(SwarmOptions)]  # flags of their own group
 
@@ -80,15 +89,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_up(args: argparse.Namespace) -> int:
-    from plmarl_sitl.sitl.launcher import ComponentFailed
-    from plmarl_sitl.sitl.launcher import run_up as launch
+    from plmarl_sitl.sitl import forked
 
-    opts = from_flags(UpOptions, args, headless=args.headless or args.json)
+    # First, before the world's imports and any thread: import torch once and fork the agents'
+    # server from this process, which imports the agents' modules on the other core meanwhile
+    # (issue 25.1: the rig imported torch twice, once here and once in an exec'd forkserver).
+    forked.start_server()
     try:
-        summary = launch(opts)
-    except ComponentFailed as exc:
-        print(f"plmarl swarm up: failed: {exc.reason}", file=sys.stderr)
-        return 1
+        from plmarl_sitl.sitl.launcher import ComponentFailed
+        from plmarl_sitl.sitl.launcher import run_up as launch
+
+        opts = from_flags(UpOptions, args, headless=args.headless or args.json)
+        try:
+            summary = launch(opts)
+        except ComponentFailed as exc:
+            print(f"plmarl swarm up: failed: {exc.reason}", file=sys.stderr)
+            return 1
+    finally:
+        forked.stop_server()
     if args.json:
         print(json.dumps(summary))
         return 0

@@ -3,7 +3,7 @@
 Used by the integration tests, `plmarl bench agent` and the sim-to-SITL gap run; the
 launcher builds on it. Every child gets OPENBLAS/OMP threads = 1 and its own log file.
 A fleet either execs each agent (`python -m plmarl_sitl.cli agent ...`, exactly what a
-user runs) or, with `forked=True`, forks it from a forkserver that has imported torch
+user runs) or, with `forked=True`, forks it from a fork server that has imported torch
 once (`sitl.forked`), which is how a launcher starts 20 agents on 2 cores quickly. The
 UAVs in `remote` run on other hosts (`sitl.remote`), with the same arguments.
 """
@@ -118,7 +118,7 @@ class AgentFleet:
         return busy
 
     def warm_up(self, policy: str | Path | None = None, mission: str | Path | None = None) -> None:
-        """Forked fleets: get the forkserver importing (and loading `policy` for `mission`)
+        """Forked fleets: get the fork server importing (and loading `policy` for `mission`)
         before the first `spawn`."""
         if self.forked:
             warm_up(policy, mission)

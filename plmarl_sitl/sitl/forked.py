@@ -1,120 +1,249 @@
-"""Agent processes forked from one interpreter that has already imported torch.
+"""Agent processes forked from one server process that has already imported torch.
 
-`import torch` costs ~1.2 s of CPU per process. Twenty agents exec'd at once on two cores
+`import torch` costs ~1.2-2 s of CPU per process. Twenty agents exec'd at once on two cores
 spend ~15 s of wall time importing the same modules before any vehicle flies. A swarm
-launcher therefore starts one multiprocessing *forkserver* that preloads the agent's
-imports once, and forks each agent from it (copy-on-write, ~20 ms each). Each child is
-still one asyncio process per UAV running `plmarl agent` with the same arguments; only
-the interpreter start-up is shared. A companion computer runs `plmarl agent` itself.
+launcher therefore keeps one *fork server* that imports the agent's modules once (and loads
+the swarm's policy and plan grid: deploy/agent/preload.py), and forks each agent from it
+(copy-on-write, ~20 ms each). Each child is still one asyncio process per UAV running
+`plmarl agent` with the same arguments; only the interpreter start-up is shared. A companion
+computer runs `plmarl agent` itself.
 
-Lifetime: no agent outlives the launcher, even a SIGKILLed one. Each child gets SIGTERM
-(its normal stop: the vehicle to its stop mode, exit) when the launcher exits, through a
-pidfd of the launcher (`proc.sigterm_when_gone`), and when the forkserver dies
-(PR_SET_PDEATHSIG). The forkserver exits when its "alive" pipe from the launcher has no
-writer left; but multiprocessing hands every forked child a copy of that pipe's write
-end, so the forkserver outlives the launcher until its children are gone. Waiting for
-the forkserver alone therefore left the agents running until their own start-up waits
-timed out (30-120 s); watching the launcher itself does not depend on that pipe.
+Where the server comes from (issue 25.1: the rig imported torch twice). `plmarl swarm up`
+calls `start_server()` first thing: it imports torch in the launcher (whose world needs it
+anyway) and then *forks* the server from the launcher, before the launcher has a thread or
+an event loop (a fork with live threads can leave a lock held forever in the child). The
+server then imports the agent-only modules itself, on the other core, while the launcher
+imports the world's. One `import torch` for the whole rig, and the server holds no module of
+the world's (each would be in every agent's RSS). A caller that already runs threads (a test,
+`plmarl bench swarm`) gets the same server exec'd as a fresh interpreter instead
+(`python -m plmarl_sitl.sitl.forked_child`): the old cost, and the same protocol.
+
+The protocol: one SOCK_SEQPACKET socket pair, a JSON message each way per request
+("preload", "fork"), answered in order; the server also reports each agent's exit status
+("exited"), since it, not the launcher, is the agents' parent (the agents' side:
+`sitl/forked_child.py`).
+
+Lifetime: no agent outlives the launcher, even a SIGKILLed one. The server is the launcher's
+child: it dies with it (PR_SET_PDEATHSIG) and exits when its socket reaches end of file (the
+launcher closed it, or is gone). Each agent is the server's child and dies with it
+(PR_SET_PDEATHSIG), and also watches the launcher through a pidfd (`proc.sigterm_when_gone`);
+either way it gets SIGTERM, its normal stop (the vehicle to its stop mode, exit). Ctrl-C
+reaches the whole process group: the server ignores it (the launcher stops the agents, then
+closes the socket), the agents stop on it as `plmarl agent` does.
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
+import functools
 import json
-import multiprocessing
 import os
 import signal
+import socket
+import subprocess
 import sys
-from multiprocessing.context import ForkServerContext
+import threading
+from concurrent.futures import Future
+from pathlib import Path
 
-import psutil
-
-from plmarl_sitl.proc import agent_child_setup, output_to, set_process_name, sigterm_when_gone
-
-# What the forkserver imports once; a forked agent finds these already in sys.modules.
-PRELOAD = ["plmarl_sitl.sitl.forked_child"]
-
-_context: ForkServerContext | None = None
+from plmarl_sitl.sitl.fork_protocol import MAX_MESSAGE, THREADS_ENV
 
 
-def context() -> ForkServerContext:
-    global _context
-    if _context is None:
-        ctx = multiprocessing.get_context("forkserver")
-        ctx.set_forkserver_preload(PRELOAD)
-        _context = ctx
-    return _context
+def single_threaded() -> bool:
+    """Whether this process runs one thread, native ones included (OpenBLAS starts its
+    pool when numpy loads, unless OPENBLAS_NUM_THREADS=1), and no event loop: then a fork
+    is safe."""
+    try:
+        asyncio.get_running_loop()
+        return False
+    except RuntimeError:
+        pass
+    try:
+        return len(os.listdir("/proc/self/task")) == 1
+    except OSError:  # no /proc: Python's own threads only
+        return threading.active_count() == 1
 
 
-PRELOAD_ENV = "PLMARL_AGENT_PRELOAD"  # read by forked_child: {"policy": DIR, "mission": FILE} to load before forking
+class AgentServer:
+    """The launcher's end of the fork server: requests out, answers and exit statuses in
+    (a daemon thread reads them, so both a plain caller and an event loop can wait)."""
+
+    def __init__(self, sock: socket.socket, pid: int, popen: subprocess.Popen | None = None) -> None:
+        self.pid, self._sock, self._popen = pid, sock, popen
+        # For the launcher's log: an exec'd server costs a second `import torch`.
+        self.how = "exec'd (its launcher ran threads)" if popen is not None else "forked from its launcher"
+        self._send_lock = threading.Lock()  # a request's place in `_pending` is its place on the wire
+        self._pending: collections.deque[Future] = collections.deque()
+        self.exits: dict[int, int] = {}  # agent pid -> exit code (-N: killed by signal N)
+        self.gone = False
+        self._reader = threading.Thread(target=self._read, name="fork-server-reader", daemon=True)
+        self._reader.start()
+
+    def request(self, op: str, **args: object) -> Future:
+        """Send one request; its answer (the preload's error or None, a fork's pid; RuntimeError
+        when the server could not fork) comes back on the returned future, in the order sent."""
+        data = json.dumps({"op": op, **args}).encode()
+        if len(data) > MAX_MESSAGE:
+            raise ValueError(f"fork server request of {len(data)} bytes (at most {MAX_MESSAGE})")
+        fut: Future = Future()
+        with self._send_lock:
+            if self.gone:
+                raise RuntimeError("the agents' fork server has exited")
+            self._pending.append(fut)
+            self._sock.sendall(data)
+        return fut
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = self._sock.recv(MAX_MESSAGE)
+            except OSError:
+                data = b""
+            if not data:
+                break
+            msg = json.loads(data)
+            if msg["op"] == "exited":
+                self.exits[msg["pid"]] = msg["code"]
+                continue
+            fut = self._pending.popleft()  # (deque: atomic; no lock a blocked send holds)
+            if msg["op"] == "failed":
+                fut.set_exception(RuntimeError(msg["result"]))
+            else:
+                fut.set_result(msg["result"])
+        with self._send_lock:
+            self.gone = True
+            pending, self._pending = list(self._pending), collections.deque()
+        for fut in pending:
+            fut.set_exception(RuntimeError("the agents' fork server has exited"))
+        self._reap()
+
+    def returncode(self, pid: int) -> int | None:
+        """Agent `pid`'s exit code as its server reported it; None while it runs. With the
+        server gone (killed), its agents got SIGTERM from the kernel (PR_SET_PDEATHSIG)."""
+        code = self.exits.get(pid)
+        if code is None and self.gone and not _exists(pid):
+            return -signal.SIGTERM
+        return code
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """End of file to the server (it exits; any agent still running gets SIGTERM), and
+        wait for it."""
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self._reader.join(timeout_s)
+        self._sock.close()
+
+    def _reap(self) -> None:
+        if self._popen is not None:
+            try:
+                self._popen.wait(5.0)
+            except subprocess.TimeoutExpired:
+                self._popen.kill()
+                self._popen.wait()
+            return
+        try:
+            os.waitpid(self.pid, 0)
+        except ChildProcessError:
+            pass
+
+
+def _exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+_server: AgentServer | None = None
+
+
+def start_server() -> AgentServer:
+    """The fork server, started now if it is not running: forked from this process when
+    that is safe (one thread, no event loop; `plmarl swarm up` calls this first thing), else
+    exec'd. Either way this process imports torch first: what a forked server shares."""
+    global _server
+    if _server is not None and not _server.gone:
+        return _server
+    for k, v in THREADS_ENV.items():
+        os.environ.setdefault(k, v)
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    launcher = os.getpid()
+    if single_threaded():
+        import torch  # noqa: F401 - imported once, here, for this process and the server
+
+        pid = os.fork()
+        if pid == 0:  # the server; it never returns into the launcher's code
+            code = 1
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C during its imports: the launcher's to handle
+                from plmarl_sitl.proc import die_with_parent
+
+                die_with_parent()  # before the agent's imports: a launcher that fails at once takes it along
+                ours.close()
+                from plmarl_sitl.sitl.forked_child import serve
+
+                serve(theirs, launcher)
+                code = 0
+            except BaseException:  # noqa: BLE001 - said on stderr, then the exit code says it
+                import traceback
+
+                traceback.print_exc()
+            finally:
+                os._exit(code)
+        theirs.close()
+        _server = AgentServer(ours, pid)
+    else:
+        popen = subprocess.Popen([sys.executable, "-m", "plmarl_sitl.sitl.forked_child", str(theirs.fileno()), str(launcher)],
+                                 pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL, env=dict(os.environ, **THREADS_ENV))
+        theirs.close()
+        _server = AgentServer(ours, popen.pid, popen)
+    return _server
+
+
+def stop_server() -> None:
+    """Close the fork server (at the launcher's end; every agent has been stopped)."""
+    global _server
+    if _server is not None:
+        _server.close()
+        _server = None
 
 
 def warm_up(policy: str | os.PathLike | None = None, mission: str | os.PathLike | None = None) -> None:
-    """Start the forkserver now: it imports torch in its own process, on another core,
-    while the caller starts the broker and the world. With `policy` and `mission` it also
-    loads that policy and builds its plan grid, once for every agent it forks
-    (deploy/agent/preload.py). A forkserver already running keeps what it loaded."""
-    import multiprocessing.forkserver
-
-    context()
-    saved = os.environ.get(PRELOAD_ENV)
+    """Start the fork server if it is not running; with `policy` and `mission`, have it
+    load that policy and build its plan grid now, once for every agent it forks
+    (deploy/agent/preload.py), while the caller starts the broker and the world. What a
+    server loaded before stays (keyed by the files' versions)."""
+    server = start_server()
     if policy is not None and mission is not None:
-        os.environ[PRELOAD_ENV] = json.dumps({"policy": str(policy), "mission": str(mission)})
-    try:
-        multiprocessing.forkserver.ensure_running()  # the server inherits the environment now
-    finally:
-        if saved is None:
-            os.environ.pop(PRELOAD_ENV, None)
-        else:
-            os.environ[PRELOAD_ENV] = saved
-
-
-def run_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int, launcher: int) -> None:
-    """The child: stdout/stderr to `log_path`, then `plmarl agent ARGV`; exit with its code.
-    `name` (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice`
-    is added to its niceness. It stops (SIGTERM) when process `launcher` exits."""
-    agent_child_setup(nice)
-    sigterm_when_gone(launcher)  # first, before anything slow (see Lifetime above)
-    if not _forkserver_parent_is(launcher):
-        # The launcher died before the pidfd was opened: its pid may name another process by now.
-        os.kill(os.getpid(), signal.SIGTERM)
-    set_process_name(name)  # the command line is the forkserver's
-    output_to(log_path, 0o644)
-    os.environ.update(env)
-    from plmarl_sitl.deploy.agent.program import main
-
-    sys.exit(main(argv))
-
-
-def _forkserver_parent_is(pid: int) -> bool:
-    """Whether this child's forkserver is still the child of process `pid` (it is
-    reparented once the launcher that started it is gone)."""
-    try:
-        return psutil.Process(os.getppid()).ppid() == pid
-    except psutil.Error:
-        return False
+        server.request("preload", policy=str(Path(policy)), mission=str(Path(mission)))
 
 
 class ForkedProcess:
     """The part of `asyncio.subprocess.Process` the fleet uses, for a forked agent."""
 
-    def __init__(self, proc: multiprocessing.process.BaseProcess) -> None:
-        self._proc = proc
-        self.pid = proc.pid
+    def __init__(self, server: AgentServer, pid: int) -> None:
+        self._server = server
+        self.pid = pid
 
     @property
     def returncode(self) -> int | None:
         """Exit code, or -signal when a signal killed it (as asyncio reports it)."""
-        return self._proc.exitcode
+        return self._server.returncode(self.pid)
 
     async def wait(self) -> int:
-        while self._proc.exitcode is None:
+        while (code := self.returncode) is None:
             await asyncio.sleep(0.05)
-        return self._proc.exitcode
+        return code
 
     def send_signal(self, sig: int) -> None:
-        if self._proc.exitcode is None:
-            os.kill(self.pid, sig)  # type: ignore[arg-type]
+        if self.returncode is None:
+            os.kill(self.pid, sig)
 
     def terminate(self) -> None:
         self.send_signal(signal.SIGTERM)
@@ -124,8 +253,13 @@ class ForkedProcess:
 
 
 async def fork_agent(argv: list[str], log_path: str, env: dict[str, str], name: str, nice: int = 0) -> ForkedProcess:
-    """Fork `plmarl agent ARGV` from the preloaded forkserver (started on first use; its
-    imports run in a thread so the caller's event loop keeps serving the vehicles)."""
-    proc = context().Process(target=run_agent, args=(argv, log_path, env, name, nice, os.getpid()), name=name)
-    await asyncio.get_running_loop().run_in_executor(None, proc.start)
-    return ForkedProcess(proc)
+    """Fork `plmarl agent ARGV` from the fork server (started now if it is not running). `name`
+    (e.g. plmarl-agent3) is what ps, top and psutil's name() show for it; `nice` is added to
+    its niceness; its stdout and stderr go to `log_path`; `env` is added to its environment."""
+    server = start_server()  # in the caller's thread: PR_SET_PDEATHSIG follows the thread that forks
+    # Sent from a worker thread: a hundred requests can fill the socket while the server loads
+    # the policy, and this loop keeps serving the vehicles meanwhile.
+    fut = await asyncio.get_running_loop().run_in_executor(None, functools.partial(
+        server.request, "fork", argv=argv, log_path=log_path, env=env, name=name, nice=nice, launcher=os.getpid()))
+    pid = await asyncio.wrap_future(fut)
+    return ForkedProcess(server, pid)

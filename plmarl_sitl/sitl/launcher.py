@@ -63,6 +63,7 @@ from plmarl_sitl.mission import Event
 from plmarl_sitl.model.events import Change
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet
+from plmarl_sitl.sitl.forked import start_server
 from plmarl_sitl.sitl.hosts import Host
 from plmarl_sitl.sitl.live import headless_line, render
 from plmarl_sitl.sitl.mission_events import EventDispatcher
@@ -328,6 +329,8 @@ class _Run:
                                         remote=remote.placement if remote else {})
         if len(fleet.remote) < n:
             fleet.warm_up(opts.policy, mission_file)  # the agents' imports and policy load on the other core meanwhile
+            server = start_server()  # running already: `plmarl swarm up` forked it first thing (cli/swarm.py)
+            log.info("start-up: the agents' fork server, pid %d, %s", server.pid, server.how)
         # Our own broker: a login per process and an ACL; an external one: its own business.
         access = BrokerAccess(opts.swarm, n) if opts.broker in OWN_BROKERS else None
         if access is not None:
