@@ -33,7 +33,7 @@ import logging
 import struct
 from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
@@ -48,11 +48,12 @@ class Layout(NamedTuple):
 
     cls: type
     unpacker: struct.Struct
-    orders: tuple[int, ...]  # field i (declaration order) is wire value orders[i] (no arrays)
+    declared: Callable[[tuple], tuple]  # the fields in declaration order from the wire values (no arrays)
     slots: tuple[tuple[int, int], ...] | None  # with arrays: field i is values[tip : tip + n] (n > 1) or values[tip]
     text: bool  # has char fields (bytes, their trailing NULs stripped as pymavlink does)
     crc_extra: bytes
     wire_values: Callable[[Any], tuple] | None  # field values in wire order; None: pymavlink packs it
+    wire_order: Callable[[tuple], tuple] | None  # the same from the fields in declaration order
 
 
 def _layouts() -> dict[int, Layout]:
@@ -64,11 +65,18 @@ def _layouts() -> dict[int, Layout]:
         slots = None
         if arrays:  # as pymavlink's decode: wire field `order` starts at the sum of the lengths before it
             slots = tuple((sum(lengths[:o]), lengths[o]) for o in cls.orders)
-        getter = None
+        getter = reorder = None
         if not arrays and not text:  # packing arrays and strings stays pymavlink's
             names = list(cls.ordered_fieldnames)
             getter = attrgetter(*names) if len(names) > 1 else (lambda m, _n=names[0]: (getattr(m, _n),))
-        out[msgid] = Layout(cls, cls.unpacker, tuple(cls.orders), slots, text, bytes([cls.crc_extra]), getter)
+            # wire value j is field source[j] (field i is wire value orders[i])
+            source = [0] * len(cls.orders)
+            for i, o in enumerate(cls.orders):
+                source[o] = i
+            reorder = itemgetter(*source) if len(source) > 1 else (lambda f: (f[0],))
+        # field i (declaration order) is wire value orders[i]
+        declared = itemgetter(*cls.orders) if len(cls.orders) > 1 else (lambda v, _o=cls.orders[0]: (v[_o],))
+        out[msgid] = Layout(cls, cls.unpacker, declared, slots, text, bytes([cls.crc_extra]), getter, reorder)
     return out
 
 
@@ -100,7 +108,21 @@ def pack(mav: dialect.MAVLink, msg: dialect.MAVLink_message) -> bytes | None:
     layout = LAYOUTS.get(msg.get_msgId())
     if layout is None or layout.wire_values is None:
         return None
-    payload = layout.unpacker.pack(*layout.wire_values(msg))
+    return _pack(mav, layout, layout.wire_values(msg))
+
+
+def pack_fields(mav: dialect.MAVLink, msgid: int, fields: tuple) -> bytes | None:
+    """`pack` of the message `cls(*fields)` without building it (fields in declaration
+    order, as `<name>_encode` takes them): the per-sample frames (an agent's setpoint, the
+    world's telemetry) need no message object. None: not a fixed-layout message."""
+    layout = LAYOUTS.get(msgid)
+    if layout is None or layout.wire_order is None:
+        return None
+    return _pack(mav, layout, layout.wire_order(fields))
+
+
+def _pack(mav: dialect.MAVLink, layout: Layout, wire_values: tuple) -> bytes:
+    payload = layout.unpacker.pack(*wire_values)
     trimmed = payload.rstrip(b"\0") or payload[:1]
     s = mav.signing
     sign = s.sign_outgoing
@@ -171,7 +193,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
             payload += bytes(size - mlen)  # the trailing zeros MAVLink 2 trimmed
         values = layout.unpacker.unpack_from(payload)
         if layout.slots is None:
-            fields = [values[o] for o in layout.orders]
+            fields = layout.declared(values)
         else:
             fields = [values[tip] if n == 1 else list(values[tip : tip + n]) for tip, n in layout.slots]
         if layout.text:

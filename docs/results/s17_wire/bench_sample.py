@@ -1,0 +1,105 @@
+"""Per-sample MAVLink path of a lockstep SITL swarm, in one process, old tree vs new.
+
+`PYTHONPATH=TREE python3 docs/results/s17_wire/bench_sample.py [--cold] [--n N]`
+
+One emulated autopilot (signed, as `plmarl swarm up` runs them) and one agent link opened
+to it over real UDP sockets; then, per sample, timed piece by piece with perf_counter_ns:
+  world_tx:  the world builds and sends LOCAL_POSITION_NED (`BUILDERS` + `send_bundle`),
+  agent_rx:  the agent's link parses that datagram and hands it to a registered handler
+             (`feed_datagram` -> `Subscription.handle_with`), which reads its fields,
+  agent_tx:  the agent's setpoint (`send_accel_ned`: pack, sign, sendto),
+  world_rx:  the world's handler of that setpoint datagram (`handlers.on_datagram`).
+--cold: between two samples, write 8 MiB (evicting the caches, as 20 agents and a world
+taking turns on 2 cores do); only the sample's pieces are timed. Prints medians in us.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import socket
+import statistics
+import time
+
+import numpy as np
+
+from plmarl_sitl.deploy.mavlink.client import VehicleLink
+from plmarl_sitl.sitl.autopilot import handlers, telemetry
+from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+
+KEY = bytes(range(32))
+LPN = telemetry.message_id("LOCAL_POSITION_NED")
+
+
+async def main(n: int, cold: bool) -> None:
+    host = AutopilotHost(1, personality_name="px4", signing_key=KEY, base_port=17540)
+    await host.start()
+    link = VehicleLink("127.0.0.1", 17540, signing_key=KEY)
+
+    async def run_clock() -> None:  # the world's clock until the link is open (heartbeats)
+        while True:
+            host.advance(0.02)
+            await asyncio.sleep(0.01)
+
+    clock = asyncio.create_task(run_clock())
+    await link.open(timeout=5.0)
+    clock.cancel()
+    v = host.vehicle(0)
+    got = []
+    sub = link.subscribe("LOCAL_POSITION_NED")
+    sub.handle_with(lambda m: got.append((m.time_boot_ms, m.x, m.y, m.z, m.vx, m.vy, m.vz)))
+    # What the world sends, captured: the agent's socket gets it (read it back directly).
+    sock = socket.socket(fileno=os.dup(link._transport.get_extra_info("socket").fileno()))  # noqa: SLF001 - benchmark only
+    vsock = socket.socket(fileno=os.dup(v.transport.get_extra_info("socket").fileno()))
+    sock.setblocking(False)
+    vsock.setblocking(False)
+    flush = np.zeros(1 << 20)  # 8 MiB
+    times = {k: [] for k in ("world_tx", "agent_rx", "agent_tx", "world_rx")}
+    await asyncio.sleep(0.2)
+    for _ in range(50):  # drain what the open left
+        try:
+            sock.recv(4096)
+        except BlockingIOError:
+            break
+    for _ in range(50):
+        try:
+            vsock.recvfrom(4096)
+        except BlockingIOError:
+            break
+    pn = time.perf_counter_ns
+    for i in range(n):
+        host.now = 10.0 + i * 0.1
+        if cold:
+            flush += 1.0
+        t0 = pn()
+        v.send_bundle([telemetry.BUILDERS[LPN](v)])
+        t1 = pn()
+        data = sock.recv(4096)
+        t2 = pn()
+        link.feed_datagram(data)
+        t3 = pn()
+        link.send_accel_ned(0.1 * (i % 7), -0.2, 0.05 * (i % 3), time_boot_ms=got[-1][0])
+        t4 = pn()
+        sp, addr = vsock.recvfrom(4096)
+        t5 = pn()
+        handlers.on_datagram(v, sp, addr)
+        t6 = pn()
+        times["world_tx"].append(t1 - t0)
+        times["agent_rx"].append(t3 - t2)
+        times["agent_tx"].append(t4 - t3)
+        times["world_rx"].append(t6 - t5)
+    assert len(got) == n, len(got)
+    assert v.counters.dropped == 0, v.counters.summary()
+    print(" ".join(f"{k} {statistics.median(x) / 1000:.2f}" for k, x in times.items()),
+          f"sum {sum(statistics.median(x) for x in times.values()) / 1000:.2f} us (median, n={n}, cold={cold})")
+    link.close()
+    host.close()
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=5000)
+    ap.add_argument("--cold", action="store_true")
+    a = ap.parse_args()
+    asyncio.run(main(a.n, a.cold))
