@@ -102,6 +102,24 @@ _SIGN_STAMP = struct.Struct("<BQ")
 _crc16 = getattr(dialect, "mcrf4xx", None)  # CRC-16/MCRF4XX in C: (data, initial crc) -> crc
 
 
+_KEYED: dict[bytes, Any] = {}  # signing key -> SHA-256 state after the key (see `signature`)
+
+
+def signature(key: bytes, signed: bytes | bytearray) -> bytes:
+    """The MAVLink 2 signature of a frame: the first 6 bytes of SHA-256(key + frame up to
+    the signature). The hash state after the 32-byte key is kept per key and copied:
+    hashlib's constructor looks the algorithm up in OpenSSL on every call, and a frame's
+    signature is made or checked for every telemetry sample and setpoint."""
+    keyed = _KEYED.get(key)
+    if keyed is None:
+        if len(_KEYED) >= 64:  # keys are few (one per link); never an unbounded cache
+            _KEYED.clear()
+        keyed = _KEYED[key] = hashlib.sha256(key)
+    h = keyed.copy()
+    h.update(signed)
+    return h.digest()[:6]
+
+
 def pack(mav: dialect.MAVLink, msg: dialect.MAVLink_message) -> bytes | None:
     """`msg.pack(mav)` byte for byte for a fixed-layout message (None: not one, use pymavlink).
     Signs with `mav.signing` as pymavlink does (and moves its timestamp on by one)."""
@@ -132,7 +150,7 @@ def _pack(mav: dialect.MAVLink, layout: Layout, wire_values: tuple) -> bytes:
     buf += _CRC.pack(_crc16(buf[1:] + layout.crc_extra, 0xFFFF))
     if sign:
         buf += _SIGN_STAMP.pack(s.link_id, s.timestamp)[:7]
-        buf += hashlib.sha256(s.secret_key + buf).digest()[:6]
+        buf += signature(s.secret_key, buf)
         s.timestamp += 1
     return buf
 
