@@ -102,7 +102,7 @@ def test_encode_fields_is_pymavlink_byte_for_byte(key: bytes | None) -> None:
             ref.seq = ours.mav.seq
             if key is not None:  # ahead of the wall clock, so `encode` does not move it
                 ours.mav.signing.timestamp = ref.signing.timestamp = signing_timestamp() + 10**9
-            frame = ours.encode_fields(msgid, fields) if k == 0 else ours.encode(Fields(msgid, fields))
+            frame = ours.encode_fields(msgid, fields) if k == 0 else ours.encode(Fields((msgid, fields)))
             assert frame == msg.pack(ref), cls.msgname
 
 

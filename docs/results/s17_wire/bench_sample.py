@@ -3,14 +3,17 @@
 `PYTHONPATH=TREE python3 docs/results/s17_wire/bench_sample.py [--cold] [--n N]`
 
 One emulated autopilot (signed, as `plmarl swarm up` runs them) and one agent link opened
-to it over real UDP sockets; then, per sample, timed piece by piece with perf_counter_ns:
+to it over real UDP sockets; then, per sample, timed piece by piece:
   world_tx:  the world builds and sends LOCAL_POSITION_NED (`BUILDERS` + `send_bundle`),
   agent_rx:  the agent's link parses that datagram and hands it to a registered handler
              (`feed_datagram` -> `Subscription.handle_with`), which reads its fields,
   agent_tx:  the agent's setpoint (`send_accel_ned`: pack, sign, sendto),
   world_rx:  the world's handler of that setpoint datagram (`handlers.on_datagram`).
 --cold: between two samples, write 8 MiB (evicting the caches, as 20 agents and a world
-taking turns on 2 cores do); only the sample's pieces are timed. Prints medians in us.
+taking turns on 2 cores do); only the sample's pieces are timed, in thread CPU time
+(time.thread_time_ns: a loaded machine preempting the benchmark does not count). Prints
+medians in us. --calls: instead, the Python and C function calls of each piece (the
+same on any machine).
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ import asyncio
 import os
 import socket
 import statistics
+import sys
 import time
 
 import numpy as np
@@ -32,7 +36,7 @@ KEY = bytes(range(32))
 LPN = telemetry.message_id("LOCAL_POSITION_NED")
 
 
-async def main(n: int, cold: bool) -> None:
+async def main(n: int, cold: bool, calls: bool = False) -> None:
     host = AutopilotHost(1, personality_name="px4", signing_key=KEY, base_port=17540)
     await host.start()
     link = VehicleLink("127.0.0.1", 17540, signing_key=KEY)
@@ -67,7 +71,12 @@ async def main(n: int, cold: bool) -> None:
             vsock.recvfrom(4096)
         except BlockingIOError:
             break
-    pn = time.perf_counter_ns
+    if calls:
+        _count_calls(host, v, link, sock, vsock, got)
+        link.close()
+        host.close()
+        return
+    pn = time.thread_time_ns  # CPU time of this thread: not the time other processes had the core
     for i in range(n):
         host.now = 10.0 + i * 0.1
         if cold:
@@ -97,9 +106,41 @@ async def main(n: int, cold: bool) -> None:
     host.close()
 
 
+def _count_calls(host, v, link, sock, vsock, got) -> None:  # noqa: ANN001
+    """Python and C function calls per piece of one sample (sys.setprofile), averaged
+    over 100 samples: what a sample touches, independent of the machine's load."""
+    counts = {k: 0 for k in ("world_tx", "agent_rx", "agent_tx", "world_rx")}
+    current = [""]
+
+    def prof(frame, event, arg) -> None:  # noqa: ANN001
+        if event in ("call", "c_call") and current[0]:
+            counts[current[0]] += 1
+
+    def piece(name, fn):  # noqa: ANN001, ANN202
+        current[0] = name
+        sys.setprofile(prof)
+        try:
+            return fn()
+        finally:
+            sys.setprofile(None)
+            current[0] = ""
+
+    n = 100
+    for i in range(n):
+        host.now = 10.0 + i * 0.1
+        piece("world_tx", lambda: v.send_bundle([telemetry.BUILDERS[LPN](v)]))
+        data = sock.recv(4096)
+        piece("agent_rx", lambda: link.feed_datagram(data))
+        piece("agent_tx", lambda: link.send_accel_ned(0.1, -0.2, 0.05, time_boot_ms=got[-1][0]))
+        sp, addr = vsock.recvfrom(4096)
+        piece("world_rx", lambda: handlers.on_datagram(v, sp, addr))
+    print(" ".join(f"{k} {c / n:.1f}" for k, c in counts.items()), f"sum {sum(counts.values()) / n:.1f} calls per sample")
+
+
 if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=5000)
     ap.add_argument("--cold", action="store_true")
+    ap.add_argument("--calls", action="store_true", help="count the function calls per piece instead of timing")
     a = ap.parse_args()
-    asyncio.run(main(a.n, a.cold))
+    asyncio.run(main(a.n, a.cold, a.calls))

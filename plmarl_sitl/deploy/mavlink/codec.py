@@ -21,7 +21,6 @@ import struct
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
 
@@ -85,16 +84,24 @@ class _MAVLink(dialect.MAVLink):
         return True
 
 
-class Fields(NamedTuple):
-    """A message to send as its id and its fields in declaration order (`Codec.encode`
-    packs it as it packs the message object `dialect.mavlink_map[msgid](*fields)`)."""
+class Fields(tuple):
+    """A message to send as (its id, its fields in declaration order): `Codec.encode` packs
+    it as it packs the message object `dialect.mavlink_map[msgid](*fields)`. A plain tuple
+    underneath (built in C, no Python call: one is made per telemetry sample)."""
 
-    msgid: int
-    fields: tuple
+    __slots__ = ()
+
+    @property
+    def msgid(self) -> int:
+        return self[0]
+
+    @property
+    def fields(self) -> tuple:
+        return self[1]
 
     def message(self) -> Message:
         """The message object it stands for (to read its fields by name)."""
-        return dialect.mavlink_map[self.msgid](*self.fields)
+        return dialect.mavlink_map[self[0]](*self[1])
 
 
 @dataclass

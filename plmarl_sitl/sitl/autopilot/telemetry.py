@@ -118,7 +118,7 @@ def attitude(v: Vehicle) -> Outgoing:
     yaw = v.yaw
     fwd = math.cos(yaw) * an + math.sin(yaw) * ae
     right = -math.sin(yaw) * an + math.cos(yaw) * ae
-    return Fields(d.MAVLINK_MSG_ID_ATTITUDE, (_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0))
+    return Fields((d.MAVLINK_MSG_ID_ATTITUDE, (_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0)))
 
 
 def local_position_ned(v: Vehicle) -> Outgoing | None:
@@ -128,7 +128,7 @@ def local_position_ned(v: Vehicle) -> Outgoing | None:
     vx, vy, vz = v.velocity()
     ms = _ms(v)
     v.fleet.telemetry_ms[v.index] = ms  # a lockstep agent owes a setpoint stamped with it
-    return Fields(d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, (ms, x, y, z, vx, vy, vz))
+    return Fields((d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, (ms, x, y, z, vx, vy, vz)))
 
 
 def global_position_int(v: Vehicle) -> Outgoing | None:
@@ -138,10 +138,10 @@ def global_position_int(v: Vehicle) -> Outgoing | None:
     _, _, z = v.nav_position()
     vx, vy, vz = v.velocity()
     hdg = int(math.degrees(v.yaw) % 360 * 100)
-    return Fields(d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, (
+    return Fields((d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, (
         _ms(v), int(lat * 1e7), int(lon * 1e7), int(alt * 1000), int(-z * 1000),
         int(vx * 100), int(vy * 100), int(vz * 100), hdg,
-    ))
+    )))
 
 
 def position_target_local_ned(v: Vehicle) -> Outgoing | None:
@@ -152,7 +152,7 @@ def position_target_local_ned(v: Vehicle) -> Outgoing | None:
     vec = [0.0] * 9
     group = 0 if mask & MASK_POS == 0 else 1 if mask & MASK_VEL == 0 else 2
     vec[3 * group : 3 * group + 3] = (a, b, c)
-    return Fields(d.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED, (_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0))
+    return Fields((d.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED, (_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0)))
 
 
 def vfr_hud(v: Vehicle) -> Message:
