@@ -177,6 +177,7 @@ def test_decode_is_pymavlink_field_for_field(key: bytes | None) -> None:
             assert (got.get_srcSystem(), got.get_srcComponent(), got.get_seq(), got.get_crc(), got.get_signed()) == (
                 exp.get_srcSystem(), exp.get_srcComponent(), exp.get_seq(), exp.get_crc(), exp.get_signed())
             assert bytes(got.get_msgbuf()) == bytes(exp.get_msgbuf())
+            assert vars(got.get_header()) == vars(exp.get_header())
 
 
 def _lpn(codec: Codec, ms: int = 1000) -> bytes:

@@ -18,7 +18,8 @@ What this relies on, read in pymavlink 2.4.50's generated dialect (`MAVLink_mess
     declaration order (field i is wire field orders[i]; a numeric array a list of its
     `lengths` values, a char array one bytes value without its trailing NULs);
   - a parsed message carries `_header`, `_msgbuf`, `_payload`, `_crc`, `_signed` and
-    `_link_id`, which its public getters (`get_srcSystem`, `get_msgbuf`, ...) read;
+    `_link_id`, which its public getters (`get_srcSystem`, `get_msgbuf`, ...) read; its
+    constructor makes a fresh `MAVLink_header(msgid)` (filled in here);
   - a MAVLink 2 payload loses its trailing zero bytes on the wire (at least one kept).
 When the version is not one of VERIFIED_VERSIONS or `mcrf4xx` (pymavlink's C extension)
 is missing, `AVAILABLE` is False and codec.py uses pymavlink alone, logged once.
@@ -190,7 +191,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
     s = mav.signing
     key = s.secret_key
     for start, end, layout in found:
-        msgbuf = bytearray(data[start:end])
+        msgbuf = bytearray(data if end - start == len(data) else data[start:end])
         _, mlen, iflags, cflags, seq, src_sys, src_comp, id_low, id_high = _HEADER.unpack_from(msgbuf)
         msgid = id_low | id_high << 16
         signed = iflags & SIGNED
@@ -227,6 +228,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
         m._msgbuf = msgbuf
         m._payload = msgbuf[6 : -(2 + (SIGNATURE_LEN if signed else 0))]  # sic: pymavlink's slice
         m._crc = _CRC.unpack_from(msgbuf, 10 + mlen)[0]
-        m._header = dialect.MAVLink_header(msgid, iflags, cflags, mlen, seq, src_sys, src_comp)
+        h = m._header  # the constructor's own MAVLink_header(msgid), filled in (one object fewer)
+        h.incompat_flags, h.compat_flags, h.mlen, h.seq, h.srcSystem, h.srcComponent = iflags, cflags, mlen, seq, src_sys, src_comp
         messages.append(m)
     return messages, fault
