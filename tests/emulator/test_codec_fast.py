@@ -10,13 +10,16 @@ same faults, bundles included.
 
 from __future__ import annotations
 
+import asyncio
 import random
+import socket
 import struct
 
 import pytest
 
 from plmarl_sitl.deploy.mavlink import pymavlink_fastpath as fastpath
-from plmarl_sitl.deploy.mavlink.codec import Codec, dialect, signing_timestamp
+from plmarl_sitl.deploy.mavlink.client import VehicleLink
+from plmarl_sitl.deploy.mavlink.codec import Codec, Fields, dialect, signing_timestamp
 
 KEY = bytes(range(32))
 OTHER_KEY = bytes(range(1, 33))
@@ -39,6 +42,10 @@ def _value(rng: random.Random, ftype: str) -> float | int:
 
 
 def _random_message(rng: random.Random, cls: type) -> dialect.MAVLink_message:
+    return cls(*_random_fields(rng, cls))
+
+
+def _random_fields(rng: random.Random, cls: type) -> tuple:
     fields = []
     for ftype, order in zip(cls.fieldtypes, cls.orders, strict=True):
         n = cls.array_lengths[order]  # array lengths are in wire order, field types in declaration order
@@ -49,7 +56,7 @@ def _random_message(rng: random.Random, cls: type) -> dialect.MAVLink_message:
             fields.append([_value(rng, ftype) for _ in range(n)])
         else:
             fields.append(_value(rng, ftype))
-    return cls(*fields)
+    return tuple(fields)
 
 
 def _reference(sysid: int, compid: int, key: bytes | None) -> dialect.MAVLink:
@@ -80,6 +87,75 @@ def test_encode_is_pymavlink_byte_for_byte(key: bytes | None) -> None:
 
 
 @pytest.mark.parametrize("key", [None, KEY])
+def test_encode_fields_is_pymavlink_byte_for_byte(key: bytes | None) -> None:
+    """The per-sample frames (an agent's setpoint, the world's telemetry) are packed from
+    their fields without a message object (`Codec.encode_fields`, `Fields`): the same
+    frames pymavlink packs, for every message type of the dialect (those of arrays and
+    strings through pymavlink's own pack)."""
+    rng = random.Random(27)
+    ours = Codec(7, 1, key)
+    ref = _reference(7, 1, key)
+    for msgid, cls in sorted(dialect.mavlink_map.items()):
+        for k in range(2):
+            fields = _random_fields(rng, cls)
+            msg = cls(*fields)
+            ref.seq = ours.mav.seq
+            if key is not None:  # ahead of the wall clock, so `encode` does not move it
+                ours.mav.signing.timestamp = ref.signing.timestamp = signing_timestamp() + 10**9
+            frame = ours.encode_fields(msgid, fields) if k == 0 else ours.encode(Fields((msgid, fields)))
+            assert frame == msg.pack(ref), cls.msgname
+
+
+def test_telemetry_fields_and_setpoint_frames_are_pymavlink() -> None:
+    """What the emulator streams every substep (`telemetry.BUILDERS` giving `Fields`) and
+    the agent's setpoint (`VehicleLink.send_accel_ned`) are the frames pymavlink packs."""
+    from plmarl_sitl.sitl.autopilot import telemetry
+    from plmarl_sitl.sitl.autopilot.host import AutopilotHost
+
+    host = AutopilotHost(1, signing_key=KEY)
+    v = host.vehicle(0)
+    host.advance(1.0)
+    built = [b(v) for b in telemetry.BUILDERS.values()]
+    fields = [f for f in built if isinstance(f, Fields)]
+    assert {f.msgid for f in fields} >= {dialect.MAVLINK_MSG_ID_LOCAL_POSITION_NED, dialect.MAVLINK_MSG_ID_ATTITUDE}
+    ref = _reference(v.sysid, 1, KEY)
+    for f in fields:
+        ref.seq = v.codec.mav.seq
+        v.codec.mav.signing.timestamp = ref.signing.timestamp = signing_timestamp() + 10**9
+        assert v.codec.encode(f) == f.message().pack(ref), f.message().get_type()
+    asyncio.run(_setpoint_frames())
+
+
+async def _setpoint_frames() -> None:
+    """An agent's link to a UDP socket that answers its hello with one signed heartbeat;
+    its acceleration setpoints as they arrive there."""
+    loop = asyncio.get_running_loop()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as autopilot:
+        autopilot.bind(("127.0.0.1", 0))
+        autopilot.setblocking(False)
+        link = VehicleLink("127.0.0.1", autopilot.getsockname()[1], signing_key=KEY)
+        opening = asyncio.ensure_future(link.open(timeout=5.0))
+        _, agent = await loop.sock_recvfrom(autopilot, 512)
+        hb = _reference(3, 1, KEY)
+        hb.signing.timestamp = signing_timestamp()
+        await loop.sock_sendto(autopilot, hb.heartbeat_encode(2, 12, 0, 0, 4).pack(hb), agent)
+        await opening
+        ref = _reference(255, dialect.MAV_COMP_ID_MISSIONPLANNER, KEY)
+        for ms, acc in ((0, (0.0, 0.0, 0.0)), (12300, (1.25, -0.5, 3e-3)), (4_294_967_295, (-0.0, 9.5, -2.0))):
+            ref.seq = link.codec.mav.seq
+            link.codec.mav.signing.timestamp = ref.signing.timestamp = signing_timestamp() + 10**9
+            link.send_accel_ned(*acc, time_boot_ms=ms)
+            want = ref.set_position_target_local_ned_encode(ms, 3, 1, dialect.MAV_FRAME_LOCAL_NED, 0x0C3F, 0.0, 0.0,
+                                                            0.0, 0.0, 0.0, 0.0, *acc, 0.0, 0.0).pack(ref)
+            while True:  # hellos may be in between
+                data = await loop.sock_recv(autopilot, 512)
+                if data[7] == dialect.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED:
+                    break
+            assert data == want
+        link.close()
+
+
+@pytest.mark.parametrize("key", [None, KEY])
 def test_decode_is_pymavlink_field_for_field(key: bytes | None) -> None:
     rng = random.Random(26)
     sender = Codec(9, 1, key)
@@ -101,6 +177,7 @@ def test_decode_is_pymavlink_field_for_field(key: bytes | None) -> None:
             assert (got.get_srcSystem(), got.get_srcComponent(), got.get_seq(), got.get_crc(), got.get_signed()) == (
                 exp.get_srcSystem(), exp.get_srcComponent(), exp.get_seq(), exp.get_crc(), exp.get_signed())
             assert bytes(got.get_msgbuf()) == bytes(exp.get_msgbuf())
+            assert vars(got.get_header()) == vars(exp.get_header())
 
 
 def _lpn(codec: Codec, ms: int = 1000) -> bytes:

@@ -12,7 +12,7 @@ import pytest
 import torch
 from aphelpers import run, running_host
 
-from plmarl_sitl.deploy.mavlink.codec import Codec, dialect
+from plmarl_sitl.deploy.mavlink.codec import Codec, Fields, dialect
 from plmarl_sitl.mission import Origin
 from plmarl_sitl.sitl.autopilot import AutopilotHost, handlers, telemetry
 
@@ -32,6 +32,8 @@ class Client:
         self.v.send_bundle = lambda msgs: [self._capture(m) for m in msgs]  # type: ignore[method-assign]
 
     def _capture(self, msg, addr=None) -> None:
+        if isinstance(msg, Fields):  # a stream sent every substep, packed from its fields
+            msg = msg.message()
         if msg is not None:
             self.sent.append(msg)
             if msg.get_type() == "COMMAND_ACK":
@@ -194,8 +196,8 @@ def test_true_states_home_offsets_and_global_position() -> None:
     s = host.true_states()
     assert s.shape == (2, 6) and s.dtype == torch.float64
     assert torch.equal(host.mission_positions()[1], torch.tensor([100.0, 50.0, 0.0], dtype=torch.float64))
-    g0 = telemetry.global_position_int(host.vehicle(0))
-    g1 = telemetry.global_position_int(host.vehicle(1))
+    g0 = telemetry.global_position_int(host.vehicle(0)).message()
+    g1 = telemetry.global_position_int(host.vehicle(1)).message()
     assert g0.lat == int(47.0 * 1e7) and g0.alt == 500_000
     assert (g1.lat - g0.lat) * 1e-7 * 111_320 == pytest.approx(100.0, rel=0.01)
     assert g1.lon > g0.lon

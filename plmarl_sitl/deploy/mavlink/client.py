@@ -18,7 +18,7 @@ from collections import Counter, deque
 from collections.abc import Callable
 from typing import BinaryIO
 
-from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect, enum_name, param_id_str
+from plmarl_sitl.deploy.mavlink.codec import Codec, Fields, Message, dialect, enum_name, param_id_str
 from plmarl_sitl.deploy.mavlink.personality import Personality, personality_for_autopilot
 from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, FORCE_ARM_MAGIC, POSITION_ONLY, VELOCITY_ONLY
 from plmarl_sitl.errors import CommandRejected, LinkLost, VehicleTimeout
@@ -28,6 +28,7 @@ d = dialect
 Predicate = Callable[[Message], bool]
 
 
+SET_POSITION_TARGET_LOCAL_NED_ID = d.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED
 SIOCGSTAMPNS = 0x8907  # Linux: the kernel's receive time of the socket's last datagram
 
 
@@ -309,7 +310,7 @@ class VehicleLink:
             return await sub.next(timeout)
 
     # ------------------------------------------------------------------ sending
-    def send(self, msg: Message) -> None:
+    def send(self, msg: Message | Fields) -> None:
         if self._transport is None:
             raise RuntimeError("link not open")
         data = self.codec.encode(msg)
@@ -326,17 +327,17 @@ class VehicleLink:
         self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))
 
     def _setpoint(self, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0), time_boot_ms: int = 0) -> None:
-        self.send(
-            self.codec.mav.set_position_target_local_ned_encode(
-                time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0
-            )
-        )
+        self.send(Fields((SET_POSITION_TARGET_LOCAL_NED_ID, (
+            time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0))))
 
     def send_accel_ned(self, north: float, east: float, down: float, time_boot_ms: int = 0) -> None:
         """Net acceleration setpoint (m/s^2, gravity compensated); (0,0,0) keeps velocity.
         `time_boot_ms`: the vehicle time of the telemetry this setpoint answers (a lockstep
-        SITL world waits for it); 0: not stamped."""
-        self._setpoint(ACCEL_ONLY, acc=(north, east, down), time_boot_ms=time_boot_ms)
+        SITL world waits for it); 0: not stamped. Sent once per telemetry sample: packed
+        from its fields (no message object), the frame `_setpoint` would send."""
+        self.send(Fields((SET_POSITION_TARGET_LOCAL_NED_ID, (
+            time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, ACCEL_ONLY,
+            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, north, east, down, 0.0, 0.0))))
 
     def send_velocity_ned(self, north: float, east: float, down: float) -> None:
         self._setpoint(VELOCITY_ONLY, vel=(north, east, down))

@@ -17,7 +17,6 @@ parser, which classifies its faults as before.
 
 from __future__ import annotations
 
-import hashlib
 import struct
 import time
 from collections.abc import Callable, Iterable
@@ -27,7 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as dialect
 
 from plmarl_sitl.deploy.mavlink import pymavlink_fastpath as fastpath
 
-__all__ = ["Codec", "Decoded", "FAULTS", "dialect", "Message", "encode_param_value", "decode_param_value"]
+__all__ = ["Codec", "Decoded", "FAULTS", "Fields", "dialect", "Message", "encode_param_value", "decode_param_value"]
 
 Message = dialect.MAVLink_message
 
@@ -69,7 +68,7 @@ class _MAVLink(dialect.MAVLink):
     def check_signature(self, msgbuf: bytearray, srcSystem: int, srcComponent: int) -> bool:
         s = self.signing
         assert s.secret_key is not None
-        if hashlib.sha256(s.secret_key + bytes(msgbuf[:-6])).digest()[:6] != bytes(msgbuf[-6:]):
+        if fastpath.signature(s.secret_key, msgbuf[:-6]) != msgbuf[-6:]:
             return False
         link_id = msgbuf[-13]
         timestamp = int.from_bytes(msgbuf[-12:-6], "little")
@@ -83,6 +82,26 @@ class _MAVLink(dialect.MAVLink):
         s.stream_timestamps[stream] = timestamp
         s.timestamp = max(s.timestamp, timestamp)  # our next timestamp is at least the newest seen
         return True
+
+
+class Fields(tuple):
+    """A message to send as (its id, its fields in declaration order): `Codec.encode` packs
+    it as it packs the message object `dialect.mavlink_map[msgid](*fields)`. A plain tuple
+    underneath (built in C, no Python call: one is made per telemetry sample)."""
+
+    __slots__ = ()
+
+    @property
+    def msgid(self) -> int:
+        return self[0]
+
+    @property
+    def fields(self) -> tuple:
+        return self[1]
+
+    def message(self) -> Message:
+        """The message object it stands for (to read its fields by name)."""
+        return dialect.mavlink_map[self[0]](*self[1])
 
 
 @dataclass
@@ -163,17 +182,33 @@ class Codec:
         s.allow_unsigned_callback = None
         s.stream_timestamps.clear()
 
-    def encode(self, msg: Message) -> bytes:
+    def encode(self, msg: Message | Fields) -> bytes:
         """Pack `msg` with this endpoint's ids, sequence number and (optional) signature."""
+        if msg.__class__ is Fields:
+            return self.encode_fields(*msg)  # type: ignore[misc]
         s = self.mav.signing
         if s.sign_outgoing:
             # pymavlink only adds 1 per frame; a timestamp that lagged the clock by more
             # than 60 s would be refused by every peer that opens a new stream with us.
             s.timestamp = max(s.timestamp, signing_timestamp())
-        buf = fastpath.pack(self.mav, msg)
+        buf = fastpath.pack(self.mav, msg)  # type: ignore[arg-type]
         if buf is None:
-            buf = msg.pack(self.mav)
+            buf = msg.pack(self.mav)  # type: ignore[union-attr]
         self.mav.seq = (self.mav.seq + 1) & 0xFF
+        return buf
+
+    def encode_fields(self, msgid: int, fields: tuple) -> bytes:
+        """`encode(<its class>(*fields))`, the same bytes, without the message object: for
+        the frames sent once per telemetry sample (fields in declaration order, as
+        `mav.<name>_encode` takes them)."""
+        mav = self.mav
+        s = mav.signing
+        if s.sign_outgoing:
+            s.timestamp = max(s.timestamp, signing_timestamp())
+        buf = fastpath.pack_fields(mav, msgid, fields)
+        if buf is None:
+            buf = dialect.mavlink_map[msgid](*fields).pack(mav)
+        mav.seq = (mav.seq + 1) & 0xFF
         return buf
 
     def decode_datagram(self, data: bytes) -> Decoded:

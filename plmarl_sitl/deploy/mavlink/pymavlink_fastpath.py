@@ -18,7 +18,8 @@ What this relies on, read in pymavlink 2.4.50's generated dialect (`MAVLink_mess
     declaration order (field i is wire field orders[i]; a numeric array a list of its
     `lengths` values, a char array one bytes value without its trailing NULs);
   - a parsed message carries `_header`, `_msgbuf`, `_payload`, `_crc`, `_signed` and
-    `_link_id`, which its public getters (`get_srcSystem`, `get_msgbuf`, ...) read;
+    `_link_id`, which its public getters (`get_srcSystem`, `get_msgbuf`, ...) read; its
+    constructor makes a fresh `MAVLink_header(msgid)` (filled in here);
   - a MAVLink 2 payload loses its trailing zero bytes on the wire (at least one kept).
 When the version is not one of VERIFIED_VERSIONS or `mcrf4xx` (pymavlink's C extension)
 is missing, `AVAILABLE` is False and codec.py uses pymavlink alone, logged once.
@@ -33,7 +34,7 @@ import logging
 import struct
 from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
-from operator import attrgetter
+from operator import attrgetter, itemgetter
 from typing import Any, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as dialect
@@ -48,11 +49,12 @@ class Layout(NamedTuple):
 
     cls: type
     unpacker: struct.Struct
-    orders: tuple[int, ...]  # field i (declaration order) is wire value orders[i] (no arrays)
+    declared: Callable[[tuple], tuple]  # the fields in declaration order from the wire values (no arrays)
     slots: tuple[tuple[int, int], ...] | None  # with arrays: field i is values[tip : tip + n] (n > 1) or values[tip]
     text: bool  # has char fields (bytes, their trailing NULs stripped as pymavlink does)
     crc_extra: bytes
     wire_values: Callable[[Any], tuple] | None  # field values in wire order; None: pymavlink packs it
+    wire_order: Callable[[tuple], tuple] | None  # the same from the fields in declaration order
 
 
 def _layouts() -> dict[int, Layout]:
@@ -64,11 +66,18 @@ def _layouts() -> dict[int, Layout]:
         slots = None
         if arrays:  # as pymavlink's decode: wire field `order` starts at the sum of the lengths before it
             slots = tuple((sum(lengths[:o]), lengths[o]) for o in cls.orders)
-        getter = None
+        getter = reorder = None
         if not arrays and not text:  # packing arrays and strings stays pymavlink's
             names = list(cls.ordered_fieldnames)
             getter = attrgetter(*names) if len(names) > 1 else (lambda m, _n=names[0]: (getattr(m, _n),))
-        out[msgid] = Layout(cls, cls.unpacker, tuple(cls.orders), slots, text, bytes([cls.crc_extra]), getter)
+            # wire value j is field source[j] (field i is wire value orders[i])
+            source = [0] * len(cls.orders)
+            for i, o in enumerate(cls.orders):
+                source[o] = i
+            reorder = itemgetter(*source) if len(source) > 1 else (lambda f: (f[0],))
+        # field i (declaration order) is wire value orders[i]
+        declared = itemgetter(*cls.orders) if len(cls.orders) > 1 else (lambda v, _o=cls.orders[0]: (v[_o],))
+        out[msgid] = Layout(cls, cls.unpacker, declared, slots, text, bytes([cls.crc_extra]), getter, reorder)
     return out
 
 
@@ -94,13 +103,45 @@ _SIGN_STAMP = struct.Struct("<BQ")
 _crc16 = getattr(dialect, "mcrf4xx", None)  # CRC-16/MCRF4XX in C: (data, initial crc) -> crc
 
 
+_KEYED: dict[bytes, Any] = {}  # signing key -> SHA-256 state after the key (see `signature`)
+
+
+def signature(key: bytes, signed: bytes | bytearray) -> bytes:
+    """The MAVLink 2 signature of a frame: the first 6 bytes of SHA-256(key + frame up to
+    the signature). The hash state after the 32-byte key is kept per key and copied:
+    hashlib's constructor looks the algorithm up in OpenSSL on every call, and a frame's
+    signature is made or checked for every telemetry sample and setpoint."""
+    keyed = _KEYED.get(key)
+    if keyed is None:
+        if len(_KEYED) >= 64:  # keys are few (one per link); never an unbounded cache
+            _KEYED.clear()
+        keyed = _KEYED[key] = hashlib.sha256(key)
+    h = keyed.copy()
+    h.update(signed)
+    return h.digest()[:6]
+
+
 def pack(mav: dialect.MAVLink, msg: dialect.MAVLink_message) -> bytes | None:
     """`msg.pack(mav)` byte for byte for a fixed-layout message (None: not one, use pymavlink).
     Signs with `mav.signing` as pymavlink does (and moves its timestamp on by one)."""
     layout = LAYOUTS.get(msg.get_msgId())
     if layout is None or layout.wire_values is None:
         return None
-    payload = layout.unpacker.pack(*layout.wire_values(msg))
+    return _pack(mav, layout, layout.wire_values(msg))
+
+
+def pack_fields(mav: dialect.MAVLink, msgid: int, fields: tuple) -> bytes | None:
+    """`pack` of the message `cls(*fields)` without building it (fields in declaration
+    order, as `<name>_encode` takes them): the per-sample frames (an agent's setpoint, the
+    world's telemetry) need no message object. None: not a fixed-layout message."""
+    layout = LAYOUTS.get(msgid)
+    if layout is None or layout.wire_order is None:
+        return None
+    return _pack(mav, layout, layout.wire_order(fields))
+
+
+def _pack(mav: dialect.MAVLink, layout: Layout, wire_values: tuple) -> bytes:
+    payload = layout.unpacker.pack(*wire_values)
     trimmed = payload.rstrip(b"\0") or payload[:1]
     s = mav.signing
     sign = s.sign_outgoing
@@ -110,7 +151,7 @@ def pack(mav: dialect.MAVLink, msg: dialect.MAVLink_message) -> bytes | None:
     buf += _CRC.pack(_crc16(buf[1:] + layout.crc_extra, 0xFFFF))
     if sign:
         buf += _SIGN_STAMP.pack(s.link_id, s.timestamp)[:7]
-        buf += hashlib.sha256(s.secret_key + buf).digest()[:6]
+        buf += signature(s.secret_key, buf)
         s.timestamp += 1
     return buf
 
@@ -150,7 +191,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
     s = mav.signing
     key = s.secret_key
     for start, end, layout in found:
-        msgbuf = bytearray(data[start:end])
+        msgbuf = bytearray(data if end - start == len(data) else data[start:end])
         _, mlen, iflags, cflags, seq, src_sys, src_comp, id_low, id_high = _HEADER.unpack_from(msgbuf)
         msgid = id_low | id_high << 16
         signed = iflags & SIGNED
@@ -171,7 +212,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
             payload += bytes(size - mlen)  # the trailing zeros MAVLink 2 trimmed
         values = layout.unpacker.unpack_from(payload)
         if layout.slots is None:
-            fields = [values[o] for o in layout.orders]
+            fields = layout.declared(values)
         else:
             fields = [values[tip] if n == 1 else list(values[tip : tip + n]) for tip, n in layout.slots]
         if layout.text:
@@ -187,6 +228,7 @@ def decode(mav: dialect.MAVLink, data: bytes, found: list[tuple[int, int, Layout
         m._msgbuf = msgbuf
         m._payload = msgbuf[6 : -(2 + (SIGNATURE_LEN if signed else 0))]  # sic: pymavlink's slice
         m._crc = _CRC.unpack_from(msgbuf, 10 + mlen)[0]
-        m._header = dialect.MAVLink_header(msgid, iflags, cflags, mlen, seq, src_sys, src_comp)
+        h = m._header  # the constructor's own MAVLink_header(msgid), filled in (one object fewer)
+        h.incompat_flags, h.compat_flags, h.mlen, h.seq, h.srcSystem, h.srcComponent = iflags, cflags, mlen, seq, src_sys, src_comp
         messages.append(m)
     return messages, fault

@@ -66,8 +66,10 @@ class _VehicleProtocol(asyncio.DatagramProtocol):
         self.vehicle.transport = transport  # type: ignore[assignment]
 
     def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        self.vehicle.record(data)
-        handlers.on_datagram(self.vehicle, data, addr)
+        v = self.vehicle
+        if v.tlog is not None:  # (20 setpoints a tick in a lockstep swarm: no call when not recording)
+            v.record(data)
+        handlers.on_datagram(v, data, addr)
 
     def error_received(self, exc: Exception) -> None:
         # ICMP "port unreachable" after a client went away: normal for UDP telemetry.

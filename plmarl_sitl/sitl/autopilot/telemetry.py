@@ -11,7 +11,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from plmarl_sitl.deploy.mavlink.codec import Message, dialect
+from plmarl_sitl.deploy.mavlink.codec import Fields, Message, dialect
 from plmarl_sitl.deploy.mavlink.wire import MASK_POS, MASK_VEL
 
 if TYPE_CHECKING:
@@ -19,6 +19,9 @@ if TYPE_CHECKING:
 
 d = dialect
 G = 9.80665
+# What a builder gives: a message, or (the streams sent every substep) its id and fields,
+# packed to the same frame without a message object (`Codec.encode`).
+Outgoing = Message | Fields
 
 # Sensors a healthy multirotor reports; MAVSDK derives health from these bits
 # (GPS present+healthy -> local/global position OK; PREARM_CHECK -> armable).
@@ -110,38 +113,38 @@ def gps_global_origin(v: Vehicle) -> Message | None:
     return v.codec.mav.gps_global_origin_encode(int(lat * 1e7), int(lon * 1e7), int(alt * 1000))
 
 
-def attitude(v: Vehicle) -> Message:
+def attitude(v: Vehicle) -> Outgoing:
     an, ae, _ = v.last_accel()
     yaw = v.yaw
     fwd = math.cos(yaw) * an + math.sin(yaw) * ae
     right = -math.sin(yaw) * an + math.cos(yaw) * ae
-    return v.codec.mav.attitude_encode(_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0)
+    return Fields((d.MAVLINK_MSG_ID_ATTITUDE, (_ms(v), math.atan2(right, G), -math.atan2(fwd, G), yaw, 0.0, 0.0, 0.0)))
 
 
-def local_position_ned(v: Vehicle) -> Message | None:
+def local_position_ned(v: Vehicle) -> Outgoing | None:
     if not v.fleet.boot.position(v.fleet.now) or v.aiding_stopped:
         return None  # the EKF does not use GPS yet, or no more (ArduCopter keeps GLOBAL_POSITION_INT)
     x, y, z = v.nav_position()
     vx, vy, vz = v.velocity()
     ms = _ms(v)
     v.fleet.telemetry_ms[v.index] = ms  # a lockstep agent owes a setpoint stamped with it
-    return v.codec.mav.local_position_ned_encode(ms, x, y, z, vx, vy, vz)
+    return Fields((d.MAVLINK_MSG_ID_LOCAL_POSITION_NED, (ms, x, y, z, vx, vy, vz)))
 
 
-def global_position_int(v: Vehicle) -> Message | None:
+def global_position_int(v: Vehicle) -> Outgoing | None:
     if not v.fleet.boot.position(v.fleet.now):
         return None
     lat, lon, alt = v.geodetic()
     _, _, z = v.nav_position()
     vx, vy, vz = v.velocity()
     hdg = int(math.degrees(v.yaw) % 360 * 100)
-    return v.codec.mav.global_position_int_encode(
+    return Fields((d.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, (
         _ms(v), int(lat * 1e7), int(lon * 1e7), int(alt * 1000), int(-z * 1000),
         int(vx * 100), int(vy * 100), int(vz * 100), hdg,
-    )
+    )))
 
 
-def position_target_local_ned(v: Vehicle) -> Message | None:
+def position_target_local_ned(v: Vehicle) -> Outgoing | None:
     target = v.active_target()
     if target is None:
         return None
@@ -149,7 +152,7 @@ def position_target_local_ned(v: Vehicle) -> Message | None:
     vec = [0.0] * 9
     group = 0 if mask & MASK_POS == 0 else 1 if mask & MASK_VEL == 0 else 2
     vec[3 * group : 3 * group + 3] = (a, b, c)
-    return v.codec.mav.position_target_local_ned_encode(_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0)
+    return Fields((d.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED, (_ms(v), d.MAV_FRAME_LOCAL_NED, mask, *vec, v.yaw, 0.0)))
 
 
 def vfr_hud(v: Vehicle) -> Message:
@@ -178,7 +181,7 @@ def autopilot_version(v: Vehicle) -> Message:
     )
 
 
-BUILDERS: dict[int, Callable[[Vehicle], Message | None]] = {
+BUILDERS: dict[int, Callable[[Vehicle], Outgoing | None]] = {
     d.MAVLINK_MSG_ID_HEARTBEAT: heartbeat,
     d.MAVLINK_MSG_ID_SYS_STATUS: sys_status,
     d.MAVLINK_MSG_ID_SYSTEM_TIME: system_time,

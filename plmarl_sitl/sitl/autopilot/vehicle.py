@@ -19,7 +19,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, BinaryIO
 
 from plmarl_sitl.config import VehicleModel
-from plmarl_sitl.deploy.mavlink.codec import Codec, Message, dialect
+from plmarl_sitl.deploy.mavlink.codec import Codec, Fields, Message, dialect
 from plmarl_sitl.deploy.mavlink.personality import Behaviour, Failsafe, ModeSpec, Personality
 from plmarl_sitl.deploy.mavlink.wire import ACCEL_ONLY, POSITION_ONLY, VELOCITY_ONLY
 from plmarl_sitl.model.events import GPS_OUT_AFTER_S, GPS_STREAM_STOPS_S
@@ -231,7 +231,7 @@ class Vehicle:
         return self.fleet.on_ground(self.index)
 
     # ------------------------------------------------------------------ output
-    def send(self, msg: Message | None, addr: tuple[str, int] | None = None) -> None:
+    def send(self, msg: Message | Fields | None, addr: tuple[str, int] | None = None) -> None:
         """Send to `addr`, or to every peer and the ground station (telemetry)."""
         t = self.transport
         if msg is None or t is None or self.killed or t.is_closing():
@@ -243,7 +243,7 @@ class Vehicle:
         else:
             self._broadcast(t, buf)
 
-    def send_bundle(self, msgs: list[Message | None]) -> None:
+    def send_bundle(self, msgs: list[Message | Fields | None]) -> None:
         """Telemetry due together, to every peer and the ground station in one datagram
         (MAVLink over UDP allows several frames per datagram; PX4 sends them so)."""
         t = self.transport
