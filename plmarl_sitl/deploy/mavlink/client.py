@@ -327,17 +327,15 @@ class VehicleLink:
         self.send(self.codec.mav.heartbeat_encode(d.MAV_TYPE_GCS, d.MAV_AUTOPILOT_INVALID, 0, 0, d.MAV_STATE_ACTIVE))
 
     def _setpoint(self, mask: int, pos=(0.0, 0.0, 0.0), vel=(0.0, 0.0, 0.0), acc=(0.0, 0.0, 0.0), time_boot_ms: int = 0) -> None:
+        # Sent once per telemetry sample: packed from its fields, no message object (issue 25.1)
         self.send(Fields((SET_POSITION_TARGET_LOCAL_NED_ID, (
             time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, mask, *pos, *vel, *acc, 0.0, 0.0))))
 
     def send_accel_ned(self, north: float, east: float, down: float, time_boot_ms: int = 0) -> None:
         """Net acceleration setpoint (m/s^2, gravity compensated); (0,0,0) keeps velocity.
         `time_boot_ms`: the vehicle time of the telemetry this setpoint answers (a lockstep
-        SITL world waits for it); 0: not stamped. Sent once per telemetry sample: packed
-        from its fields (no message object), the frame `_setpoint` would send."""
-        self.send(Fields((SET_POSITION_TARGET_LOCAL_NED_ID, (
-            time_boot_ms, self.sysid, d.MAV_COMP_ID_AUTOPILOT1, d.MAV_FRAME_LOCAL_NED, ACCEL_ONLY,
-            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, north, east, down, 0.0, 0.0))))
+        SITL world waits for it); 0: not stamped."""
+        self._setpoint(ACCEL_ONLY, acc=(north, east, down), time_boot_ms=time_boot_ms)
 
     def send_velocity_ned(self, north: float, east: float, down: float) -> None:
         self._setpoint(VELOCITY_ONLY, vel=(north, east, down))
