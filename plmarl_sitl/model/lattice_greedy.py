@@ -74,6 +74,7 @@ class LatticeGreedy:
         self.share = share.reshape(hk * hl, len(a) * len(b)).astype(np.float32)
         self.uncover = (~cover).astype(np.float32)  # multiplies the window: the stencil's weight served
         self.hk, self.hl = hk, hl
+        self.cover_origin = (int(k0), int(l0))  # the stencil's first row and column, as offsets from the candidate
         # The unserved weights, padded so a pick's stencil window never leaves the array
         pad = int(max(abs(k0), abs(k1), abs(l0), abs(l1))) + 1
         self.pad = pad
