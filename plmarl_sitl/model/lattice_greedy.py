@@ -101,6 +101,10 @@ class LatticeGreedy:
         self.row_windows = [self._windows(i, self.nr, pad + int(k0), hk, ga, near_r, reach) for i in range(self.nr)]
         self.col_windows = [self._windows(j, self.ne, pad + int(l0), hl, gb, near_r, reach) for j in range(self.ne)]
 
+        self.off = np.empty(cand_shape, dtype=np.float32)
+        self.score = np.empty(self.nr * self.ne, dtype=np.float32)
+        self.left = np.zeros(self.lat_shape, dtype=np.float32)
+
     @staticmethod
     def _windows(i: int, size: int, lat0: int, lat_len: int, g: int, rn: int, reach: int) -> tuple[slice, ...]:
         def clip(r: int, centre: int) -> tuple[slice, slice]:
@@ -127,11 +131,10 @@ class LatticeGreedy:
         pick forced to `first` when given."""
         nr, ne = self.nr, self.ne
         gains = gain[: nr * ne].astype(np.float32).reshape(nr, ne)  # -inf once forbidden
-        off = np.full((nr, ne), OFF, dtype=np.float32)  # OFF where not yet linked, else 0
-        score = np.empty(nr * ne, dtype=np.float32)
-        left = np.zeros(self.lat_shape, dtype=np.float32)  # unserved weight per sub-point
+        off, score, left = self.off, self.score, self.left  # this object's work arrays: one map at a time
+        off.fill(OFF)  # OFF where not yet linked, else 0
         p = self.pad
-        left[p:p + self.sub_shape[0], p:p + self.sub_shape[1]] = weights
+        left[p:p + self.sub_shape[0], p:p + self.sub_shape[1]] = weights  # unserved weight per sub-point; the pad stays 0
         gw = self.share.shape[1] // (2 * self.ga + 1)
         share, uncover, unlink, forbid, kill_apart = self.share, self.uncover, self.unlink, self.forbid, self.kill_apart
         flat_gains, flat_off = gains.reshape(-1), off.reshape(-1)

@@ -220,9 +220,8 @@ class _LatticeCover:
 
     def __init__(self, local: LocalSearch, w: np.ndarray, cnt: np.ndarray) -> None:
         self.frame = frame = local.lattice_frame()
-        self.w = np.zeros(frame.shape, dtype=np.float32)
+        self.w, self.cnt = frame.w, frame.cnt  # the frame's work arrays (one plan at a time): the pad stays 0
         self.w.ravel()[frame.at] = w
-        self.cnt = np.zeros(frame.shape, dtype=np.int32)
         self.cnt.ravel()[frame.at] = cnt
 
     def counts(self) -> np.ndarray:
@@ -287,6 +286,8 @@ class _LatticeFrame:
         inner[pad:pad + rows_s, pad:pad + cols_s] = True
         self.at = np.flatnonzero(inner)[g.sub_grid(np.arange(len(g.subpts))).ravel().argsort()]
         self.window = (np.arange(self.hk)[:, None] * self.shape[1] + np.arange(self.hl)[None, :]).ravel()
+        self.w = np.zeros(self.shape, dtype=np.float32)
+        self.cnt = np.zeros(self.shape, dtype=np.int32)
 
 
 class SearchPlacement:
