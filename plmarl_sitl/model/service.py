@@ -179,10 +179,6 @@ class ServiceGrid:
         """`place` by the greedy, whatever the placer."""
         w = self._weights(counts)
         if w.shape[0] == 1:
-            weights = self._lattice_weights(w[0])
-            gain = self.lattice.gains(weights) if weights is not None else None
-            if gain is not None:
-                return self._lattice_place(weights, gain, n)
             return self._place_one(w[0], self._gains(counts)[0], n)
         b, c = w.shape[0], len(self.cands)
         unserved = np.ones(w.shape, dtype=bool)
@@ -219,9 +215,7 @@ class ServiceGrid:
 
     def map_gains(self, counts: np.ndarray) -> np.ndarray:
         """(C,) each candidate's gain on one map counts (K,), in sub-point units."""
-        weights = self._lattice_weights(self.sub_weights(counts))
-        gain = self.lattice.gains(weights) if weights is not None else None
-        return gain if gain is not None else self._gains(np.asarray(counts)[None])[0, : len(self.cands)]
+        return self._gains(np.asarray(counts)[None])[0, : len(self.cands)]
 
     def weight_gains(self, w: np.ndarray) -> np.ndarray:
         """(C,) each candidate's gain on sub-point weights w (S,) (whole numbers: exact)."""
@@ -239,9 +233,10 @@ class ServiceGrid:
         spacing test) lies within `reach` lattice steps of it, so the score is rewritten on
         that window only; each candidate's gain loses the same weights in the same order as
         in the batch path."""
-        weights = self._lattice_weights(w)
-        if weights is not None:
-            return self._lattice_place(weights, gain, n, first)
+        weights = self.sub_grid(w) if self.lattice is not None else None
+        if weights is not None and self.lattice.exact32(weights):
+            picks, units = self.lattice.place(weights, gain, n, first)
+            return self.cands[np.asarray(picks)][None], np.array([units / (self.sub * self.sub)])
         c = len(self.cands)
         nr, ne = self.cand_shape
         r = self.reach
@@ -273,18 +268,6 @@ class ServiceGrid:
             grid_score[i0:i1, j0:j1] = np.where(near_w & apart_w, grid_gain[i0:i1, j0:j1], -1.0)
         # w - left is w where served, else 0: the elements of w * ~unserved, summed alike
         return self.cands[np.asarray(chosen)][None], ((w - left).sum() / (self.sub * self.sub))[None]
-
-    def _lattice_weights(self, w: np.ndarray) -> np.ndarray | None:
-        """w (S,) on the sub-points' lattice if `LatticeGreedy` takes this map, else None."""
-        if self.lattice is None:
-            return None
-        weights = self.sub_grid(w)
-        return weights if self.lattice.exact32(weights) else None
-
-    def _lattice_place(self, weights: np.ndarray, gain: np.ndarray, n: int,
-                       first: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        picks, units = self.lattice.place(weights, gain, n, first)
-        return self.cands[np.asarray(picks)][None], np.array([units / (self.sub * self.sub)])
 
     def _gains(self, counts: np.ndarray) -> np.ndarray:
         """(B, C + 1) each candidate's gain on maps counts (B, K) (the last column: scratch,
