@@ -39,10 +39,10 @@ class LatticeGreedy:
     near_stencil, apart_stencil ((2 reach + 1)^2, centred on a pick): the candidates within
     R_link of it and those at least 2 d_safe from it (`ServiceGrid`'s own)."""
 
-    def __init__(self, cand_shape: tuple[int, int], sub_shape: tuple[int, int], step: float, r2: float,
+    def __init__(self, cand_shape: tuple[int, int], cells: tuple[int, int], sub: int, step: float, r2: float,
                  near_stencil: np.ndarray, apart_stencil: np.ndarray) -> None:
         self.nr, self.ne = cand_shape
-        self.sub_shape = sub_shape
+        self.sub_shape = sub_shape = (cells[0] * sub, cells[1] * sub)
         # The cover stencil: sub-point (i + dk, j + dl) is covered by candidate (i, j). Both
         # positions are exact multiples of step / 2, so their difference is exact and the
         # squared distance is the float the sparse table's test computes (model/service.py `_Tiles`).
@@ -66,10 +66,10 @@ class LatticeGreedy:
             # stencil holds entry (r - a, c - b)
             ri, ci = r - a, c - b
             inside_r, inside_c = (ri >= 0) & (ri < hk), (ci >= 0) & (ci < hl)
-            sub = np.zeros((len(a), len(b)), dtype=bool)
-            sub[np.ix_(inside_r, inside_c)] = cover[np.ix_(ri[inside_r], ci[inside_c])]
-            share[r, c] = sub
-        # (stencil window, gain window) 0/1, float32: with whole weights summing below 2**24
+            mates = np.zeros((len(a), len(b)), dtype=bool)
+            mates[np.ix_(inside_r, inside_c)] = cover[np.ix_(ri[inside_r], ci[inside_c])]
+            share[r, c] = mates
+        # (stencil window, gain window) 0/1, float32: with whole weights summing below OFF
         # (`exact32`) every product and partial sum is exact, at half the float64 product's cost
         self.share = share.reshape(hk * hl, len(a) * len(b)).astype(np.float32)
         self.uncover = (~cover).astype(np.float32)  # multiplies the window: the stencil's weight served
@@ -104,6 +104,10 @@ class LatticeGreedy:
         self.off = np.empty(cand_shape, dtype=np.float32)
         self.score = np.empty(self.nr * self.ne, dtype=np.float32)
         self.left = np.zeros(self.lat_shape, dtype=np.float32)
+        # the unserved weights' lattice seen cell-major: (cell row, sub row, cell column, sub column)
+        self.left_cells = self.left[pad:pad + sub_shape[0], pad:pad + sub_shape[1]].reshape(cells[0], sub, cells[1], sub)
+        assert np.shares_memory(self.left_cells, self.left)
+        self.cells, self.sub = cells, sub
 
     @staticmethod
     def _windows(i: int, size: int, lat0: int, lat_len: int, g: int, rn: int, reach: int) -> tuple[slice, ...]:
@@ -127,14 +131,14 @@ class LatticeGreedy:
 
     def place(self, weights: np.ndarray, gain: np.ndarray, n: int, first: int | None = None) -> tuple[list[int], float]:
         """The picks (candidate indices) and the weight they serve, on the sub-point weights
-        weights (rows_s, cols_s) (`exact32`) and the candidates' gains gain (C,), the first
-        pick forced to `first` when given."""
+        weights (S,) (cell-major, as `ServiceGrid`'s; `exact32`) and the candidates' gains
+        gain (C,), the first pick forced to `first` when given."""
         nr, ne = self.nr, self.ne
         gains = gain[: nr * ne].astype(np.float32).reshape(nr, ne)  # -inf once forbidden
         off, score, left = self.off, self.score, self.left  # this object's work arrays: one map at a time
         off.fill(OFF)  # OFF where not yet linked, else 0
-        p = self.pad
-        left[p:p + self.sub_shape[0], p:p + self.sub_shape[1]] = weights  # unserved weight per sub-point; the pad stays 0
+        s = self.sub  # unserved weight per sub-point, on the lattice; the pad stays 0
+        self.left_cells[...] = weights.reshape(self.cells[0], self.cells[1], s, s).transpose(0, 2, 1, 3)
         gw = self.share.shape[1] // (2 * self.ga + 1)
         share, uncover, unlink, forbid, kill_apart = self.share, self.uncover, self.unlink, self.forbid, self.kill_apart
         flat_gains, flat_off = gains.reshape(-1), off.reshape(-1)

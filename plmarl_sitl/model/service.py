@@ -127,7 +127,8 @@ class ServiceGrid:
         # Sub-points on the candidates' lattice shifted by half a step (a cell side of whole
         # GRID_M steps: 50 m, 100 m): one map's greedy on dense windows, ~3x cheaper, the same picks
         sub_shape = (self.rows * self.sub, self.cols * self.sub)
-        self.lattice = LatticeGreedy(self.cand_shape, sub_shape, GRID_M, self.r2, self.near_stencil, self.apart_stencil) \
+        self.lattice = LatticeGreedy(self.cand_shape, (self.rows, self.cols), self.sub, GRID_M, self.r2, self.near_stencil,
+                                     self.apart_stencil) \
             if len(self.cover_idx) and self._on_lattice(sub_shape) else None
 
     def _on_lattice(self, sub_shape: tuple[int, int]) -> bool:
@@ -233,9 +234,8 @@ class ServiceGrid:
         spacing test) lies within `reach` lattice steps of it, so the score is rewritten on
         that window only; each candidate's gain loses the same weights in the same order as
         in the batch path."""
-        weights = self.sub_grid(w) if self.lattice is not None else None
-        if weights is not None and self.lattice.exact32(weights):
-            picks, units = self.lattice.place(weights, gain, n, first)
+        if self.lattice is not None and self.lattice.exact32(w):
+            picks, units = self.lattice.place(w, gain, n, first)
             return self.cands[np.asarray(picks)][None], np.array([units / (self.sub * self.sub)])
         c = len(self.cands)
         nr, ne = self.cand_shape
