@@ -255,3 +255,13 @@ def test_the_lattice_local_search_is_the_reference_bit_for_bit(name: str, grid: 
                 assert np.array_equal(got, want) and served == served_ref, (n, picks)
                 moved += int((got != picks).sum())
     assert moved > 0  # the maps do move points
+
+
+def test_the_lattice_gains_are_the_sparse_gains() -> None:
+    for _, grid in grids():
+        for counts in maps(grid, 29):
+            got = grid.lattice.gains(grid.sub_weights(counts))
+            want = grid._gains(counts[None])[0, : len(grid.cands)]
+            assert got is not None and got.dtype == np.float64 and np.array_equal(got, want)
+            assert want.dtype == np.float64 or not counts.any()  # bincount of no cells: int64 zeros
+            assert np.array_equal(grid.map_gains(counts), want)
