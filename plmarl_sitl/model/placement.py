@@ -406,6 +406,7 @@ class LearnedPlacement:
     def __init__(self, scorer: torch.jit.ScriptModule, improve: bool = False) -> None:
         self.scorer = scorer
         self.improve = improve  # then the search's local improvement (`LocalSearch`, up to LARGE_N points)
+        self.local: LocalSearch | None = None  # kept per grid, as the search's
 
     @torch.no_grad()
     def choose(self, state: PickState) -> int:
@@ -427,7 +428,9 @@ class LearnedPlacement:
                 state.pick(self.choose(state))
             picks, got = np.asarray(state.picks), state.served()
             if self.improve and n <= LARGE_N:
-                picks, units = LocalSearch(grid).improve(state.w, picks)
+                if self.local is None or self.local.grid is not grid:
+                    self.local = LocalSearch(grid)
+                picks, units = self.local.improve(state.w, picks)
                 got = units / (grid.sub * grid.sub)
             pts.append(grid.cands[picks])
             served.append(got)
