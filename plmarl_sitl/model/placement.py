@@ -84,6 +84,12 @@ class LocalSearch:
         keep = (di != 0) | (dj != 0)
         self.di, self.dj = di[keep], dj[keep]  # (M,) the moves, row-major
         self.link_m, self.apart_m = grid.link_m, grid.apart_m
+        self.frame: _LatticeFrame | None = None  # built at the first plan on the lattice
+
+    def lattice_frame(self) -> _LatticeFrame:
+        if self.frame is None:
+            self.frame = _LatticeFrame(self)
+        return self.frame
 
     def counts(self, picks: np.ndarray) -> np.ndarray:
         """(S,) how many picks cover each sub-point."""
@@ -120,25 +126,21 @@ class LocalSearch:
         g = self.grid
         nr, ne = g.cand_shape
         picks = picks.copy()
-        cnt = self.counts(picks)
         k = len(picks)
+        cover = _LatticeCover(self, w, self.counts(picks)) if self.lattice_ok(w) else _SparseCover(self, w, self.counts(picks))
         reach = 2.0 * np.sqrt(g.r2) + 2.0 * MOVE * GRID_M * np.sqrt(2.0)  # cover areas that can overlap
         for _ in range(self.sweeps):
             moved = False
-            todo = self.screen(w, picks, cnt)
+            todo = cover.screen(self, picks)
             for i in range(k):
                 if not todo[i]:
                     continue
                 p = int(picks[i])
-                mine = g.cover_idx[g.cover_ptr[p]:g.cover_ptr[p + 1]].astype(np.int64)
-                cnt[mine] -= 1  # the plan without point i
-                lose = float(w[mine][cnt[mine] == 0].sum())
                 ri, rj = divmod(p, ne)
                 ci, cj = ri + self.di, rj + self.dj
                 inside = (ci >= 0) & (ci < nr) & (cj >= 0) & (cj < ne)
                 cand = (ci * ne + cj)[inside]
-                owner, pt = _rows(g.cover_ptr, g.cover_idx, cand)
-                gains = np.bincount(owner, weights=w[pt] * (cnt[pt] == 0), minlength=len(cand))
+                lose, gains = cover.without(p, inside)  # the plan without point i, and its moves' gains then
                 better = gains > lose
                 best = -1
                 if better.any():
@@ -163,14 +165,129 @@ class LocalSearch:
                     moved = True
                     old = g.cands[p]
                     picks[i] = cand[best]
-                    mine = g.cover_idx[g.cover_ptr[picks[i]]:g.cover_ptr[picks[i] + 1]].astype(np.int64)
                     later = np.arange(k) > i
                     xy = g.cands[picks]
                     todo |= later & (np.sqrt(((xy - old) ** 2).sum(-1)) <= reach)
-                cnt[mine] += 1
+                cover.add(int(picks[i]))
             if not moved:
                 break
-        return picks, float(w[cnt > 0].sum())
+        return picks, float(w[cover.counts() > 0].sum())
+
+    def lattice_ok(self, w: np.ndarray) -> bool:
+        """The moves' gains can be taken on the grid's lattice windows (model/lattice_greedy.py):
+        a grid on the lattice and weights float32 sums exactly."""
+        return self.grid.lattice is not None and self.grid.lattice.exact32(w)
+
+
+class _SparseCover:
+    """How many of the plan's points cover each sub-point (S,), on the sparse cover table."""
+
+    def __init__(self, local: LocalSearch, w: np.ndarray, cnt: np.ndarray) -> None:
+        self.grid, self.w, self.cnt = local.grid, w, cnt
+        self.moves = (local.di, local.dj)
+
+    def counts(self) -> np.ndarray:
+        return self.cnt
+
+    def _mine(self, p: int) -> np.ndarray:
+        g = self.grid
+        return g.cover_idx[g.cover_ptr[p]:g.cover_ptr[p + 1]].astype(np.int64)
+
+    def without(self, p: int, inside: np.ndarray) -> tuple[float, np.ndarray]:
+        """Point p leaves the plan: the weight only it served, and the gains of its moves (the
+        `inside` ones of LocalSearch's di, dj), the weight each would newly serve."""
+        g, w, cnt = self.grid, self.w, self.cnt
+        mine = self._mine(p)
+        cnt[mine] -= 1
+        lose = float(w[mine][cnt[mine] == 0].sum())
+        ne = g.cand_shape[1]
+        ri, rj = divmod(p, ne)
+        cand = ((ri + self.moves[0]) * ne + rj + self.moves[1])[inside]
+        owner, pt = _rows(g.cover_ptr, g.cover_idx, cand)
+        return lose, np.bincount(owner, weights=w[pt] * (cnt[pt] == 0), minlength=len(cand))
+
+    def add(self, p: int) -> None:
+        self.cnt[self._mine(p)] += 1
+
+    def screen(self, local: LocalSearch, picks: np.ndarray) -> np.ndarray:
+        return local.screen(self.w, picks, self.cnt)
+
+
+class _LatticeCover:
+    """`_SparseCover` on the lattice (model/lattice_greedy.py): the counts on the sub-points'
+    lattice, padded, and a point's moves' gains (and what it alone serves) one product of the
+    unserved weight around it with a fixed 0/1 matrix; whole numbers, exact in float32."""
+
+    def __init__(self, local: LocalSearch, w: np.ndarray, cnt: np.ndarray) -> None:
+        self.frame = frame = local.lattice_frame()
+        self.w, self.cnt = frame.w, frame.cnt  # the frame's work arrays (one plan at a time): the pad stays 0
+        self.w.ravel()[frame.at] = w
+        self.cnt.ravel()[frame.at] = cnt
+
+    def counts(self) -> np.ndarray:
+        return self.cnt.ravel()[self.frame.at].astype(np.int64)
+
+    def _window(self, p: int) -> tuple[slice, slice]:
+        f = self.frame
+        i, j = divmod(p, f.ne)
+        return slice(i + f.k0, i + f.k0 + f.hk), slice(j + f.l0, j + f.l0 + f.hl)
+
+    def without(self, p: int, inside: np.ndarray) -> tuple[float, np.ndarray]:
+        f = self.frame
+        rs, cs = self._window(p)
+        cnt = self.cnt[rs, cs]
+        cnt[MOVE:f.hk - MOVE, MOVE:f.hl - MOVE] -= f.stencil
+        got = (self.w[rs, cs] * (cnt == 0)).ravel() @ f.share
+        return float(got[-1]), got[:-1][inside]
+
+    def add(self, p: int) -> None:
+        f = self.frame
+        rs, cs = self._window(p)
+        self.cnt[rs, cs][MOVE:f.hk - MOVE, MOVE:f.hl - MOVE] += f.stencil
+
+    def screen(self, local: LocalSearch, picks: np.ndarray) -> np.ndarray:
+        """`LocalSearch.screen` on the lattice: every point's window at once, one product."""
+        f = self.frame
+        ri, rj = np.divmod(picks, f.ne)
+        at = ((ri + f.k0) * f.shape[1] + rj + f.l0)[:, None] + f.window  # (k, window)
+        got = (self.w.ravel()[at] * ((self.cnt.ravel()[at] - f.own) == 0)) @ f.share  # (k, moves + itself)
+        ci, cj = ri[:, None] + local.di, rj[:, None] + local.dj
+        nr, ne = local.grid.cand_shape
+        inside = (ci >= 0) & (ci < nr) & (cj >= 0) & (cj < ne)
+        return ((got[:, :-1] > got[:, -1:]) & inside).any(-1)
+
+
+class _LatticeFrame:
+    """The constants of `_LatticeCover` on one grid: the padded lattice (shape), where each
+    sub-point sits in it (at), a candidate's window of its moves' covers (its first row and
+    column from the candidate: k0, l0; hk x hl), the cover stencil in it, and the 0/1 matrix
+    (window, moves and the point itself last)."""
+
+    def __init__(self, local: LocalSearch) -> None:
+        g = local.grid
+        lat = g.lattice
+        self.ne = g.cand_shape[1]
+        pad = lat.pad + MOVE
+        hk, hl = lat.hk, lat.hl
+        self.hk, self.hl = hk + 2 * MOVE, hl + 2 * MOVE
+        k0, l0 = lat.cover_origin
+        self.k0, self.l0 = pad + k0 - MOVE, pad + l0 - MOVE
+        stencil = lat.uncover == 0
+        self.stencil = stencil.astype(np.int32)
+        moves = list(zip(local.di.tolist(), local.dj.tolist(), strict=True)) + [(0, 0)]
+        share = np.zeros((len(moves), self.hk, self.hl), dtype=np.float32)
+        for m, (a, b) in enumerate(moves):
+            share[m, MOVE + a:MOVE + a + hk, MOVE + b:MOVE + b + hl] = stencil
+        self.share = share.reshape(len(moves), -1).T.copy()
+        self.own = share[-1].astype(np.int32).ravel()  # the point's own cover in its window
+        rows_s, cols_s = g.rows * g.sub, g.cols * g.sub
+        self.shape = (lat.lat_shape[0] + 2 * MOVE, lat.lat_shape[1] + 2 * MOVE)
+        inner = np.zeros(self.shape, dtype=bool)
+        inner[pad:pad + rows_s, pad:pad + cols_s] = True
+        self.at = np.flatnonzero(inner)[g.sub_grid(np.arange(len(g.subpts))).ravel().argsort()]
+        self.window = (np.arange(self.hk)[:, None] * self.shape[1] + np.arange(self.hl)[None, :]).ravel()
+        self.w = np.zeros(self.shape, dtype=np.float32)
+        self.cnt = np.zeros(self.shape, dtype=np.int32)
 
 
 class SearchPlacement:
@@ -178,11 +295,14 @@ class SearchPlacement:
 
     def __init__(self, firsts: int = FIRSTS) -> None:
         self.firsts = firsts
+        self.local: LocalSearch | None = None
 
     def search(self, grid: ServiceGrid, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, float]:
         """The best plan (n,) candidate indices on sub-point weights w (S,), candidates' gains
         gain (C,), and the weight it serves."""
-        local = LocalSearch(grid)
+        if self.local is None or self.local.grid is not grid:
+            self.local = LocalSearch(grid)  # its lattice tables are built once per grid
+        local = self.local
         best: tuple[np.ndarray, float] | None = None
         for first in peaks(grid, gain, self.firsts, 2.0 * np.sqrt(grid.r2)) or [0]:
             picks, got = local.improve(w, grid.greedy_one(w, gain, n, first))
@@ -286,6 +406,7 @@ class LearnedPlacement:
     def __init__(self, scorer: torch.jit.ScriptModule, improve: bool = False) -> None:
         self.scorer = scorer
         self.improve = improve  # then the search's local improvement (`LocalSearch`, up to LARGE_N points)
+        self.local: LocalSearch | None = None  # kept per grid, as the search's
 
     @torch.no_grad()
     def choose(self, state: PickState) -> int:
@@ -307,7 +428,9 @@ class LearnedPlacement:
                 state.pick(self.choose(state))
             picks, got = np.asarray(state.picks), state.served()
             if self.improve and n <= LARGE_N:
-                picks, units = LocalSearch(grid).improve(state.w, picks)
+                if self.local is None or self.local.grid is not grid:
+                    self.local = LocalSearch(grid)
+                picks, units = self.local.improve(state.w, picks)
                 got = units / (grid.sub * grid.sub)
             pts.append(grid.cands[picks])
             served.append(got)
