@@ -66,7 +66,9 @@ STALL_S = 12  # wall seconds the broker is stopped for
 def _broker_child(proc: subprocess.Popen, kind: str) -> psutil.Process:
     names = {"mosquitto": "mosquitto", "embedded": "amqtt_child"}
     for c in psutil.Process(proc.pid).children(recursive=True):
-        if names[kind] in " ".join(c.cmdline()):
+        # The agents' fork server and the agents are forked from the launcher: they carry its
+        # command line (with "--broker mosquitto" in it) under their own names (plmarl-*)
+        if not c.name().startswith("plmarl-") and names[kind] in " ".join(c.cmdline()):
             return c
     raise AssertionError(f"no {kind} broker child")
 
