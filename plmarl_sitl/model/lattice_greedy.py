@@ -146,8 +146,7 @@ class LatticeGreedy:
         nr, ne = self.nr, self.ne
         p = self.pad
         k0, l0 = self.cover_origin
-        s = self.sub
-        self.left_cells[...] = weights.reshape(self.cells[0], self.cells[1], s, s).transpose(0, 2, 1, 3)
+        self._spread(weights)
         cum = self.cum
         np.cumsum(self.left, axis=1, dtype=np.float64, out=cum[:, 1:])
         runs: dict[tuple[int, int], np.ndarray] = {}
@@ -159,6 +158,11 @@ class LatticeGreedy:
             out += runs[lo, hi][p + k0 + r:p + k0 + r + nr]
         return out.reshape(-1)
 
+    def _spread(self, weights: np.ndarray) -> None:
+        """The sub-point weights (S,), cell-major, onto the work lattice `left` (inside its pad)."""
+        s = self.sub
+        self.left_cells[...] = weights.reshape(self.cells[0], self.cells[1], s, s).transpose(0, 2, 1, 3)
+
     def place(self, weights: np.ndarray, gain: np.ndarray, n: int, first: int | None = None) -> tuple[list[int], float]:
         """The picks (candidate indices) and the weight they serve, on the sub-point weights
         weights (S,) (cell-major, as `ServiceGrid`'s; `exact32`) and the candidates' gains
@@ -167,8 +171,7 @@ class LatticeGreedy:
         gains = gain[: nr * ne].astype(np.float32).reshape(nr, ne)  # -inf once forbidden
         off, score, left = self.off, self.score, self.left  # this object's work arrays: one map at a time
         off.fill(OFF)  # OFF where not yet linked, else 0
-        s = self.sub  # unserved weight per sub-point, on the lattice; the pad stays 0
-        self.left_cells[...] = weights.reshape(self.cells[0], self.cells[1], s, s).transpose(0, 2, 1, 3)
+        self._spread(weights)  # unserved weight per sub-point, on the lattice; the pad stays 0
         gw = self.share.shape[1] // (2 * self.ga + 1)
         share, uncover, unlink, forbid, kill_apart = self.share, self.uncover, self.unlink, self.forbid, self.kill_apart
         flat_gains, flat_off = gains.reshape(-1), off.reshape(-1)

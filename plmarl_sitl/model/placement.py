@@ -179,6 +179,11 @@ class LocalSearch:
         return self.grid.lattice is not None and self.grid.lattice.exact32(w)
 
 
+def kept_local_search(held: LocalSearch | None, grid: ServiceGrid) -> LocalSearch:
+    """The LocalSearch held for `grid`, or a new one: its lattice tables are built once per grid."""
+    return held if held is not None and held.grid is grid else LocalSearch(grid)
+
+
 class _SparseCover:
     """How many of the plan's points cover each sub-point (S,), on the sparse cover table."""
 
@@ -300,9 +305,7 @@ class SearchPlacement:
     def search(self, grid: ServiceGrid, w: np.ndarray, gain: np.ndarray, n: int) -> tuple[np.ndarray, float]:
         """The best plan (n,) candidate indices on sub-point weights w (S,), candidates' gains
         gain (C,), and the weight it serves."""
-        if self.local is None or self.local.grid is not grid:
-            self.local = LocalSearch(grid)  # its lattice tables are built once per grid
-        local = self.local
+        self.local = local = kept_local_search(self.local, grid)
         best: tuple[np.ndarray, float] | None = None
         for first in peaks(grid, gain, self.firsts, 2.0 * np.sqrt(grid.r2)) or [0]:
             picks, got = local.improve(w, grid.greedy_one(w, gain, n, first))
@@ -428,8 +431,7 @@ class LearnedPlacement:
                 state.pick(self.choose(state))
             picks, got = np.asarray(state.picks), state.served()
             if self.improve and n <= LARGE_N:
-                if self.local is None or self.local.grid is not grid:
-                    self.local = LocalSearch(grid)
+                self.local = kept_local_search(self.local, grid)
                 picks, units = self.local.improve(state.w, picks)
                 got = units / (grid.sub * grid.sub)
             pts.append(grid.cands[picks])
