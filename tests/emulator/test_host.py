@@ -68,8 +68,29 @@ def airborne(personality: str, alt: float = 20.0, count: int = 1, **kw) -> tuple
         host.advance(0.1)
         if not c.v.taking_off:
             break
-    assert abs(c.v.altitude() - alt) < 0.5
+    short = c.v.params["takeoff_alt_accept_m"] if personality == "px4" else 0.5  # PX4 ends within NAV_MC_ALT_RAD
+    assert -short < c.v.altitude() - alt < 0.5
     return host, c
+
+
+def test_px4_takeoff_ends_within_nav_mc_alt_rad_then_loiters_at_its_setpoint() -> None:
+    # PX4's navigator (mission_block.cpp): a multicopter's take-off is reached once above the
+    # target minus NAV_MC_ALT_RAD, climbing or not; it then loiters at the take-off setpoint.
+    for radius in (0.8, 3.0):
+        host = AutopilotHost(1, personality_name="px4")
+        c = Client(host, 0)
+        c.feed(c.codec.mav.param_set_encode(c.v.sysid, 1, b"NAV_MC_ALT_RAD", radius, d.MAV_PARAM_TYPE_REAL32))
+        assert abs(c.v.params["takeoff_alt_accept_m"] - radius) < 1e-6  # a REAL32 on the wire
+        assert c.command(d.MAV_CMD_COMPONENT_ARM_DISARM, 1) == d.MAV_RESULT_ACCEPTED
+        amsl = host.origin.alt_m + 20.0
+        assert c.command(d.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, math.nan, math.nan, amsl) == d.MAV_RESULT_ACCEPTED
+        assert c.v.mode_spec.name == "AUTO.TAKEOFF"
+        while c.v.taking_off:
+            host.advance(0.02)
+        assert 20.0 - radius < c.v.altitude() < 20.0 - radius + 0.2  # the first substep above the line
+        assert c.v.mode_spec.name == "AUTO.LOITER"
+        host.advance(20.0)
+        assert abs(c.v.altitude() - 20.0) < 0.05 and not c.v.taking_off
 
 
 def test_accel_setpoint_is_exact_and_physics_runs_at_50hz() -> None:

@@ -123,6 +123,11 @@ class Personality:
     accel_drag_per_s: float = 0.0
     takeoff_speed_mps: float | None = None  # climb of the take-off mode (PX4 MPC_TKO_SPEED); None: the max climb
     takeoff_spoolup_s: float = 0.0  # from the take-off command to the climb (PX4: spool-up and ramp)
+    # PX4 NAV_MC_ALT_RAD: a multicopter's take-off is reached once it is above the target minus
+    # this, climbing or not (navigator/mission_block.cpp); it then loiters at the take-off's
+    # setpoint, and real SIH has been seen to hold 0.6 m short of it. None: within
+    # TAKEOFF_DONE_M of the target and level (ArduPilot).
+    takeoff_alt_accept_m: float | None = None
     # The setpoint-loss failsafe's mode for each value of the offboard-loss action parameter
     # (PX4 COM_OBL_RC_ACT; without RC, 0-3 end in RTL); empty: hold_mode.
     loss_modes: tuple[str, ...] = ()
@@ -221,6 +226,7 @@ PX4 = Personality(
         ParamSpec("MPC_ACC_HOR_MAX", "max_accel_mps2", _REAL32),
         ParamSpec("MPC_LAND_SPEED", "land_speed_mps", _REAL32),
         ParamSpec("MPC_TKO_SPEED", "takeoff_speed_mps", _REAL32),
+        ParamSpec("NAV_MC_ALT_RAD", "takeoff_alt_accept_m", _REAL32),
         # SIH's linear drag (N s/m on its 1 kg airframe: 1 /s); 0 flies the twin's drag-free mass
         ParamSpec("SIH_KDV", "accel_drag_per_s", _REAL32),
         ParamSpec("MPC_XY_VEL_MAX", "max_speed_mps", _REAL32),
@@ -269,6 +275,7 @@ PX4 = Personality(
     accel_drag_per_s=1.0,
     takeoff_speed_mps=1.5,
     takeoff_spoolup_s=3.5,
+    takeoff_alt_accept_m=0.8,  # NAV_MC_ALT_RAD's default
     loss_modes=("AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.RTL", "AUTO.LAND", "AUTO.LOITER"),
     loss_text="Failsafe activated",
     no_position_mode="ALTCTL",

@@ -43,6 +43,7 @@ def ranges(model: VehicleModel) -> dict[str, Range]:
         "max_climb_mps": Range(0.1, model.max_climb_mps),
         "land_speed_mps": Range(0.1, model.max_climb_mps),
         "takeoff_speed_mps": Range(0.1, model.max_climb_mps),
+        "takeoff_alt_accept_m": Range(0.05, 200.0),  # PX4 NAV_MC_ALT_RAD's own bounds
         "offboard_loss_action": Range(0, 5),
         "accel_drag_per_s": Range(0.0, 10.0),  # PX4 COM_OBL_RC_ACT: 0-3 RTL (no RC), 4 land, 5 hold
         "gps_satellites": Range(0, 50),  # PX4 SIH SIM_GPS_USED: below GPS_FIX_MIN_SATELLITES, no fix
@@ -59,6 +60,7 @@ def defaults(model: VehicleModel, personality: Personality, sysid: int) -> dict[
         "max_climb_mps": model.max_climb_mps,
         "land_speed_mps": min(personality.land_speed_mps, model.max_climb_mps),
         "takeoff_speed_mps": min(personality.takeoff_speed_mps or model.max_climb_mps, model.max_climb_mps),
+        "takeoff_alt_accept_m": personality.takeoff_alt_accept_m or 0.0,  # read only where the personality has it
         "offboard_loss_action": 0.0,
         "accel_drag_per_s": personality.accel_drag_per_s,
         "gps_satellites": 10.0,  # PX4 SIH's default

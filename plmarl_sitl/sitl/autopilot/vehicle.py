@@ -622,11 +622,21 @@ class Vehicle:
                 x, y, _ = self.position()
                 self._guide(Kind.POSITION, (x, y, -self._takeoff_alt))
             self._climb_limit()
-            if abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3:
+            if self._takeoff_reached():
                 self._takeoff_done()
                 return False
             return True
         return False
+
+    def _takeoff_reached(self) -> bool:
+        if self.personality.takeoff_alt_accept_m is None:  # ArduPilot: at the altitude, level
+            return abs(self.altitude() - self._takeoff_alt) < TAKEOFF_DONE_M and abs(self.velocity()[2]) < 0.3
+        # PX4 (mission_block.cpp): above the target minus NAV_MC_ALT_RAD, climbing or not; a
+        # radius as large as the take-off altitude is halved
+        accept = self.params["takeoff_alt_accept_m"]
+        if 0.0 < self._takeoff_alt < accept:
+            accept = self._takeoff_alt / 2.0
+        return self.altitude() > self._takeoff_alt - accept
 
     def _touchdown(self) -> None:
         if self.motor_failed:  # measured: ArduCopter stays armed in its mode where it crashed
