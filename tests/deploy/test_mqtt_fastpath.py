@@ -108,6 +108,51 @@ def test_a_broken_connection_ends_the_message_stream(broker: MosquittoBroker) ->
     asyncio.run(main())
 
 
+async def _delivered_after_a_burst(broker: MosquittoBroker) -> tuple[list[tuple[str | None, bytes]], int]:
+    """Messages handed to the callback after two event-loop turns, the burst waiting at once,
+    and the number aiomqtt's own queue holds then."""
+    got: list[tuple[str | None, bytes]] = []
+    async with aiomqtt.Client(broker.host, broker.port, socket_options=[NO_DELAY]) as client:
+        assert aiomqtt_fastpath.read_all_per_wakeup(client)
+        assert aiomqtt_fastpath.deliver_in_reader(client, lambda t, p: got.append((t, p)))
+        await client.subscribe("t/#")
+        sock = aiomqtt_fastpath.raw_socket(client)
+        assert sock is not None
+        _burst_while_the_loop_is_blocked(broker, sock)
+        for _ in range(2):  # this task's turn, then the one whose select sees the socket readable
+            await asyncio.sleep(0)
+        return list(got), len(client.messages)
+
+
+def test_every_waiting_message_is_delivered_in_the_reader_callback(broker: MosquittoBroker) -> None:
+    """Issue 25.1: no task wakes per message; in order, and none left for aiomqtt's queue."""
+    got, queued = asyncio.run(_delivered_after_a_burst(broker))
+    assert got == [(f"t/{i:02d}", b"x" * PAYLOAD_LEN) for i in range(N_BURST)]
+    assert queued == 0
+
+
+def test_a_broken_connection_ends_the_direct_delivery(broker: MosquittoBroker) -> None:
+    """`disconnected` raises the MqttError the message stream would; a cancelled wait for it
+    leaves the connection's future alone (a second wait still sees the break)."""
+    async def main() -> None:
+        async with aiomqtt.Client(broker.host, broker.port) as client:
+            assert aiomqtt_fastpath.read_all_per_wakeup(client)
+            assert aiomqtt_fastpath.deliver_in_reader(client, lambda t, p: None)
+            await client.subscribe("t/#")
+            first = asyncio.create_task(aiomqtt_fastpath.disconnected(client))
+            await asyncio.sleep(0.05)
+            first.cancel()
+            await asyncio.gather(first, return_exceptions=True)
+            assert not client._disconnected.done()  # the connection's own future, as aiomqtt keeps it
+            broker.stop()
+            with pytest.raises(aiomqtt.MqttError):
+                async with asyncio.timeout(5.0):
+                    await aiomqtt_fastpath.disconnected(client)
+        aiomqtt_fastpath.retrieve_disconnection(client)
+
+    asyncio.run(main())
+
+
 def test_an_unverified_aiomqtt_falls_back_to_its_own_reader(
     broker: MosquittoBroker, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -45,6 +45,7 @@ class BusStats:
     dropped_queue_full: int = 0
     received: int = 0
     bad_payload_type: int = 0
+    bad_topic: int = 0  # not UTF-8 (a broker refuses those: never seen)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -185,9 +186,10 @@ class MqttBus:
                     raise asyncio.CancelledError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
+                direct = aiomqtt_fastpath.deliver_in_reader(client, self._deliver)
                 aiomqtt_fastpath.guard_socket_writes(client)
                 try:
-                    await self._serve(client)
+                    await self._serve(client, direct)
                 finally:
                     self._was_connected = self.connected.is_set()
                     if self._was_connected:
@@ -203,8 +205,9 @@ class MqttBus:
         finally:
             aiomqtt_fastpath.retrieve_disconnection(client)
 
-    async def _serve(self, client: aiomqtt.Client) -> None:
-        """Subscribe, re-send sticky messages, then send and receive until the connection breaks."""
+    async def _serve(self, client: aiomqtt.Client, direct: bool) -> None:
+        """Subscribe, re-send sticky messages, then send and receive until the connection
+        breaks (direct: messages come to `_deliver` from the socket reader)."""
         for topic in self.subscriptions:
             await client.subscribe(topic, qos=0)
         while not self._queue.empty():  # whatever was queued belongs to the old session
@@ -220,7 +223,8 @@ class MqttBus:
         # raises the MqttError and drops the CancelledError, and run() would then
         # reconnect for ever instead of ending.
         workers = [asyncio.create_task(self._sender(client), name=f"{self.name}-sender"),
-                   asyncio.create_task(self._receiver(client), name=f"{self.name}-receiver")]
+                   asyncio.create_task(aiomqtt_fastpath.disconnected(client) if direct else self._receiver(client),
+                                       name=f"{self.name}-receiver")]
         try:
             done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_COMPLETED)
         finally:
@@ -244,15 +248,23 @@ class MqttBus:
             await asyncio.gather(*(client.publish(t, p, qos=0, retain=r) for t, p, r in batch))
             self.stats.published += len(batch)
 
+    def _deliver(self, topic: str | None, payload: object) -> None:
+        """One incoming message to `on_message`: from the socket reader's callback
+        (`aiomqtt_fastpath.deliver_in_reader`: no task wakes per message), else from `_receiver`."""
+        self.stats.received += 1
+        if topic is None:
+            self.stats.bad_topic += 1
+            return
+        if not isinstance(payload, bytes | bytearray):
+            self.stats.bad_payload_type += 1
+            return
+        try:
+            self.on_message(topic, bytes(payload))
+        except Exception:  # a bad callback must not take the bus down
+            log.exception("%s: message handler failed on %s", self.name, topic)
+
     async def _receiver(self, client: aiomqtt.Client) -> None:
+        """aiomqtt's own message stream (an aiomqtt the fast path does not know)."""
         async for msg in client.messages:
-            self.stats.received += 1
-            payload = msg.payload
-            if not isinstance(payload, bytes | bytearray):
-                self.stats.bad_payload_type += 1
-                continue
-            try:
-                self.on_message(str(msg.topic), bytes(payload))
-            except Exception:  # a bad callback must not take the bus down
-                log.exception("%s: message handler failed on %s", self.name, msg.topic)
+            self._deliver(str(msg.topic), msg.payload)
         raise aiomqtt.MqttError("message stream ended")
