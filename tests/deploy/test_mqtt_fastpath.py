@@ -253,3 +253,27 @@ def test_a_stopped_broker_never_stalls_the_loop(broker: MosquittoBroker) -> None
     worst, delivered = asyncio.run(main())
     assert worst < 0.5, f"the event loop stalled {worst:.2f} s"
     assert delivered > 0
+
+
+def test_a_retained_message_reaches_the_callback_once_the_bus_is_connected(broker: MosquittoBroker) -> None:
+    """The reader delivers the retained messages while the session still subscribes; the bus
+    holds them until it serves, so its callback sees a connected bus (as aiomqtt's queue did)."""
+    async def main() -> list[tuple[str, bytes, bool]]:
+        pub = MqttBus(broker.url, "pub", [], lambda t, p: None, name="pub")
+        task = asyncio.create_task(pub.run())
+        await asyncio.wait_for(pub.connected.wait(), 5)
+        pub.publish("r/x", b"kept", sticky=True)
+        got: list[tuple[str, bytes, bool]] = []
+        sub = MqttBus(broker.url, "sub", ["r/#"], lambda t, p: got.append((t, p, sub.connected.is_set())), name="sub")
+        tasks = [task, asyncio.create_task(sub.run())]
+        try:
+            async with asyncio.timeout(10.0):
+                while not got:
+                    await asyncio.sleep(0.01)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        return got
+
+    assert asyncio.run(main()) == [("r/x", b"kept", True)]

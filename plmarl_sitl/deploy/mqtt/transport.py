@@ -89,6 +89,9 @@ class MqttBus:
         self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
         self._sticky: dict[str, bytes] = {}
         self._rng = random.Random()
+        # Messages the reader delivers while the session still subscribes (retained ones): held
+        # until it serves, so `on_message` sees them once the bus is connected, as before.
+        self._held: list[tuple[str | None, object]] | None = None
         self._was_connected = False
         self._unreachable_since: float | None = None  # monotonic s of the first failure of a streak
         self._unreachable_logged = 0.0
@@ -186,6 +189,7 @@ class MqttBus:
                     raise asyncio.CancelledError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
+                self._held = []
                 direct = aiomqtt_fastpath.deliver_in_reader(client, self._deliver)
                 aiomqtt_fastpath.guard_socket_writes(client)
                 try:
@@ -218,6 +222,9 @@ class MqttBus:
         self._set_connected(True)
         self._unreachable_since = None
         log.info("%s: connected to %s", self.name, self.url)
+        held, self._held = self._held or [], None
+        for topic, payload in held:
+            self._deliver(topic, payload)
         # Plain tasks, not a TaskGroup: when the connection breaks while this task is
         # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup
         # raises the MqttError and drops the CancelledError, and run() would then
@@ -251,6 +258,9 @@ class MqttBus:
     def _deliver(self, topic: str | None, payload: object) -> None:
         """One incoming message to `on_message`: from the socket reader's callback
         (`aiomqtt_fastpath.deliver_in_reader`: no task wakes per message), else from `_receiver`."""
+        if self._held is not None:  # the session is not serving yet
+            self._held.append((topic, payload))
+            return
         self.stats.received += 1
         if topic is None:
             self.stats.bad_topic += 1
