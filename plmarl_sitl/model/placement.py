@@ -98,7 +98,10 @@ class LocalSearch:
             ci, cj = ri + self.di, rj + self.dj
             inside = (ci >= 0) & (ci < nr) & (cj >= 0) & (cj < ne)
             cand = (ci * ne + cj)[inside]
-            held = self.moves[p] = (inside, cand, self.grid.cands[cand])
+            held = (inside, cand, self.grid.cands[cand])
+            for a in held:
+                a.setflags(write=False)  # shared by every later visit
+            self.moves[p] = held
         return held
 
     def lattice_frame(self) -> _LatticeFrame:
