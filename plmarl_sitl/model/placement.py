@@ -85,6 +85,24 @@ class LocalSearch:
         self.di, self.dj = di[keep], dj[keep]  # (M,) the moves, row-major
         self.link_m, self.apart_m = grid.link_m, grid.apart_m
         self.frame: _LatticeFrame | None = None  # built at the first plan on the lattice
+        self.moves: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # `moves_of`, per candidate visited
+
+    def moves_of(self, p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Candidate p's moves: which of di, dj stay on the grid (M,) bool, the candidates
+        they reach, and those candidates' positions; kept per candidate: the same points
+        are visited again by every sweep, start and map (a dozen numpy calls a visit)."""
+        held = self.moves.get(p)
+        if held is None:
+            nr, ne = self.grid.cand_shape
+            ri, rj = divmod(p, ne)
+            ci, cj = ri + self.di, rj + self.dj
+            inside = (ci >= 0) & (ci < nr) & (cj >= 0) & (cj < ne)
+            cand = (ci * ne + cj)[inside]
+            held = (inside, cand, self.grid.cands[cand])
+            for a in held:
+                a.setflags(write=False)  # shared by every later visit
+            self.moves[p] = held
+        return held
 
     def lattice_frame(self) -> _LatticeFrame:
         if self.frame is None:
@@ -124,11 +142,14 @@ class LocalSearch:
         near enough to change its gains (the others' evaluation could not move them: skipping
         them gives the plain sequential sweep's result, at a fraction of its cost)."""
         g = self.grid
-        nr, ne = g.cand_shape
         picks = picks.copy()
         k = len(picks)
         cover = _LatticeCover(self, w, self.counts(picks)) if self.lattice_ok(w) else _SparseCover(self, w, self.counts(picks))
         reach = 2.0 * np.sqrt(g.r2) + 2.0 * MOVE * GRID_M * np.sqrt(2.0)  # cover areas that can overlap
+        xy = g.cands[picks]  # the points' positions, kept up to date as they move
+        rank = np.arange(k)
+        other_than = rank[None, :] != rank[:, None]  # row i: np.arange(k) != i
+        after = rank[None, :] > rank[:, None]  # row i: np.arange(k) > i
         for _ in range(self.sweeps):
             moved = False
             todo = cover.screen(self, picks)
@@ -136,17 +157,12 @@ class LocalSearch:
                 if not todo[i]:
                     continue
                 p = int(picks[i])
-                ri, rj = divmod(p, ne)
-                ci, cj = ri + self.di, rj + self.dj
-                inside = (ci >= 0) & (ci < nr) & (cj >= 0) & (cj < ne)
-                cand = (ci * ne + cj)[inside]
+                inside, cand, cxy = self.moves_of(p)
                 lose, gains = cover.without(p, inside)  # the plan without point i, and its moves' gains then
                 better = gains > lose
                 best = -1
                 if better.any():
-                    xy = g.cands[picks]
-                    others = np.arange(k) != i
-                    cxy = g.cands[cand]
+                    others = other_than[i]
                     d = np.sqrt((cxy[:, None, 0] - xy[None, :, 0]) ** 2 + (cxy[:, None, 1] - xy[None, :, 1]) ** 2)  # (M, k)
                     ok = better & ((d >= self.apart_m) | ~others).all(-1)
                     link = (d <= self.link_m) & others
@@ -165,9 +181,8 @@ class LocalSearch:
                     moved = True
                     old = g.cands[p]
                     picks[i] = cand[best]
-                    later = np.arange(k) > i
-                    xy = g.cands[picks]
-                    todo |= later & (np.sqrt(((xy - old) ** 2).sum(-1)) <= reach)
+                    xy[i] = cxy[best]
+                    todo |= after[i] & (np.sqrt(((xy - old) ** 2).sum(-1)) <= reach)
                 cover.add(int(picks[i]))
             if not moved:
                 break

@@ -108,6 +108,51 @@ def test_a_broken_connection_ends_the_message_stream(broker: MosquittoBroker) ->
     asyncio.run(main())
 
 
+async def _delivered_after_a_burst(broker: MosquittoBroker) -> tuple[list[tuple[str | None, bytes]], int]:
+    """Messages handed to the callback after two event-loop turns, the burst waiting at once,
+    and the number aiomqtt's own queue holds then."""
+    got: list[tuple[str | None, bytes]] = []
+    async with aiomqtt.Client(broker.host, broker.port, socket_options=[NO_DELAY]) as client:
+        assert aiomqtt_fastpath.read_all_per_wakeup(client)
+        assert aiomqtt_fastpath.deliver_in_reader(client, lambda t, p: got.append((t, p)))
+        await client.subscribe("t/#")
+        sock = aiomqtt_fastpath.raw_socket(client)
+        assert sock is not None
+        _burst_while_the_loop_is_blocked(broker, sock)
+        for _ in range(2):  # this task's turn, then the one whose select sees the socket readable
+            await asyncio.sleep(0)
+        return list(got), len(client.messages)
+
+
+def test_every_waiting_message_is_delivered_in_the_reader_callback(broker: MosquittoBroker) -> None:
+    """Issue 25.1: no task wakes per message; in order, and none left for aiomqtt's queue."""
+    got, queued = asyncio.run(_delivered_after_a_burst(broker))
+    assert got == [(f"t/{i:02d}", b"x" * PAYLOAD_LEN) for i in range(N_BURST)]
+    assert queued == 0
+
+
+def test_a_broken_connection_ends_the_direct_delivery(broker: MosquittoBroker) -> None:
+    """`disconnected` raises the MqttError the message stream would; a cancelled wait for it
+    leaves the connection's future alone (a second wait still sees the break)."""
+    async def main() -> None:
+        async with aiomqtt.Client(broker.host, broker.port) as client:
+            assert aiomqtt_fastpath.read_all_per_wakeup(client)
+            assert aiomqtt_fastpath.deliver_in_reader(client, lambda t, p: None)
+            await client.subscribe("t/#")
+            first = asyncio.create_task(aiomqtt_fastpath.disconnected(client))
+            await asyncio.sleep(0.05)
+            first.cancel()
+            await asyncio.gather(first, return_exceptions=True)
+            assert not client._disconnected.done()  # the connection's own future, as aiomqtt keeps it
+            broker.stop()
+            with pytest.raises(aiomqtt.MqttError):
+                async with asyncio.timeout(5.0):
+                    await aiomqtt_fastpath.disconnected(client)
+        aiomqtt_fastpath.retrieve_disconnection(client)
+
+    asyncio.run(main())
+
+
 def test_an_unverified_aiomqtt_falls_back_to_its_own_reader(
     broker: MosquittoBroker, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -208,3 +253,27 @@ def test_a_stopped_broker_never_stalls_the_loop(broker: MosquittoBroker) -> None
     worst, delivered = asyncio.run(main())
     assert worst < 0.5, f"the event loop stalled {worst:.2f} s"
     assert delivered > 0
+
+
+def test_a_retained_message_reaches_the_callback_once_the_bus_is_connected(broker: MosquittoBroker) -> None:
+    """The reader delivers the retained messages while the session still subscribes; the bus
+    holds them until it serves, so its callback sees a connected bus (as aiomqtt's queue did)."""
+    async def main() -> list[tuple[str, bytes, bool]]:
+        pub = MqttBus(broker.url, "pub", [], lambda t, p: None, name="pub")
+        task = asyncio.create_task(pub.run())
+        await asyncio.wait_for(pub.connected.wait(), 5)
+        pub.publish("r/x", b"kept", sticky=True)
+        got: list[tuple[str, bytes, bool]] = []
+        sub = MqttBus(broker.url, "sub", ["r/#"], lambda t, p: got.append((t, p, sub.connected.is_set())), name="sub")
+        tasks = [task, asyncio.create_task(sub.run())]
+        try:
+            async with asyncio.timeout(10.0):
+                while not got:
+                    await asyncio.sleep(0.01)
+        finally:
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+        return got
+
+    assert asyncio.run(main()) == [("r/x", b"kept", True)]

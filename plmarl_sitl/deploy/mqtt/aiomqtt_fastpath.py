@@ -4,15 +4,20 @@ aiomqtt has no public hook for its socket reader, and its reader has paho read o
 packet per event-loop turn. In a loop that is busy between yields (the SITL world steps
 20 vehicles per chunk) the 20 updates of a signalling instant then took 20 turns, 10-15 ms
 each at 15x: the last arrived 3 s of vehicle time late (docs/RESULTS.md, commit 499f10d).
-`read_all_per_wakeup` replaces that reader with one that reads every packet waiting, and
-`guard_socket_writes` makes its socket-writer registration safe against a closed socket.
+`read_all_per_wakeup` replaces that reader with one that reads every packet waiting,
+`deliver_in_reader` hands each message to the bus's callback right there (aiomqtt queues it
+for `client.messages`, whose every step is a task, an `asyncio.wait` and three event-loop
+turns: ~4 loop callbacks per message, issue 25.1), and `guard_socket_writes` makes its
+socket-writer registration safe against a closed socket.
 
 What this relies on, read in aiomqtt 2.5.1's client.py (`Client.__init__`,
 `_on_socket_open`, `_on_socket_close`, `__aexit__`, `MessagesIterator.__anext__`):
   - `Client._client` is the paho-mqtt client (whose `socket()` and `loop_read()` are
     paho's public API);
   - `Client._disconnected` is the future that ends `client.messages` with an MqttError
-    when the connection breaks;
+    when the connection breaks (done with an exception), or is closed (a result);
+  - aiomqtt takes incoming messages only through paho's `on_message` callback (paho's
+    public API), which it sets once in `Client.__init__` to put them in its queue;
   - aiomqtt's reader is a `loop.add_reader` callback on the paho socket's descriptor, so
     adding ours on the same descriptor replaces it, and aiomqtt's `remove_reader` on
     socket close removes ours.
@@ -29,6 +34,7 @@ import logging
 import select
 import socket
 import threading
+from collections.abc import Callable
 
 import aiomqtt
 import paho.mqtt.client as mqtt
@@ -94,6 +100,36 @@ def read_all_per_wakeup(client: aiomqtt.Client) -> bool:
 
     asyncio.get_running_loop().add_reader(fd, read_all)  # replaces aiomqtt's reader for fd
     return True
+
+
+def deliver_in_reader(client: aiomqtt.Client, handler: Callable[[str | None, bytes], None]) -> bool:
+    """Call once connected, before subscribing: from now on each incoming message is handed to
+    `handler(topic, payload)` (topic None: not UTF-8) as paho parses it, in the socket reader's
+    callback, in arrival order; `client.messages` then yields nothing: wait for the end of the
+    connection with `disconnected`. `handler` must not block, and must not raise (what it
+    raises breaks the connection, as a failure in aiomqtt's own reader would). False when the
+    client is not one this module knows (aiomqtt's queue stays)."""
+    if not _usable(client):
+        return False
+
+    def on_message(_client: mqtt.Client, _userdata: object, message: mqtt.MQTTMessage) -> None:
+        try:
+            topic = message.topic
+        except UnicodeDecodeError:
+            topic = None
+        handler(topic, message.payload)
+
+    client._client.on_message = on_message  # replaces aiomqtt's `_on_message` (its queue)
+    return True
+
+
+async def disconnected(client: aiomqtt.Client) -> None:
+    """Wait for the connection to end (with `deliver_in_reader`, in place of iterating
+    `client.messages`); raises the MqttError the message stream would end with. Cancelling
+    the wait leaves the connection's own future alone."""
+    gone = client._disconnected
+    await asyncio.wait([gone])  # not `await gone`: a cancelled waiter would cancel it
+    raise aiomqtt.MqttError("Disconnected during message iteration") from (None if gone.cancelled() else gone.exception())
 
 
 def guard_socket_writes(client: aiomqtt.Client) -> bool:

@@ -45,6 +45,7 @@ class BusStats:
     dropped_queue_full: int = 0
     received: int = 0
     bad_payload_type: int = 0
+    bad_topic: int = 0  # not UTF-8 (a broker refuses those: never seen)
 
     def as_dict(self) -> dict[str, int]:
         return dict(self.__dict__)
@@ -88,6 +89,9 @@ class MqttBus:
         self._queue: asyncio.Queue[tuple[str, bytes, bool]] = asyncio.Queue(queue_size)
         self._sticky: dict[str, bytes] = {}
         self._rng = random.Random()
+        # Messages the reader delivers while the session still subscribes (retained ones): held
+        # until it serves, so `on_message` sees them once the bus is connected, as before.
+        self._held: list[tuple[str | None, object]] | None = None
         self._was_connected = False
         self._unreachable_since: float | None = None  # monotonic s of the first failure of a streak
         self._unreachable_logged = 0.0
@@ -185,9 +189,11 @@ class MqttBus:
                     raise asyncio.CancelledError
                 connecting.reschedule(None)  # the deadline is on connecting only
                 aiomqtt_fastpath.read_all_per_wakeup(client)
+                self._held = []
+                direct = aiomqtt_fastpath.deliver_in_reader(client, self._deliver)
                 aiomqtt_fastpath.guard_socket_writes(client)
                 try:
-                    await self._serve(client)
+                    await self._serve(client, direct)
                 finally:
                     self._was_connected = self.connected.is_set()
                     if self._was_connected:
@@ -203,8 +209,9 @@ class MqttBus:
         finally:
             aiomqtt_fastpath.retrieve_disconnection(client)
 
-    async def _serve(self, client: aiomqtt.Client) -> None:
-        """Subscribe, re-send sticky messages, then send and receive until the connection breaks."""
+    async def _serve(self, client: aiomqtt.Client, direct: bool) -> None:
+        """Subscribe, re-send sticky messages, then send and receive until the connection
+        breaks (direct: messages come to `_deliver` from the socket reader)."""
         for topic in self.subscriptions:
             await client.subscribe(topic, qos=0)
         while not self._queue.empty():  # whatever was queued belongs to the old session
@@ -215,12 +222,16 @@ class MqttBus:
         self._set_connected(True)
         self._unreachable_since = None
         log.info("%s: connected to %s", self.name, self.url)
+        held, self._held = self._held or [], None
+        for topic, payload in held:
+            self._deliver(topic, payload)
         # Plain tasks, not a TaskGroup: when the connection breaks while this task is
         # being cancelled (Ctrl-C also stops a local broker), Python 3.11's TaskGroup
         # raises the MqttError and drops the CancelledError, and run() would then
         # reconnect for ever instead of ending.
         workers = [asyncio.create_task(self._sender(client), name=f"{self.name}-sender"),
-                   asyncio.create_task(self._receiver(client), name=f"{self.name}-receiver")]
+                   asyncio.create_task(aiomqtt_fastpath.disconnected(client) if direct else self._receiver(client),
+                                       name=f"{self.name}-receiver")]
         try:
             done, _ = await asyncio.wait(workers, return_when=asyncio.FIRST_COMPLETED)
         finally:
@@ -244,15 +255,26 @@ class MqttBus:
             await asyncio.gather(*(client.publish(t, p, qos=0, retain=r) for t, p, r in batch))
             self.stats.published += len(batch)
 
+    def _deliver(self, topic: str | None, payload: object) -> None:
+        """One incoming message to `on_message`: from the socket reader's callback
+        (`aiomqtt_fastpath.deliver_in_reader`: no task wakes per message), else from `_receiver`."""
+        if self._held is not None:  # the session is not serving yet
+            self._held.append((topic, payload))
+            return
+        self.stats.received += 1
+        if topic is None:
+            self.stats.bad_topic += 1
+            return
+        if not isinstance(payload, bytes | bytearray):
+            self.stats.bad_payload_type += 1
+            return
+        try:
+            self.on_message(topic, bytes(payload))
+        except Exception:  # a bad callback must not take the bus down
+            log.exception("%s: message handler failed on %s", self.name, topic)
+
     async def _receiver(self, client: aiomqtt.Client) -> None:
+        """aiomqtt's own message stream (an aiomqtt the fast path does not know)."""
         async for msg in client.messages:
-            self.stats.received += 1
-            payload = msg.payload
-            if not isinstance(payload, bytes | bytearray):
-                self.stats.bad_payload_type += 1
-                continue
-            try:
-                self.on_message(str(msg.topic), bytes(payload))
-            except Exception:  # a bad callback must not take the bus down
-                log.exception("%s: message handler failed on %s", self.name, msg.topic)
+            self._deliver(str(msg.topic), msg.payload)
         raise aiomqtt.MqttError("message stream ended")
