@@ -697,3 +697,28 @@ def step_point_mass_np(
     p[:, 2] = -_clamp_np(-p[:, 2], lim.alt_min, lim.alt_max)
     p, v = _snap_walls_np(p, v, lim)
     return p.reshape(shape), v.reshape(shape)
+
+
+def _sqrt_np(x: np.ndarray) -> np.ndarray:
+    return torch.sqrt(_t(x)).numpy()
+
+
+def velocity_tracking_accel_np(
+    vel: np.ndarray, vel_target: np.ndarray, max_accel: float | np.ndarray, time_const: float = 1.0
+) -> np.ndarray:
+    """`velocity_tracking_accel` on float64 arrays, bit for bit."""
+    return clip_norm_np((vel_target - vel) / time_const, max_accel)
+
+
+def goto_accel_np(
+    pos: np.ndarray, vel: np.ndarray, target: np.ndarray, max_speed: np.ndarray, max_accel: np.ndarray,
+    time_const: float = 1.0,
+) -> np.ndarray:
+    """`goto_accel` on float64 arrays with per-vehicle (N, 1) limits (the emulator's
+    guidance), bit for bit: torch's kernels for the norm, the sqrt and the minimum."""
+    delta = target - pos
+    dist = _norm_np(delta, keepdim=True)
+    brake_speed = _sqrt_np(2.0 * 0.5 * max_accel * dist)
+    speed = _minimum_np(brake_speed, torch.clamp(_t(dist / time_const), max=_t(max_speed)).numpy())
+    v_des = delta / np.maximum(dist, 1e-9) * speed
+    return velocity_tracking_accel_np(vel, v_des, max_accel, time_const)

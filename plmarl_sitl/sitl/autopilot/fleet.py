@@ -157,7 +157,7 @@ class Fleet:
         # same bits as `step_point_mass` at a fraction of its per-call cost (issue 25.1).
         acc = self.guidance.accel_setpoints_only(self.vel_np)
         if acc is None:
-            acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel).numpy()
+            acc = self.guidance.accel(self.pos_np, self.vel_np, self.limits.max_accel)
         self._set_state(*step_point_mass_np(self.pos_np, self.vel_np, acc, h, self.limits), acc)
 
     def _ground_contact(self) -> None:

@@ -2,9 +2,10 @@
 
 Every vehicle has one guidance *kind* and a target vector. They live in numpy arrays that
 the per-vehicle state machines write at events (a setpoint arrives, a mode changes), and
-the fleet reads them once per physics substep as zero-copy torch views, so one batched call
-of the shared controllers (`goto_accel`, `velocity_tracking_accel`) serves all N vehicles.
-Per-vehicle speed/acceleration limits are (N, 1) tensors: the controllers broadcast them.
+the fleet reads them once per physics substep, so one batched call of the shared
+controllers (`goto_accel`, `velocity_tracking_accel`, in their numpy copies: the same bits)
+serves all N vehicles. Per-vehicle speed/acceleration limits are (N, 1) arrays: the
+controllers broadcast them.
 """
 
 from __future__ import annotations
@@ -12,9 +13,8 @@ from __future__ import annotations
 import enum
 
 import numpy as np
-import torch
 
-from plmarl_sitl.model.vehicle import clip_norm, goto_accel, velocity_tracking_accel
+from plmarl_sitl.model.vehicle import clip_norm_np, goto_accel_np, velocity_tracking_accel_np
 
 # Position and velocity loops: a multirotor's position controller settles in about a second.
 TIME_CONST_S = 0.5
@@ -55,37 +55,37 @@ class Guidance:
         if target is not None:
             self.target[i] = target
 
-    def accel(self, pos: torch.Tensor, vel: torch.Tensor, fall_accel: float) -> torch.Tensor:
-        """(N, 3) acceleration commands for the current states."""
-        fast = self.accel_setpoints_only(vel.numpy())
+    def accel(self, pos: np.ndarray, vel: np.ndarray, fall_accel: float) -> np.ndarray:
+        """(N, 3) acceleration commands for the current (N, 3) float64 states: the shared
+        controllers in their numpy copies (`goto_accel_np`, ...; the same bits as the torch
+        ones, tests/emulator/test_guidance_fast.py), a few microseconds a call where the
+        torch ones cost ~0.1 ms a substep of a take-off (issue 25.1)."""
+        fast = self.accel_setpoints_only(vel)
         if fast is not None:
-            return torch.from_numpy(fast)
-        kind = torch.from_numpy(self.kind)
-        target = torch.from_numpy(self.target)
-        ms = torch.from_numpy(self.max_speed)
-        ma = torch.from_numpy(self.max_accel)
-        present = set(np.unique(self.kind).tolist())
-        out = torch.zeros_like(pos)
+            return fast
+        kind, target, ms, ma = self.kind, self.target, self.max_speed, self.max_accel
+        present = set(np.unique(kind).tolist())
+        out = np.zeros_like(pos)
         if Kind.ACCEL in present:
-            a = clip_norm(target, ma)
+            a = clip_norm_np(target, ma)
             if self.drag.any():
-                a = a - torch.from_numpy(self.drag).unsqueeze(-1) * vel
-            out = torch.where((kind == Kind.ACCEL).unsqueeze(-1), a, out)
+                a = a - self.drag[:, None] * vel
+            out = np.where((kind == Kind.ACCEL)[:, None], a, out)
         if Kind.VELOCITY in present:
-            a = velocity_tracking_accel(vel, clip_norm(target, ms), ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.VELOCITY).unsqueeze(-1), a, out)
+            a = velocity_tracking_accel_np(vel, clip_norm_np(target, ms), ma, TIME_CONST_S)
+            out = np.where((kind == Kind.VELOCITY)[:, None], a, out)
         if Kind.POSITION in present:
-            a = goto_accel(pos, vel, target, ms, ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.POSITION).unsqueeze(-1), a, out)
+            a = goto_accel_np(pos, vel, target, ms, ma, TIME_CONST_S)
+            out = np.where((kind == Kind.POSITION)[:, None], a, out)
         if Kind.LAND in present:
-            v_xy = clip_norm((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
-            v_des = torch.cat([v_xy, torch.from_numpy(self.descent).unsqueeze(-1)], dim=-1)
-            a = velocity_tracking_accel(vel, v_des, ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.LAND).unsqueeze(-1), a, out)
+            v_xy = clip_norm_np((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
+            v_des = np.concatenate([v_xy, self.descent[:, None]], axis=-1)
+            a = velocity_tracking_accel_np(vel, v_des, ma, TIME_CONST_S)
+            out = np.where((kind == Kind.LAND)[:, None], a, out)
         if Kind.FALL in present:
-            down = torch.zeros_like(pos)
+            down = np.zeros_like(pos)
             down[:, 2] = fall_accel
-            out = torch.where((kind == Kind.FALL).unsqueeze(-1), down, out)
+            out = np.where((kind == Kind.FALL)[:, None], down, out)
         return out
 
     def accel_setpoints_only(self, vel: np.ndarray) -> np.ndarray | None:
