@@ -37,7 +37,7 @@ ON_GROUND_ALT_M = 0.05
 _ENDS_ON_GROUND = (Kind.LAND, Kind.FALL)
 # Enum members as module constants: `Kind.X` is a class attribute lookup through the enum
 # machinery (~0.3 us), and the per-substep loops use them for every watched vehicle.
-_LAND, _FALL, _TOUCHDOWN = Kind.LAND, Kind.FALL, Kind.TOUCHDOWN
+_LAND, _FALL, _TOUCHDOWN = int(Kind.LAND), int(Kind.FALL), int(Kind.TOUCHDOWN)  # ints: see guidance.py
 
 
 class Fleet:

@@ -32,8 +32,11 @@ class Kind(enum.IntEnum):
     TOUCHDOWN = 6
 
 
-# Enum members as module constants for the per-substep test (`Kind.X` costs ~0.3 us each).
-_ACCEL, _IDLE, _TOUCHDOWN = Kind.ACCEL, Kind.IDLE, Kind.TOUCHDOWN
+# Kinds as plain ints for the per-substep numpy tests: `Kind.X` costs ~0.3 us each, and numpy
+# comparing an array with an enum member looks up a dozen dunders on the enum class (each a
+# failed `EnumType.__getattr__`: 26 per `accel` call, a fifth of the fleet's physics, session 18).
+_IDLE, _ACCEL, _VELOCITY, _POSITION, _LAND, _FALL, _TOUCHDOWN = (
+    int(k) for k in (Kind.IDLE, Kind.ACCEL, Kind.VELOCITY, Kind.POSITION, Kind.LAND, Kind.FALL, Kind.TOUCHDOWN))
 
 
 class Guidance:
@@ -66,26 +69,26 @@ class Guidance:
         kind, target, ms, ma = self.kind, self.target, self.max_speed, self.max_accel
         present = set(np.unique(kind).tolist())
         out = np.zeros_like(pos)
-        if Kind.ACCEL in present:
+        if _ACCEL in present:
             a = clip_norm_np(target, ma)
             if self.drag.any():
                 a = a - self.drag[:, None] * vel
-            out = np.where((kind == Kind.ACCEL)[:, None], a, out)
-        if Kind.VELOCITY in present:
+            out = np.where((kind == _ACCEL)[:, None], a, out)
+        if _VELOCITY in present:
             a = velocity_tracking_accel_np(vel, clip_norm_np(target, ms), ma, TIME_CONST_S)
-            out = np.where((kind == Kind.VELOCITY)[:, None], a, out)
-        if Kind.POSITION in present:
+            out = np.where((kind == _VELOCITY)[:, None], a, out)
+        if _POSITION in present:
             a = goto_accel_np(pos, vel, target, ms, ma, TIME_CONST_S)
-            out = np.where((kind == Kind.POSITION)[:, None], a, out)
-        if Kind.LAND in present:
+            out = np.where((kind == _POSITION)[:, None], a, out)
+        if _LAND in present:
             v_xy = clip_norm_np((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
             v_des = np.concatenate([v_xy, self.descent[:, None]], axis=-1)
             a = velocity_tracking_accel_np(vel, v_des, ma, TIME_CONST_S)
-            out = np.where((kind == Kind.LAND)[:, None], a, out)
-        if Kind.FALL in present:
+            out = np.where((kind == _LAND)[:, None], a, out)
+        if _FALL in present:
             down = np.zeros_like(pos)
             down[:, 2] = fall_accel
-            out = np.where((kind == Kind.FALL)[:, None], down, out)
+            out = np.where((kind == _FALL)[:, None], down, out)
         return out
 
     def accel_setpoints_only(self, vel: np.ndarray) -> np.ndarray | None:
