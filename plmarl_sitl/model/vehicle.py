@@ -516,8 +516,9 @@ def goto_accel(
 # vectorised sqrt is not correctly rounded: 0.7 % of random inputs differ from numpy's by
 # an ulp), the Euclidean norm (from 8 rows on torch's kernel rounds differently from a sum
 # of squares), and the minimum/clamp whose ties between +0.0 and -0.0 torch breaks by
-# element position (vector body or scalar tail). `scalar / tensor` is torch's `reciprocal() * scalar`, two
-# roundings: written so here. tests/model/test_vehicle_numpy.py compares both on edge states.
+# element position (vector body or scalar tail). `scalar / tensor` is torch's
+# `reciprocal() * scalar`, two roundings: written so here. tests/model/test_vehicle_numpy.py
+# compares both on edge states.
 
 
 def _t(x: np.ndarray) -> torch.Tensor:
@@ -654,7 +655,7 @@ def _advance_np(
 
 def _free_flight_np(p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits) -> tuple[np.ndarray, np.ndarray]:
     """`_free_flight` (inside, resting)."""
-    margin = 1e3 * 16.0 * _F64_EPS * max(1.0, lim.alt_max)
+    margin = 1e3 * (16.0 * _F64_EPS * max(1.0, lim.alt_max))  # 1e3 * _wall_tol
     speed = _norm_np(v)
     reach_v = speed + _norm_np(acc) * dt
     alt = -p[..., 2]
