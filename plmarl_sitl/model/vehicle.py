@@ -269,6 +269,9 @@ def free_flight_step(
     free-flight test is then the same inequalities (margins of 1e3 ulps, so a last-bit
     difference in a norm cannot matter; and at its boundary both paths agree anyway).
     tests/model/test_vehicle.py compares it with the torch path."""
+    if len(p) and _clearly_inside(p, v, acc, dt, lim):  # the common substep: 6 numpy calls, not ~30
+        dt = float(dt)  # `_ballistic` with an all-True mask (acc x 1.0 is acc)
+        return p + v * dt + 0.5 * acc * dt * dt, v + acc * dt
     free, inside = _free_in_numpy(p, v, acc, dt, lim)
     if not free.all():
         return None
@@ -381,9 +384,15 @@ def free_flight_steps_under(
     acc = command(v)
     if acc is None:
         return None
-    free, inside = _free_in_numpy(p, v, acc, dt, lim)
-    if not free.all():
-        return None
+    # `_clearly_inside` (a sufficient condition, a million times wider than the round-off)
+    # spares the exact test where it holds: then every vehicle is free and inside.
+    clear = bool(len(p)) and _clearly_inside(p, v, acc, dt, lim)
+    if clear:
+        inside = np.ones(p.shape[0], dtype=bool)
+    else:
+        free, inside = _free_in_numpy(p, v, acc, dt, lim)
+        if not free.all():
+            return None
     if count <= 1:
         return (*_ballistic(p, v, acc, inside, dt), acc) if count == 1 else (p, v, acc)
     dt = float(dt)
@@ -400,7 +409,10 @@ def free_flight_steps_under(
         a = acc * mask
         p = p + v * dt + 0.5 * a * dt * dt
         v = v + a * dt
-    later_free, later_inside = _free_in_numpy(np.concatenate(ps), np.concatenate(vs), np.concatenate(accs), dt, lim)
+    ps, vs, accs = np.concatenate(ps), np.concatenate(vs), np.concatenate(accs)
+    if clear and _clearly_inside(ps, vs, accs, dt, lim):
+        return p, v, acc  # every later substep free and inside too, as the first
+    later_free, later_inside = _free_in_numpy(ps, vs, accs, dt, lim)
     if not (later_free.all() and (later_inside.reshape(count - 1, -1) == inside).all()):
         return None
     return p, v, acc
@@ -490,3 +502,236 @@ def goto_accel(
     speed = torch.minimum(brake_speed, torch.clamp(dist / time_const, max=max_speed))
     v_des = delta / torch.clamp(dist, min=1e-9) * speed
     return velocity_tracking_accel(vel, v_des, max_accel, time_const)
+
+
+# ---------------------------------------------------------------------------------------
+# `step_point_mass` in numpy, operation for operation (the autopilot emulator's fleet).
+#
+# Why: the emulator steps its (N, 3) fleet 50 times per simulated second, and whenever one
+# vehicle is not in free flight (coasting at V_max towards its goal, lifting off the floor)
+# the torch event solver ran on the whole batch: ~120 small torch calls, ~0.8 ms a substep,
+# 782 substeps of a scale_20 mission (issue 25.1). The same IEEE operations in numpy cost a
+# fraction of that. Where numpy and torch are not bit for bit the same on every input, the
+# operation stays torch's, on an array of the same shape: the square root (this torch's
+# vectorised sqrt is not correctly rounded: 0.7 % of random inputs differ from numpy's by
+# an ulp), the Euclidean norm (from 8 rows on torch's kernel rounds differently from a sum
+# of squares), and the minimum/clamp whose ties between +0.0 and -0.0 torch breaks by
+# element position (vector body or scalar tail). `scalar / tensor` is torch's
+# `reciprocal() * scalar`, two roundings: written so here. tests/model/test_vehicle_numpy.py
+# compares both on edge states.
+
+
+def _t(x: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(x)
+
+
+def _norm_np(x: np.ndarray, keepdim: bool = False) -> np.ndarray:
+    return torch.linalg.vector_norm(_t(x), dim=-1, keepdim=keepdim).numpy()
+
+
+def _clamp_np(x: np.ndarray, lo: float | None = None, hi: float | None = None) -> np.ndarray:
+    return torch.clamp(_t(x), lo, hi).numpy()
+
+
+def _minimum_np(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return torch.minimum(_t(a), _t(b)).numpy()
+
+
+def _rdiv(scalar: float, x: np.ndarray) -> np.ndarray:
+    """torch's `scalar / x`: `x.reciprocal() * scalar`."""
+    return (1.0 / x) * scalar
+
+
+def clip_norm_np(x: np.ndarray, max_norm: float | np.ndarray) -> np.ndarray:
+    """`clip_norm` on a float64 array, bit for bit (max_norm a float or an array that broadcasts)."""
+    norm = _norm_np(x, keepdim=True)
+    floor = np.maximum(norm, 1e-12)  # clamp(min=1e-12): no signed-zero tie, NaN kept as torch does
+    ratio = _rdiv(max_norm, floor) if isinstance(max_norm, float) else max_norm / floor
+    return x * np.minimum(ratio, 1.0)
+
+
+_F64_EPS = float(np.finfo(np.float64).eps)
+
+
+def _first_upcrossing_np(half_c: np.ndarray, b: np.ndarray, d: np.ndarray, min_t: float = _TIME_TOL) -> np.ndarray:
+    inf = np.full_like(b, float("inf"))
+    quad = np.abs(half_c) > 1e-12
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        safe_b = np.where(np.abs(b) > 1e-12, b, np.ones_like(b))
+        lin = np.where((b > 1e-12) & (-d / safe_b > min_t), -d / safe_b, inf)
+        disc = b * b - 4.0 * half_c * d
+        sq = torch.sqrt(torch.clamp(_t(disc), min=0.0)).numpy()
+        q = -0.5 * (b + np.where(b >= 0, sq, -sq))
+        safe_c = np.where(quad, half_c, np.ones_like(half_c))
+        safe_q = np.where(q != 0, q, np.ones_like(q))
+        r1 = q / safe_c
+        r2 = np.where(q != 0, d / safe_q, r1)
+        r1 = np.where((r1 > min_t) & (2.0 * half_c * r1 + b > 0), r1, inf)
+        r2 = np.where((r2 > min_t) & (2.0 * half_c * r2 + b > 0), r2, inf)
+    return np.where(quad, np.where(disc >= 0, _minimum_np(r1, r2), inf), lin)
+
+
+def _effective_accel_np(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, lim: Limits) -> np.ndarray:
+    alt = -pos[..., 2]
+    v_up = -vel[..., 2]
+    tol = 16.0 * _F64_EPS * max(1.0, lim.alt_max)
+    v_tol = 16.0 * _F64_EPS * lim.max_speed
+    on_floor = (alt <= lim.alt_min + tol) & (v_up <= v_tol)
+    on_ceiling = (alt >= lim.alt_max - tol) & (v_up >= -v_tol)
+    acc = acc.copy()
+    acc[..., 2] = np.where(on_floor, _clamp_np(acc[..., 2], hi=0.0), acc[..., 2])
+    acc[..., 2] = np.where(on_ceiling, _clamp_np(acc[..., 2], lo=0.0), acc[..., 2])
+    with np.errstate(invalid="ignore", over="ignore"):
+        at_limit = (vel * vel).sum(-1) >= (lim.max_speed * (1.0 - 16.0 * _F64_EPS)) ** 2
+        pushing = (vel * acc).sum(-1) >= -0.5 * _COAST_TOL * (acc * acc).sum(-1)
+    return acc * (~(at_limit & pushing))[..., None].astype(acc.dtype)
+
+
+def _snap_walls_np(pos: np.ndarray, vel: np.ndarray, lim: Limits) -> tuple[np.ndarray, np.ndarray]:
+    alt, v_up = -pos[..., 2], -vel[..., 2]
+    tol = 16.0 * _F64_EPS * max(1.0, lim.alt_max)
+    low = (alt <= lim.alt_min + tol) & (v_up < 0)
+    high = (alt >= lim.alt_max - tol) & (v_up > 0)
+    stopped = low | high
+    if not stopped.any():
+        return pos, vel
+    pos, vel = pos.copy(), vel.copy()
+    pos[..., 2] = np.where(low, -lim.alt_min, np.where(high, -lim.alt_max, pos[..., 2]))
+    vel[..., 2] = np.where(stopped, np.zeros_like(v_up), vel[..., 2])
+    return pos, vel
+
+
+def _snap_speed_np(vel: np.ndarray, lim: Limits, force: np.ndarray | None = None) -> np.ndarray:
+    speed = _norm_np(vel, keepdim=True)
+    near = speed >= lim.max_speed * (1.0 - 16.0 * _F64_EPS)
+    if force is not None:
+        near = near | force[..., None]
+    return np.where(near, vel * _rdiv(lim.max_speed, np.maximum(speed, 1e-12)), vel)
+
+
+def _event_times_np(pos: np.ndarray, vel: np.ndarray, a: np.ndarray, lim: Limits, min_t: float) -> np.ndarray:
+    """(3, M): t_speed, t_ceiling, t_floor (`_event_times`)."""
+    h, w, c = -pos[..., 2], -vel[..., 2], -a[..., 2]
+    half_c = np.stack([(a * a).sum(-1), 0.5 * c, -0.5 * c])
+    lin = np.stack([2.0 * (vel * a).sum(-1), w, -w])
+    const = np.stack([(vel * vel).sum(-1) - lim.max_speed**2, h - lim.alt_max, lim.alt_min - h])
+    return _first_upcrossing_np(half_c, lin, const, min_t)
+
+
+def _advance_np(
+    pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, t_left: np.ndarray, lim: Limits
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    pos, vel = _snap_walls_np(pos, vel, lim)
+    vel = _snap_speed_np(vel, lim)
+    a = _effective_accel_np(pos, vel, acc, lim)
+    t_speed, t_ceil, t_floor = _event_times_np(pos, vel, a, lim, -_TIME_TOL)
+    now_speed = t_speed <= _TIME_TOL
+    now_wall = _minimum_np(t_ceil, t_floor) <= _TIME_TOL
+    if now_speed.any() or now_wall.any():
+        if now_wall.any():
+            edge = np.where(t_ceil <= t_floor, np.full_like(t_ceil, -lim.alt_max), np.full_like(t_ceil, -lim.alt_min))
+            pos = pos.copy()
+            vel = vel.copy()
+            pos[..., 2] = np.where(now_wall, edge, pos[..., 2])
+            vel[..., 2] = np.where(now_wall, np.zeros_like(edge), vel[..., 2])
+        vel = _snap_speed_np(vel, lim, force=now_speed)
+        a = _effective_accel_np(pos, vel, acc, lim)
+        t_speed, t_ceil, t_floor = _event_times_np(pos, vel, a, lim, _TIME_TOL)
+    t_wall = _minimum_np(t_ceil, t_floor)
+    t = _minimum_np(t_left, _minimum_np(t_speed, t_wall))
+    tt = t[..., None]
+    pos = pos + vel * tt + 0.5 * a * tt * tt
+    vel = vel + a * tt
+    hit_wall = (t_wall <= t) & np.isfinite(t_wall)
+    if hit_wall.any():
+        bound = np.where(t_ceil <= t_floor, np.full_like(t, lim.alt_max), np.full_like(t, lim.alt_min))
+        pos[..., 2] = np.where(hit_wall, -bound, pos[..., 2])
+        vel[..., 2] = np.where(hit_wall, np.zeros_like(t), vel[..., 2])
+    hit_speed = (t_speed <= t) & np.isfinite(t_speed)
+    if hit_speed.any():
+        vel = np.where(hit_speed[..., None], clip_norm_np(vel, lim.max_speed), vel)
+    return pos, vel, t_left - t
+
+
+def _free_flight_np(p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits) -> tuple[np.ndarray, np.ndarray]:
+    """`_free_flight` (inside, resting)."""
+    margin = 1e3 * (16.0 * _F64_EPS * max(1.0, lim.alt_max))  # 1e3 * _wall_tol
+    speed = _norm_np(v)
+    reach_v = speed + _norm_np(acc) * dt
+    alt = -p[..., 2]
+    reach_h = np.abs(v[..., 2]) * dt + 0.5 * np.abs(acc[..., 2]) * dt * dt
+    inside = (reach_v < lim.max_speed * (1.0 - 1e3 * 16.0 * _F64_EPS)) & (alt - reach_h > lim.alt_min + margin) & (
+        alt + reach_h < lim.alt_max - margin
+    )
+    still = (v == 0).all(-1)
+    resting = still & (acc[..., 0] == 0) & (acc[..., 1] == 0) & (acc[..., 2] >= 0) & (alt <= lim.alt_min)
+    return inside, resting
+
+
+def step_point_mass_np(
+    pos: np.ndarray, vel: np.ndarray, accel_cmd: np.ndarray, dt: float, lim: Limits
+) -> tuple[np.ndarray, np.ndarray]:
+    """`step_point_mass` on float64 (M, 3) numpy arrays, bit for bit (see above); new arrays."""
+    shape = pos.shape
+    if pos.shape[0] <= _FREE_FLIGHT_MAX_BATCH:
+        fast = free_flight_step(pos, vel, accel_cmd, dt, lim)
+        if fast is not None:
+            return fast
+    acc = clip_norm_np(np.nan_to_num(accel_cmd), lim.max_accel).reshape(-1, 3)
+    p = pos.reshape(-1, 3).copy()
+    p[:, 2] = -_clamp_np(-p[:, 2], lim.alt_min, lim.alt_max)
+    v = clip_norm_np(vel.reshape(-1, 3), lim.max_speed)
+    t_left = np.full(p.shape[:1], float(dt))
+    if p.shape[0] <= _FREE_FLIGHT_MAX_BATCH:
+        inside, resting = _free_flight_np(p, v, acc, float(dt), lim)
+        if (inside | resting).all():
+            a = acc * inside[:, None].astype(acc.dtype)
+            tt = t_left[:, None]
+            p = p + v * tt + 0.5 * a * tt * tt
+            v = v + a * tt
+            return p.reshape(shape), v.reshape(shape)
+    p, v, t_left = _advance_np(p, v, acc, t_left, lim)
+    idx = np.flatnonzero(t_left > _TIME_TOL)
+    for _ in range(_MAX_EVENTS - 1):
+        if idx.size == 0:
+            break
+        ps, vs, ts = _advance_np(p[idx], v[idx], acc[idx], t_left[idx], lim)
+        p[idx], v[idx], t_left[idx] = ps, vs, ts
+        idx = idx[ts > _TIME_TOL]
+    if idx.size:
+        pi, vi = _snap_walls_np(p[idx], v[idx], lim)
+        p[idx], v[idx] = pi, vi
+        v[idx] = _snap_speed_np(v[idx], lim)
+        a = _effective_accel_np(p[idx], v[idx], acc[idx], lim)
+        tt = t_left[idx][:, None]
+        p[idx] = p[idx] + v[idx] * tt + 0.5 * a * tt * tt
+        v[idx] = v[idx] + a * tt
+    v = clip_norm_np(v, lim.max_speed)
+    p[:, 2] = -_clamp_np(-p[:, 2], lim.alt_min, lim.alt_max)
+    p, v = _snap_walls_np(p, v, lim)
+    return p.reshape(shape), v.reshape(shape)
+
+
+def _sqrt_np(x: np.ndarray) -> np.ndarray:
+    return torch.sqrt(_t(x)).numpy()
+
+
+def velocity_tracking_accel_np(
+    vel: np.ndarray, vel_target: np.ndarray, max_accel: float | np.ndarray, time_const: float = 1.0
+) -> np.ndarray:
+    """`velocity_tracking_accel` on float64 arrays, bit for bit."""
+    return clip_norm_np((vel_target - vel) / time_const, max_accel)
+
+
+def goto_accel_np(
+    pos: np.ndarray, vel: np.ndarray, target: np.ndarray, max_speed: np.ndarray, max_accel: np.ndarray,
+    time_const: float = 1.0,
+) -> np.ndarray:
+    """`goto_accel` on float64 arrays with per-vehicle (N, 1) limits (the emulator's
+    guidance), bit for bit: torch's kernels for the norm, the sqrt and the minimum."""
+    delta = target - pos
+    dist = _norm_np(delta, keepdim=True)
+    brake_speed = _sqrt_np(2.0 * 0.5 * max_accel * dist)
+    speed = _minimum_np(brake_speed, torch.clamp(_t(dist / time_const), max=_t(max_speed)).numpy())
+    v_des = delta / np.maximum(dist, 1e-9) * speed
+    return velocity_tracking_accel_np(vel, v_des, max_accel, time_const)

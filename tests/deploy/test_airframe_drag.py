@@ -50,7 +50,7 @@ def fly(drag_comp: float, airframe_drag: float, accel: tuple[float, float, float
         decision.accel = accel
         guidance.set(0, Kind.ACCEL, decision.command())
         for _ in range(SUBSTEPS):
-            vel = vel + guidance.accel(pos, vel, 9.81) * dt
+            vel = vel + torch.from_numpy(guidance.accel(pos.numpy(), vel.numpy(), 9.81)) * dt
             pos = pos + vel * dt
     return vel[0]
 

@@ -8,7 +8,8 @@ row at events (a setpoint arrives, a mode changes) and reads it for telemetry. V
 depend on the fleet, not on the host.
 
 All vehicles are stepped in one batched call of the shared point-mass dynamics
-(`plmarl_sitl.model.vehicle.step_point_mass`), float64, shape (N, 3).
+(`plmarl_sitl.model.vehicle.step_point_mass`, float64, shape (N, 3)), in its numpy copy
+`step_point_mass_np`: the same bits.
 """
 
 from __future__ import annotations
@@ -23,10 +24,9 @@ import torch
 
 from plmarl_sitl.model.vehicle import (
     Limits,
-    free_flight_step,
     free_flight_steps,
     free_flight_steps_under,
-    step_point_mass,
+    step_point_mass_np,
 )
 from plmarl_sitl.sitl.autopilot.boot import Boot
 from plmarl_sitl.sitl.autopilot.guidance import Guidance, Kind
@@ -37,7 +37,7 @@ ON_GROUND_ALT_M = 0.05
 _ENDS_ON_GROUND = (Kind.LAND, Kind.FALL)
 # Enum members as module constants: `Kind.X` is a class attribute lookup through the enum
 # machinery (~0.3 us), and the per-substep loops use them for every watched vehicle.
-_LAND, _FALL, _TOUCHDOWN = Kind.LAND, Kind.FALL, Kind.TOUCHDOWN
+_LAND, _FALL, _TOUCHDOWN = int(Kind.LAND), int(Kind.FALL), int(Kind.TOUCHDOWN)  # ints: see guidance.py
 
 
 class Fleet:
@@ -150,21 +150,15 @@ class Fleet:
         self.pos, self.vel, self.acc = torch.from_numpy(pos), torch.from_numpy(vel), torch.from_numpy(acc)
 
     def _integrate(self, h: float) -> None:
-        # A flying swarm (acceleration setpoints, no limit within reach) in numpy alone: the
-        # same operations as the torch path below, without its per-call costs (issue 25.1).
+        # A flying swarm (acceleration setpoints within their limit) takes its command in
+        # numpy; anything else (a take-off, a landing, a fall) the batched guidance. Then
+        # the numpy copy of the shared point-mass step: free flight in a few numpy calls,
+        # else its event solver (a vehicle coasting at V_max, lifting off the floor), the
+        # same bits as `step_point_mass` at a fraction of its per-call cost (issue 25.1).
         acc = self.guidance.accel_setpoints_only(self.vel_np)
-        if acc is not None:
-            stepped = free_flight_step(self.pos_np, self.vel_np, acc, h, self.limits)
-            if stepped is not None:
-                self._set_state(stepped[0], stepped[1], acc)
-                return
-        self._integrate_torch(h)
-
-    @torch.inference_mode()  # no autograd bookkeeping: ~15 % off the physics call
-    def _integrate_torch(self, h: float) -> None:
-        self.acc = self.guidance.accel(self.pos, self.vel, self.limits.max_accel)
-        self.pos, self.vel = step_point_mass(self.pos, self.vel, self.acc, h, self.limits)
-        self._refresh_views()
+        if acc is None:
+            acc = self.guidance.accel(self.pos_np, self.vel_np, self.limits.max_accel)
+        self._set_state(*step_point_mass_np(self.pos_np, self.vel_np, acc, h, self.limits), acc)
 
     def _ground_contact(self) -> None:
         """A landing or a fall that reached the ground stops there: the kind becomes TOUCHDOWN,

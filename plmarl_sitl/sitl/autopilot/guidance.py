@@ -2,9 +2,10 @@
 
 Every vehicle has one guidance *kind* and a target vector. They live in numpy arrays that
 the per-vehicle state machines write at events (a setpoint arrives, a mode changes), and
-the fleet reads them once per physics substep as zero-copy torch views, so one batched call
-of the shared controllers (`goto_accel`, `velocity_tracking_accel`) serves all N vehicles.
-Per-vehicle speed/acceleration limits are (N, 1) tensors: the controllers broadcast them.
+the fleet reads them once per physics substep, so one batched call of the shared
+controllers (`goto_accel`, `velocity_tracking_accel`, in their numpy copies: the same bits)
+serves all N vehicles. Per-vehicle speed/acceleration limits are (N, 1) arrays: the
+controllers broadcast them.
 """
 
 from __future__ import annotations
@@ -12,9 +13,8 @@ from __future__ import annotations
 import enum
 
 import numpy as np
-import torch
 
-from plmarl_sitl.model.vehicle import clip_norm, goto_accel, velocity_tracking_accel
+from plmarl_sitl.model.vehicle import clip_norm_np, goto_accel_np, velocity_tracking_accel_np
 
 # Position and velocity loops: a multirotor's position controller settles in about a second.
 TIME_CONST_S = 0.5
@@ -32,8 +32,11 @@ class Kind(enum.IntEnum):
     TOUCHDOWN = 6
 
 
-# Enum members as module constants for the per-substep test (`Kind.X` costs ~0.3 us each).
-_ACCEL, _IDLE, _TOUCHDOWN = Kind.ACCEL, Kind.IDLE, Kind.TOUCHDOWN
+# Kinds as plain ints for the per-substep numpy tests: `Kind.X` costs ~0.3 us each, and numpy
+# comparing an array with an enum member looks up a dozen dunders on the enum class (each a
+# failed `EnumType.__getattr__`: 26 per `accel` call, a fifth of the fleet's physics, session 18).
+_IDLE, _ACCEL, _VELOCITY, _POSITION, _LAND, _FALL, _TOUCHDOWN = (
+    int(k) for k in (Kind.IDLE, Kind.ACCEL, Kind.VELOCITY, Kind.POSITION, Kind.LAND, Kind.FALL, Kind.TOUCHDOWN))
 
 
 class Guidance:
@@ -55,37 +58,37 @@ class Guidance:
         if target is not None:
             self.target[i] = target
 
-    def accel(self, pos: torch.Tensor, vel: torch.Tensor, fall_accel: float) -> torch.Tensor:
-        """(N, 3) acceleration commands for the current states."""
-        fast = self.accel_setpoints_only(vel.numpy())
+    def accel(self, pos: np.ndarray, vel: np.ndarray, fall_accel: float) -> np.ndarray:
+        """(N, 3) acceleration commands for the current (N, 3) float64 states: the shared
+        controllers in their numpy copies (`goto_accel_np`, ...; the same bits as the torch
+        ones, tests/emulator/test_guidance_fast.py), a few microseconds a call where the
+        torch ones cost ~0.1 ms a substep of a take-off (issue 25.1)."""
+        fast = self.accel_setpoints_only(vel)
         if fast is not None:
-            return torch.from_numpy(fast)
-        kind = torch.from_numpy(self.kind)
-        target = torch.from_numpy(self.target)
-        ms = torch.from_numpy(self.max_speed)
-        ma = torch.from_numpy(self.max_accel)
-        present = set(np.unique(self.kind).tolist())
-        out = torch.zeros_like(pos)
-        if Kind.ACCEL in present:
-            a = clip_norm(target, ma)
+            return fast
+        kind, target, ms, ma = self.kind, self.target, self.max_speed, self.max_accel
+        present = set(np.unique(kind).tolist())
+        out = np.zeros_like(pos)
+        if _ACCEL in present:
+            a = clip_norm_np(target, ma)
             if self.drag.any():
-                a = a - torch.from_numpy(self.drag).unsqueeze(-1) * vel
-            out = torch.where((kind == Kind.ACCEL).unsqueeze(-1), a, out)
-        if Kind.VELOCITY in present:
-            a = velocity_tracking_accel(vel, clip_norm(target, ms), ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.VELOCITY).unsqueeze(-1), a, out)
-        if Kind.POSITION in present:
-            a = goto_accel(pos, vel, target, ms, ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.POSITION).unsqueeze(-1), a, out)
-        if Kind.LAND in present:
-            v_xy = clip_norm((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
-            v_des = torch.cat([v_xy, torch.from_numpy(self.descent).unsqueeze(-1)], dim=-1)
-            a = velocity_tracking_accel(vel, v_des, ma, TIME_CONST_S)
-            out = torch.where((kind == Kind.LAND).unsqueeze(-1), a, out)
-        if Kind.FALL in present:
-            down = torch.zeros_like(pos)
+                a = a - self.drag[:, None] * vel
+            out = np.where((kind == _ACCEL)[:, None], a, out)
+        if _VELOCITY in present:
+            a = velocity_tracking_accel_np(vel, clip_norm_np(target, ms), ma, TIME_CONST_S)
+            out = np.where((kind == _VELOCITY)[:, None], a, out)
+        if _POSITION in present:
+            a = goto_accel_np(pos, vel, target, ms, ma, TIME_CONST_S)
+            out = np.where((kind == _POSITION)[:, None], a, out)
+        if _LAND in present:
+            v_xy = clip_norm_np((target[:, :2] - pos[:, :2]) / TIME_CONST_S, ms)
+            v_des = np.concatenate([v_xy, self.descent[:, None]], axis=-1)
+            a = velocity_tracking_accel_np(vel, v_des, ma, TIME_CONST_S)
+            out = np.where((kind == _LAND)[:, None], a, out)
+        if _FALL in present:
+            down = np.zeros_like(pos)
             down[:, 2] = fall_accel
-            out = torch.where((kind == Kind.FALL).unsqueeze(-1), down, out)
+            out = np.where((kind == _FALL)[:, None], down, out)
         return out
 
     def accel_setpoints_only(self, vel: np.ndarray) -> np.ndarray | None:
