@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from plmarl_sitl.model.vehicle import Limits, step_point_mass_numpy
+from plmarl_sitl.model.vehicle import Limits, step_point_mass_np
 
 ROUND_M = 0.01  # predicted positions handed to the assignment are rounded like launch_line's
 
@@ -55,10 +55,10 @@ def _goto_accel(p: np.ndarray, v: np.ndarray, goal: np.ndarray, lim: Limits, tau
 
 def _step(state: np.ndarray, accel: np.ndarray, lim: Limits) -> np.ndarray:
     """(..., 6) state one second on under accel (..., 3): `step_point_mass`, bit for bit, in
-    numpy for the vehicles in free flight and torch's event solver for the others."""
+    numpy (`step_point_mass_np`, the fleet's solver too)."""
     shape = state.shape
     flat = state.reshape(-1, 6)
-    p, v = step_point_mass_numpy(flat[:, :3], flat[:, 3:], accel.reshape(-1, 3), 1.0, lim)
+    p, v = step_point_mass_np(flat[:, :3], flat[:, 3:], accel.reshape(-1, 3), 1.0, lim)
     return np.concatenate([p, v], -1).reshape(shape)
 
 

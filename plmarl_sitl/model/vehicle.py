@@ -326,32 +326,6 @@ def _clearly_inside(p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, li
                 and alt_lo - reach_h > lim.alt_min + margin and alt_hi + reach_h < lim.alt_max - margin)
 
 
-def step_point_mass_numpy(
-    p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, lim: Limits
-) -> tuple[np.ndarray, np.ndarray]:
-    """`step_point_mass` on float64 (M, 3) arrays, bit for bit: the vehicles in free flight
-    (`free_flight_step`'s conditions, per vehicle) in numpy, only the others through torch's
-    event solver. Why per vehicle: in a team of 20 one vehicle at V_max sends the whole
-    batch to the solver (~15 torch calls per event round); the solver treats every vehicle
-    on its own (its branches on "any vehicle meets an event now" change nothing for a
-    vehicle that meets none, and a free vehicle meets none), so a free vehicle's result does
-    not depend on the batch it is in. tests/model/test_plan_motion.py compares it with the
-    whole batch through `step_point_mass`."""
-    if _clearly_inside(p, v, acc, dt, lim):
-        dt = float(dt)  # every vehicle inside: _ballistic with an all-True mask (acc x 1.0 is acc)
-        return p + v * dt + 0.5 * acc * dt * dt, v + acc * dt
-    free, inside = _free_in_numpy(p, v, acc, dt, lim)
-    if free.all():
-        return _ballistic(p, v, acc, inside, dt)
-    p_out, v_out = np.empty_like(p), np.empty_like(v)
-    if free.any():
-        p_out[free], v_out[free] = _ballistic(p[free], v[free], acc[free], inside[free], dt)
-    rest = ~free
-    pt, vt = step_point_mass(torch.from_numpy(p[rest]), torch.from_numpy(v[rest]), torch.from_numpy(acc[rest]), dt, lim)
-    p_out[rest], v_out[rest] = pt.numpy(), vt.numpy()
-    return p_out, v_out
-
-
 def free_flight_steps(
     p: np.ndarray, v: np.ndarray, acc: np.ndarray, dt: float, count: int, lim: Limits
 ) -> tuple[np.ndarray, np.ndarray] | None:

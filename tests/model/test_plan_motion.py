@@ -102,13 +102,13 @@ def _mixed_batch(rng: np.random.Generator, m: int) -> tuple[np.ndarray, np.ndarr
 
 @pytest.mark.parametrize("m", [1, 5, 20, 100, 300])
 def test_numpy_step_per_vehicle_equals_the_whole_batch_through_torch(m):
-    from plmarl_sitl.model.vehicle import step_point_mass_numpy
+    from plmarl_sitl.model.vehicle import step_point_mass_np
 
     rng = np.random.default_rng(m)
     for _ in range(30):
         p, v, acc = _mixed_batch(rng, m)
         want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
-        got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
+        got_p, got_v = step_point_mass_np(p, v, acc, 1.0, LIM)
         assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
 
 
@@ -133,7 +133,7 @@ def test_link_tables_are_kept_while_the_predictions_are_and_recomputed_when_they
 
 def test_numpy_step_of_a_hovering_team_equals_torch():
     """The common second: every vehicle well inside every limit (`_clearly_inside`'s shortcut)."""
-    from plmarl_sitl.model.vehicle import _clearly_inside, step_point_mass_numpy
+    from plmarl_sitl.model.vehicle import _clearly_inside, step_point_mass_np
 
     rng = np.random.default_rng(11)
     for m in (1, 4, 20, 100):
@@ -142,7 +142,7 @@ def test_numpy_step_of_a_hovering_team_equals_torch():
         acc = rng.uniform(-1, 1, (m, 3)) * rng.choice([0.0, 1e-12, 1.0], size=(m, 1))
         assert _clearly_inside(p, v, acc, 1.0, LIM)
         want_p, want_v = step_point_mass(torch.from_numpy(p), torch.from_numpy(v), torch.from_numpy(acc), 1.0, LIM)
-        got_p, got_v = step_point_mass_numpy(p, v, acc, 1.0, LIM)
+        got_p, got_v = step_point_mass_np(p, v, acc, 1.0, LIM)
         assert np.array_equal(got_p, want_p.numpy()) and np.array_equal(got_v, want_v.numpy())
 
 
