@@ -331,7 +331,10 @@ def _read_mission_data(path: Path, seen: tuple[Path, ...] = ()) -> dict:
         return data
     if not isinstance(base, str):
         raise ConfigError("extends", "expected a file name", str(path))
-    return _deep_merge(_read_mission_data(path.parent / base, (*seen, path.resolve())), data)
+    target = path.parent / base
+    if not target.is_file():  # named from the file that says `extends`, which is the one to fix
+        raise ConfigError("extends", f"no mission file {target}", str(path))
+    return _deep_merge(_read_mission_data(target, (*seen, path.resolve())), data)
 
 
 def mission_from_dict(data: dict, source: str | None = None) -> Mission:

@@ -181,6 +181,15 @@ def _missions(draw):  # noqa: ANN001, ANN202
     return data
 
 
+@pytest.mark.parametrize("base", ["", "0", "nothere.yaml", "."])
+def test_extends_what_is_no_file_names_the_mission_that_says_so(tmp_path, base):
+    # found by the fuzz below: `extends: ''` named only the directory it resolved to
+    p = _write(tmp_path, yaml.safe_dump({"extends": base}))
+    with pytest.raises(ConfigError) as exc:
+        load_mission(p)
+    assert str(exc.value).startswith(f"{p}: extends: no mission file ")
+
+
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=_missions())
 def test_fuzz_mission_loads_or_names_the_error(tmp_path, data):
