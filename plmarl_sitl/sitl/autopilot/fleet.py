@@ -150,14 +150,12 @@ class Fleet:
         self.pos, self.vel, self.acc = torch.from_numpy(pos), torch.from_numpy(vel), torch.from_numpy(acc)
 
     def _integrate(self, h: float) -> None:
-        # A flying swarm (acceleration setpoints within their limit) takes its command in
-        # numpy; anything else (a take-off, a landing, a fall) the batched guidance. Then
-        # the numpy copy of the shared point-mass step: free flight in a few numpy calls,
-        # else its event solver (a vehicle coasting at V_max, lifting off the floor), the
-        # same bits as `step_point_mass` at a fraction of its per-call cost (issue 25.1).
-        acc = self.guidance.accel_setpoints_only(self.vel_np)
-        if acc is None:
-            acc = self.guidance.accel(self.pos_np, self.vel_np, self.limits.max_accel)
+        # The batched guidance's command (a flying swarm's setpoints taken as they are, its
+        # first test), then the numpy copy of the shared point-mass step: free flight in a
+        # few numpy calls, else its event solver (a vehicle coasting at V_max, lifting off
+        # the floor), the same bits as `step_point_mass` at a fraction of its per-call cost
+        # (issue 25.1).
+        acc = self.guidance.accel(self.pos_np, self.vel_np, self.limits.max_accel)
         self._set_state(*step_point_mass_np(self.pos_np, self.vel_np, acc, h, self.limits), acc)
 
     def _ground_contact(self) -> None:
