@@ -21,36 +21,14 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from plmarl_sitl.model.vehicle import Limits, step_point_mass_np
+from plmarl_sitl.model.vehicle import Limits, goto_accel_np, step_point_mass_np
 
 ROUND_M = 0.01  # predicted positions handed to the assignment are rounded like launch_line's
 
 
-def _norm(x: np.ndarray) -> np.ndarray:
-    """(..., 1) Euclidean norms of x (..., 3), by torch as `goto_accel` computes them (it sums
-    the squares with fused multiply-adds, which numpy cannot reproduce bit for bit)."""
-    return torch.linalg.vector_norm(torch.from_numpy(x), dim=-1, keepdim=True).numpy()
-
-
-def _sqrt(x: np.ndarray) -> np.ndarray:
-    """torch's square root (its vectorised kernel rounds ~1 % of float64 results differently from np.sqrt)."""
-    return torch.sqrt(torch.from_numpy(x)).numpy()
-
-
-def _goto_accel(p: np.ndarray, v: np.ndarray, goal: np.ndarray, lim: Limits, tau: float) -> np.ndarray:
-    """`model/vehicle.py::goto_accel` on numpy arrays, operation for operation: the same IEEE
-    operations in the same order, and torch's own kernels on the same shapes for the norms
-    and the square root; torch divides a scalar by a tensor as scalar x (1 / tensor), so that
-    is written out. Three tensor calls where the torch version makes ~15 of a few
-    microseconds each. tests/model/test_plan_motion.py compares the two."""
-    delta = goal - p
-    dist = _norm(delta)
-    brake_speed = _sqrt(2.0 * 0.5 * lim.max_accel * dist)
-    speed = np.minimum(brake_speed, np.minimum(dist / tau, lim.max_speed))
-    v_des = delta / np.maximum(dist, 1e-9) * speed
-    x = (v_des - v) / tau  # velocity_tracking_accel, then clip_norm
-    scale = np.minimum(lim.max_accel * (1.0 / np.maximum(_norm(x), 1e-12)), 1.0)
-    return x * scale
+def _goto_accel(p: np.ndarray, v: np.ndarray, goal: np.ndarray, lim: Limits, tau: int) -> np.ndarray:
+    """`goto_accel` held for tau, as `ServiceController` flies its target, in numpy (bit for bit)."""
+    return goto_accel_np(p, v, goal, float(lim.max_speed), float(lim.max_accel), time_const=float(tau))
 
 
 def _step(state: np.ndarray, accel: np.ndarray, lim: Limits) -> np.ndarray:
@@ -145,7 +123,7 @@ class PlanMotion:
         assert self._now is not None
         while self.flown < t:
             if self.flown % self.tau == 0 or self.accel is None:
-                self.accel = _goto_accel(self._now[..., :3], self._now[..., 3:], self.goal, self.limits, float(self.tau))
+                self.accel = _goto_accel(self._now[..., :3], self._now[..., 3:], self.goal, self.limits, self.tau)
             self._now = _step(self._now, self.accel, self.limits)
             self.flown += 1
             if self.is_instant(self.flown):
@@ -165,7 +143,7 @@ class PlanMotion:
         accel = None
         for s in range(since, self.t):
             if s % self.tau == 0 or accel is None:
-                accel = _goto_accel(state[:, :3], state[:, 3:], goal, self.limits, float(self.tau))
+                accel = _goto_accel(state[:, :3], state[:, 3:], goal, self.limits, self.tau)
             state = _step(state, accel, self.limits)
             if s + 1 in self.kept:
                 self.kept[s + 1][b, a] = state

@@ -698,14 +698,17 @@ def velocity_tracking_accel_np(
 
 
 def goto_accel_np(
-    pos: np.ndarray, vel: np.ndarray, target: np.ndarray, max_speed: np.ndarray, max_accel: np.ndarray,
+    pos: np.ndarray, vel: np.ndarray, target: np.ndarray, max_speed: float | np.ndarray, max_accel: float | np.ndarray,
     time_const: float = 1.0,
 ) -> np.ndarray:
-    """`goto_accel` on float64 arrays with per-vehicle (N, 1) limits (the emulator's
-    guidance), bit for bit: torch's kernels for the norm, the sqrt and the minimum."""
+    """`goto_accel` on float64 arrays, bit for bit: torch's kernels for the norm, the sqrt
+    and the minimum. The limits are floats (as `goto_accel` takes them: the plan-aware
+    prediction) or per-vehicle (N, 1) arrays (the emulator's guidance); torch divides by a
+    float limit and by a tensor one differently, and so does `clip_norm_np`."""
     delta = target - pos
     dist = _norm_np(delta, keepdim=True)
     brake_speed = _sqrt_np(2.0 * 0.5 * max_accel * dist)
-    speed = _minimum_np(brake_speed, torch.clamp(_t(dist / time_const), max=_t(max_speed)).numpy())
+    cap = max_speed if isinstance(max_speed, float) else _t(max_speed)
+    speed = _minimum_np(brake_speed, torch.clamp(_t(dist / time_const), max=cap).numpy())
     v_des = delta / np.maximum(dist, 1e-9) * speed
     return velocity_tracking_accel_np(vel, v_des, max_accel, time_const)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import copy
+import gc
 import dataclasses
 import logging
 import math
@@ -290,11 +291,16 @@ def test_a_heartbeat_from_before_our_own_offboard_switch_is_no_failsafe(
             session._check_mode()  # first seen now: after MODE_ECHO_S
             assert session.reengaged == 1
         finally:
+            session.close()  # the re-engage is still waiting for its acknowledgement
             link.close()
+            await asyncio.sleep(0.3)  # past the command's resend: a live task would send now
             stop.set()
             await clock
             host.close()
 
+    caplog.set_level(logging.INFO, logger="asyncio")
     asyncio.run(main())
+    gc.collect()  # a task that died with nobody awaiting it says so when it is collected
     said = [r.getMessage() for r in caplog.records if r.name == "plmarl.agent"]
     assert said.count("vehicle fell back to AUTO.LOITER (setpoint-loss failsafe); re-engaging OFFBOARD") == 1
+    assert not [r.getMessage() for r in caplog.records if r.name == "asyncio"], "a task outlived the closed session"

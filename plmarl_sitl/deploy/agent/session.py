@@ -490,6 +490,7 @@ class VehicleSession:
         """Stop: hand a flying vehicle to the personality's stop mode (PX4 AUTO.LOITER,
         ArduPilot BRAKE). A vehicle its autopilot took over (a failsafe left the offboard
         mode for LAND, say after a GPS loss) or disarmed is left to its autopilot."""
+        self._stop_reengaging()  # the stop mode overrides a re-engage still in flight
         if self.personality is None or not self.flying:
             return
         if self.leave_to_autopilot:
@@ -507,7 +508,15 @@ class VehicleSession:
         except (TimeoutError, VehicleUnreachable, CommandRejected) as exc:
             log.error("stopped, but could not command %s: %s (the autopilot's own failsafe takes over)", mode, exc)
 
+    def _stop_reengaging(self) -> None:
+        """Cancel a re-engage task still waiting for its mode's acknowledgement: it runs
+        outside the agent's task group, and once the link is closed its next resend would
+        fail with nobody to hear it ("Task exception was never retrieved")."""
+        if self._reengage_task is not None and not self._reengage_task.done():
+            self._reengage_task.cancel()
+
     def close(self) -> None:
+        self._stop_reengaging()
         if self.positions is not None:
             self.positions.close()
         if self.started:
