@@ -8,8 +8,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import copy
-import gc
 import dataclasses
+import gc
 import logging
 import math
 import time
@@ -201,26 +201,42 @@ def test_link_lost_and_vehicle_timeout_are_siblings() -> None:
             pytest.fail("a timeout handler caught a lost link")
 
 
+@contextlib.asynccontextmanager
+async def _flying_session(policy_dir: Path, personality: str, rate: float):
+    """A one-vehicle emulator run in real time at `rate`, an open link to it, its view, and an
+    agent's session that believes itself flying (as after its take-off); all closed after."""
+    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
+    host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name=personality)
+    await host.start()
+    stop = asyncio.Event()
+    clock = asyncio.create_task(run_realtime(host, rate, stop=stop))
+    link = VehicleLink("127.0.0.1", host.ports[0])
+    session = None
+    try:
+        await link.open(timeout=5.0)
+        cfg = AgentConfig(uav_id=0, connect_url=f"udpout://127.0.0.1:{host.ports[0]}", mission=mission)
+        session = Agent(cfg, load_policy(policy_dir, mission), RecordingBus(), link).session
+        session.personality, session.flying = link.personality, True
+        yield link, VehicleView(link), session
+    finally:
+        if session is not None:
+            session.close()  # a re-engage may still be waiting for its acknowledgement
+        link.close()
+        await asyncio.sleep(0.3)  # past a command's resend: a task left alive would send now
+        stop.set()
+        await clock
+        host.close()
+
+
 def test_the_agent_reengages_after_a_failsafe_and_stops_by_the_views_heartbeat(
         policy_dir: Path, caplog: pytest.LogCaptureFixture) -> None:
     """The agent's session reads the autopilot's state through the view: armed in the
     personality's hold mode (ArduPilot LOITER, a setpoint-loss failsafe) it asks for GUIDED
     back; stopping, it commands BRAKE to an armed vehicle and leaves a disarmed one alone."""
     caplog.set_level(logging.INFO, logger="plmarl.agent")
-    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
 
     async def main() -> None:
-        host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name="ardupilot")
-        await host.start()
-        stop = asyncio.Event()
-        clock = asyncio.create_task(run_realtime(host, 2.0, stop=stop))
-        link = VehicleLink("127.0.0.1", host.ports[0])
-        try:
-            await link.open(timeout=5.0)
-            view = VehicleView(link)
-            cfg = AgentConfig(uav_id=0, connect_url=f"udpout://127.0.0.1:{host.ports[0]}", mission=mission)
-            session = Agent(cfg, load_policy(policy_dir, mission), RecordingBus(), link).session
-            session.personality, session.flying = link.personality, True
+        async with _flying_session(policy_dir, "ardupilot", 2.0) as (link, view, session):
             await link.set_mode("LOITER")
             await link.arm()
             while not (await view.next_state(3.0)).armed:
@@ -238,11 +254,6 @@ def test_the_agent_reengages_after_a_failsafe_and_stops_by_the_views_heartbeat(
             while (await view.next_state(3.0)).armed:
                 pass
             await session.hold()
-        finally:
-            link.close()
-            stop.set()
-            await clock
-            host.close()
 
     asyncio.run(main())
     said = [r.getMessage() for r in caplog.records if r.name == "plmarl.agent"]
@@ -258,20 +269,9 @@ def test_a_heartbeat_from_before_our_own_offboard_switch_is_no_failsafe(
     setpoint-loss failsafe (the agent used to warn "fell back" 0.1 s after every switch on a
     real PX4); a hold-mode heartbeat that comes later still is."""
     caplog.set_level(logging.INFO, logger="plmarl.agent")
-    mission = dataclasses.replace(load_mission(MISSION), n_uavs=1)
 
     async def main() -> None:
-        host = AutopilotHost(1, base_port=free_udp_ports(1), personality_name="px4")
-        await host.start()
-        stop = asyncio.Event()
-        clock = asyncio.create_task(run_realtime(host, 4.0, stop=stop))
-        link = VehicleLink("127.0.0.1", host.ports[0])
-        try:
-            await link.open(timeout=5.0)
-            view = VehicleView(link)
-            cfg = AgentConfig(uav_id=0, connect_url=f"udpout://127.0.0.1:{host.ports[0]}", mission=mission)
-            session = Agent(cfg, load_policy(policy_dir, mission), RecordingBus(), link).session
-            session.personality, session.flying = link.personality, True
+        async with _flying_session(policy_dir, "px4", 4.0) as (link, view, session):
             await link.arm()
             while not (await view.next_state(3.0)).armed:
                 pass
@@ -289,14 +289,7 @@ def test_a_heartbeat_from_before_our_own_offboard_switch_is_no_failsafe(
             await asyncio.sleep(0.4)  # later, a (new) hold-mode heartbeat is a failsafe again
             link.latest["HEARTBEAT"] = copy.copy(stale)
             session._check_mode()  # first seen now: after MODE_ECHO_S
-            assert session.reengaged == 1
-        finally:
-            session.close()  # the re-engage is still waiting for its acknowledgement
-            link.close()
-            await asyncio.sleep(0.3)  # past the command's resend: a live task would send now
-            stop.set()
-            await clock
-            host.close()
+            assert session.reengaged == 1  # and its re-engage is still in flight at the close
 
     caplog.set_level(logging.INFO, logger="asyncio")
     asyncio.run(main())
