@@ -8,9 +8,7 @@ import math
 
 from plmarl_sitl.cmdline import add_seed, progress, table_console, tup_arg
 from plmarl_sitl.learning.eval.methods import METHOD_HELP, canonical_method
-from plmarl_sitl.learning.eval.stats import mean_ci95
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.twin.rollout import run_episodes
 
 METHODS = ("service", "service-local", "greedy", "clairvoyant", "heuristic")  # the controllers that need no trained policy
 
@@ -45,6 +43,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # The twin (torch) and the statistics (scipy) are imported here, not at the top: `plmarl
+    # --help` registers every subcommand and would pay ~4 s for them.
+    from plmarl_sitl.learning.eval.evaluate import controller_factory
+    from plmarl_sitl.learning.eval.stats import mean_ci95
+    from plmarl_sitl.twin.rollout import run_episodes
+
     mission = load_mission(args.mission)
     if args.tup is not None:
         mission = mission.with_tup(args.tup)
@@ -55,8 +59,6 @@ def run(args: argparse.Namespace) -> int:
     decisions = math.ceil(mission.timing.episode_s / mission.timing.decision_every_s)
     with progress(disable=args.json) as bar:
         task = bar.add_task(f"{args.method} on {mission.name} (seed {args.seed})", total=args.episodes * decisions)
-        from plmarl_sitl.learning.eval.evaluate import controller_factory
-
         res = run_episodes(
             mission, controller_factory(args.method, {}), args.episodes, args.seed, on_decision=lambda b: bar.advance(task, b)
         )

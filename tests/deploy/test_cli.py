@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 from plmarl_sitl.cli import SUBCOMMANDS, main
@@ -12,6 +15,16 @@ def test_registered() -> None:
     from plmarl_sitl.cli.bench import TARGETS
 
     assert "agent" in TARGETS
+
+
+def test_help_of_every_command_imports_neither_torch_nor_scipy() -> None:
+    """`plmarl --help` registers every subcommand: each must keep its heavy imports (the
+    twin, the statistics) inside the function that runs it, or the help takes seconds.
+    A fresh interpreter, since this one has imported torch already."""
+    probe = ("import sys; from plmarl_sitl.cli import build_parser; build_parser(); "
+             "print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
+    assert r.stdout.strip() == "[]", r.stdout
 
 
 @pytest.mark.parametrize(
