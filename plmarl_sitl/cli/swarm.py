@@ -89,9 +89,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_up(args: argparse.Namespace) -> int:
+    from plmarl_sitl.mission import load_mission
     from plmarl_sitl.sitl import forked
 
-    # First, before the world's imports and any thread: import torch once and fork the agents'
+    # The flags and the mission first (plain Python the agents import anyway): a mistake in
+    # either is one line at once, not after torch's import (~2-4 s).
+    opts = from_flags(UpOptions, args, headless=args.headless or args.json)
+    mission = load_mission(opts.mission_path)
+    # Then, before the world's imports and any thread: import torch once and fork the agents'
     # server from this process, which imports the agents' modules on the other core meanwhile
     # (issue 25.1: the rig imported torch twice, once here and once in an exec'd forkserver).
     forked.start_server()
@@ -99,9 +104,8 @@ def run_up(args: argparse.Namespace) -> int:
         from plmarl_sitl.sitl.launcher import ComponentFailed
         from plmarl_sitl.sitl.launcher import run_up as launch
 
-        opts = from_flags(UpOptions, args, headless=args.headless or args.json)
         try:
-            summary = launch(opts)
+            summary = launch(opts, mission)
         except ComponentFailed as exc:
             print(f"plmarl swarm up: failed: {exc.reason}", file=sys.stderr)
             return 1

@@ -59,7 +59,7 @@ from plmarl_sitl.deploy.mqtt.transport import MqttBus
 from plmarl_sitl.deploy.mqtt.url import parse_broker_url
 from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.errors import PlmarlError
-from plmarl_sitl.mission import Event
+from plmarl_sitl.mission import Event, Mission
 from plmarl_sitl.model.events import Change
 from plmarl_sitl.sitl.agents import SITL_AGENT_NICE, AgentFleet
 from plmarl_sitl.sitl.arducopter import ArduCopterFleet
@@ -208,7 +208,7 @@ def _setup_logging(out: Path) -> logging.Handler:
     return handler
 
 
-async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - rich Console
+async def swarm_up(opts: UpOptions, console=None, mission: Mission | None = None) -> dict:  # noqa: ANN001 - rich Console
     """Run a mission end to end; returns the summary. Raises ComponentFailed/UserError.
 
     Start-up is one async exit stack: each part, once created, registers how it stops, so
@@ -218,7 +218,7 @@ async def swarm_up(opts: UpOptions, console=None) -> dict:  # noqa: ANN001 - ric
     from rich.console import Console
 
     console = console or Console()
-    inputs = load_inputs(opts)
+    inputs = load_inputs(opts, mission)
     mission = inputs.mission
     if inputs.size_warning is not None:
         console.print(f"[yellow]warning:[/] {inputs.size_warning}", highlight=False)
@@ -533,8 +533,9 @@ async def _live(live_cls, console, monitor: SwarmMonitor, world_task: asyncio.Ta
         live.update(render(monitor.view()))
 
 
-def run_up(opts: UpOptions) -> dict:
-    """Run `swarm_up` in a fresh event loop; SIGINT (Ctrl-C) and SIGTERM stop it cleanly."""
+def run_up(opts: UpOptions, mission: Mission | None = None) -> dict:
+    """Run `swarm_up` in a fresh event loop; SIGINT (Ctrl-C) and SIGTERM stop it cleanly.
+    `mission`: the mission file, loaded by the caller already (`load_inputs`)."""
 
     async def main() -> dict:
         task = asyncio.current_task()
@@ -546,7 +547,7 @@ def run_up(opts: UpOptions) -> dict:
         with contextlib.suppress(NotImplementedError):
             for sig in (signal.SIGINT, signal.SIGTERM):
                 loop.add_signal_handler(sig, task.cancel)
-        return await swarm_up(opts)
+        return await swarm_up(opts, mission=mission)
 
     try:
         return asyncio.run(main())

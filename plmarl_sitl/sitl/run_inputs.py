@@ -48,9 +48,11 @@ def fault_autopilot(opts: UpOptions) -> str:
     return {"arducopter": "ardupilot", "px4": "px4"}[opts.autopilot]
 
 
-def load_inputs(opts: UpOptions) -> RunInputs:
-    """Raises UserError (or ConfigError) naming the input that is wrong."""
-    mission = load_mission(opts.mission_path)
+def load_inputs(opts: UpOptions, mission: Mission | None = None) -> RunInputs:
+    """Raises UserError (or ConfigError) naming the input that is wrong. `mission`: the
+    mission file as `load_mission` returned it, when the caller has loaded it already
+    (`plmarl swarm up` does, before its fork server: a wrong key is said at once)."""
+    mission = load_mission(opts.mission_path) if mission is None else mission
     if opts.seed is not None:
         mission = replace(mission, seed=opts.seed)
     # Autopilot faults take a UAV out as its autopilot was measured to (model.events).

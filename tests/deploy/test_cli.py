@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -25,6 +26,18 @@ def test_help_of_every_command_imports_neither_torch_nor_scipy() -> None:
              "print(sorted(m for m in ('torch', 'scipy') if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
     assert r.stdout.strip() == "[]", r.stdout
+
+
+def test_swarm_up_says_a_wrong_mission_key_before_importing_torch(tmp_path) -> None:  # noqa: ANN001
+    """A user's typo in the mission is one line at once: `swarm up` loads the mission before
+    its fork server imports torch (and the world's modules) for the agents."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("extends: %s\nname: bad\nradii: {sensing_mm: 3}\n" % (Path(__file__).resolve().parents[2] / "missions" / "paper_urban.yaml"))
+    probe = ("import sys; from plmarl_sitl.cli import main; rc = main(['swarm', 'up', sys.argv[1], '--headless']); "
+             "print(rc, 'torch' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", probe, str(bad)], capture_output=True, text=True, timeout=60)
+    assert r.stdout.split() == ["2", "False"], r.stdout + r.stderr
+    assert "radii.sensing_mm: unknown key" in r.stderr and "Traceback" not in r.stderr
 
 
 @pytest.mark.parametrize(
