@@ -1,43 +1,104 @@
 """The plan point moved toward the users the UAV senses (mission `track_sensed_m`, issue 24.3).
 
 Why: the team plan is placed on the demand map, which the ground network publishes every
-`demand.refresh_s` (30 s) on 50 m cells. A crowd walking at 1.8-3 m/s is 50-90 m from its
+`demand.refresh_s` (30 s) on 50 m cells. A crowd walking at 1.5-3 m/s is 50-90 m from its
 map cell by the next map, and the plan point stays where the crowd was: a UAV watches its
-users walk out of its coverage disk (docs/RESULTS.md, session 19: -0.04..-0.14 of coverage
-against a controller that sees the users). The UAV's own sensing shows where its users are
-now: the centroid of the users within R_s (`model/coverage.py::sensing_features`). Each UAV
-flies to its plan point shifted toward that centroid by at most `track_sensed_m` metres, so it
-follows its crowd between maps while the team plan still decides which crowd is whose (the
-bound keeps two UAVs from collapsing onto one crowd and the plan's links near their length).
+users walk out of its coverage disk (docs/RESULTS.md, session 19). The UAV's own sensing
+shows where its users are now: the centroid of the users within R_s
+(`model/coverage.py::sensing_features`). Each UAV flies to its plan point shifted toward that
+centroid by at most `track_sensed_m` metres, so it follows its crowd between maps while the
+team plan still decides which crowd is whose.
 
-The twin (`learning/nn/plan.py::ServiceTargets.point`) and the deployed agent
-(`deploy/agent/decision.py`) call this one function on the same sensing features and plan
-point, so the point (and the policy input it is) is the same. 0 (the default): the plan point.
+The plan keeps the swarm connected: each point is within the link length (LINK_FRAC R_comm)
+of another. Shifts of two linked points add up, and measured on training seeds an unbounded
+30 m shift split the swarm (lambda_2 = 0) for about half of the steady state where the plan
+alone split it 6-9 % of the time. So the shift of a point is also bounded by half the slack
+of each of its edges in the minimum spanning tree of the plan's points (`tree_slack`): the
+tree's links then stay within the plan's own link length whatever the others do. This
+halves the coverage gain on the training probes and still leaves the swarm split about twice
+as often as the plan alone (16-17 % against 6-9 % of the steady state: moving UAVs lag their
+points, and links near R_comm also fail on interference); docs/RESULTS.md, session 19. Every copy of the plan
+holds the same points, so every agent computes the same bounds.
+
+The twin (`learning/nn/perception.py`, `learning/eval/controllers.py`) and the deployed agent
+(`deploy/agent/decision.py`) call `mission_toward_sensed` on the same sensing features, plan
+point and plan points, so the point (and the policy input it is) is the same. 0 (the
+default): the plan point.
 """
 
 from __future__ import annotations
 
 import torch
 
+from plmarl_sitl.model.service import LINK_FRAC
+
+
+def tree_slack(points: torch.Tensor, link_m: float) -> torch.Tensor:
+    """points (..., n, 2) float64 (NaN rows: failed identities, left out) -> (..., n): for each
+    point, min over its edges in the minimum spanning tree of the points of (link_m - edge) / 2,
+    at least 0 (inf for a point without edges). Prim's algorithm from the first live point,
+    batched; ties go to the lowest index, so equal points give equal trees."""
+    valid = ~torch.isnan(points[..., 0])
+    diff = points.unsqueeze(-2) - points.unsqueeze(-3)
+    dist = torch.sqrt((diff * diff).sum(-1))
+    inf = torch.tensor(float("inf"), dtype=points.dtype)
+    dist = torch.where(valid.unsqueeze(-1) & valid.unsqueeze(-2), dist, inf)
+    n = points.shape[-2]
+    slack = torch.full(points.shape[:-1], float("inf"), dtype=points.dtype)
+    first = valid.to(torch.int8).argmax(-1, keepdim=True)  # the first live point
+    in_tree = torch.zeros_like(valid).scatter(-1, first, True)
+    best = torch.gather(dist, -2, first.unsqueeze(-1).expand(*first.shape, n)).squeeze(-2)  # (..., n)
+    parent = first.expand_as(best).clone()
+    for _ in range(n - 1):
+        cand = torch.where(in_tree | ~valid, inf, best)
+        k = cand.argmin(-1, keepdim=True)
+        edge = torch.gather(cand, -1, k)  # inf where nothing is left to join
+        joins = torch.isfinite(edge)
+        half = torch.clamp((link_m - edge) / 2, min=0.0)
+        half = torch.where(joins, half, inf)
+        slack = slack.scatter_reduce(-1, k, half, "amin")
+        slack = slack.scatter_reduce(-1, torch.gather(parent, -1, k), half, "amin")
+        in_tree = in_tree.scatter(-1, k, joins | torch.gather(in_tree, -1, k))
+        row = torch.gather(dist, -2, k.unsqueeze(-1).expand(*k.shape, n)).squeeze(-2)
+        closer = joins & (row < best)
+        parent = torch.where(closer, k.expand_as(parent), parent)
+        best = torch.where(closer, row, best)
+    return slack
+
 
 def toward_sensed(target: torch.Tensor, ego_xy: torch.Tensor, sense: torch.Tensor, sensing_m: float,
-                  max_m: float) -> torch.Tensor:
+                  max_m: float | torch.Tensor) -> torch.Tensor:
     """target (..., 2) plan point, ego_xy (..., 2), sense (..., SENSING_FEATURES) [count / cluster
     size, mean north offset / R_s, mean east offset / R_s, rms / R_s] -> (..., 2): the target
-    moved toward the sensed users' centroid by at most max_m; unchanged when nothing is sensed
-    or max_m <= 0."""
-    if max_m <= 0:
+    moved toward the sensed users' centroid by at most max_m (a number, or (...) per point);
+    unchanged where nothing is sensed."""
+    if not isinstance(max_m, torch.Tensor) and max_m <= 0:
         return target
+    limit = torch.as_tensor(max_m, dtype=target.dtype)
+    if limit.dim():
+        limit = limit.unsqueeze(-1)
     centroid = ego_xy + sense[..., 1:3] * sensing_m
     step = centroid - target
     dist = torch.sqrt((step * step).sum(-1, keepdim=True))
-    step = step * torch.clamp(max_m / torch.clamp(dist, min=1e-9), max=1.0)
+    step = step * torch.clamp(limit / torch.clamp(dist, min=1e-9), max=1.0)
     return torch.where((sense[..., :1] > 0), target + step, target)
 
 
-def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor) -> torch.Tensor:  # noqa: ANN001 - Mission
-    """`toward_sensed` with the mission's R_s and `track_sensed_m`; ego (..., >= 2) [north, east, ...]."""
-    return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), float(mission.track_sensed_m))
+def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor,  # noqa: ANN001 - Mission
+                          points: torch.Tensor | None = None, me: torch.Tensor | None = None) -> torch.Tensor:
+    """`toward_sensed` with the mission's R_s and `track_sensed_m`; ego (..., >= 2) [north, east, ...].
+    points (..., n, 2): the agent's copy of the plan's points (identity order, NaN: failed) and
+    me (...) its identity: the shift is also bounded by its spanning-tree slack (`tree_slack`).
+    Without them (the neighbourhood plan) only by `track_sensed_m`."""
+    metres = float(mission.track_sensed_m)
+    if metres <= 0:
+        return target
+    if points is None or me is None:
+        return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), metres)
+    slack = tree_slack(points.to(torch.float64), LINK_FRAC * float(mission.radii.comm_m))
+    own = torch.gather(slack, -1, me.unsqueeze(-1)).squeeze(-1)
+    bound = torch.clamp(own, max=metres)
+    return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), bound)
 
 
-__all__ = ["mission_toward_sensed", "toward_sensed"]
+__all__ = ["mission_toward_sensed", "toward_sensed", "tree_slack"]

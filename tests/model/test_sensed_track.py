@@ -6,7 +6,7 @@ import torch
 from plmarl_sitl.config import ConfigError
 from plmarl_sitl.mission import load_mission, mission_from_dict
 from plmarl_sitl.model.coverage import sensing_features
-from plmarl_sitl.model.sensed_track import mission_toward_sensed, toward_sensed
+from plmarl_sitl.model.sensed_track import mission_toward_sensed, toward_sensed, tree_slack
 
 MISSION = load_mission("missions/paper_urban.yaml")
 
@@ -51,3 +51,51 @@ def test_mission_option_is_validated():
     assert MISSION.with_track_sensed(30).track_sensed_m == 30.0
     with pytest.raises(ConfigError, match="track_sensed_m"):
         mission_from_dict({"name": "x", "track_sensed_m": -5.0})
+
+
+def _mst_slack_by_hand(pts, dead, link_m):
+    """Kruskal on the live points (a different algorithm from the module's Prim)."""
+    live = [i for i in range(len(pts)) if not dead[i]]
+    edges = sorted((float(torch.linalg.vector_norm(pts[i] - pts[j])), i, j) for a, i in enumerate(live) for j in live[a + 1:])
+    root = {i: i for i in live}
+
+    def find(i):
+        while root[i] != i:
+            i = root[i]
+        return i
+
+    out = [float("inf")] * len(pts)
+    for d, i, j in edges:
+        if find(i) != find(j):
+            root[find(i)] = find(j)
+            half = max(0.0, (link_m - d) / 2)
+            out[i], out[j] = min(out[i], half), min(out[j], half)
+    return out
+
+
+def test_tree_slack_is_half_the_spare_length_of_each_spanning_tree_edge():
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(50):
+        n = int(torch.randint(1, 9, (1,), generator=gen))
+        pts = torch.rand(n, 2, generator=gen, dtype=torch.float64) * 600
+        dead = (torch.rand(n, generator=gen) < 0.2).tolist()
+        held = pts.clone()
+        held[torch.tensor(dead, dtype=torch.bool)] = float("nan")
+        got = tree_slack(held, 332.5).tolist()
+        want = _mst_slack_by_hand(pts, dead, 332.5)
+        assert got == pytest.approx(want), (got, want)
+    batch = torch.rand(3, 4, 5, 2, generator=gen, dtype=torch.float64) * 600  # batched = one copy at a time
+    out = tree_slack(batch, 332.5)
+    assert all(torch.equal(out[i, j], tree_slack(batch[i, j], 332.5)) for i in range(3) for j in range(4))
+
+
+def test_the_plan_tree_bounds_the_shift():
+    """Points 300 m apart (32.5 m of spare link length): each may move 16.25 m, not 30."""
+    m = MISSION.with_track_sensed(30.0)
+    points = torch.tensor([[500.0, 500.0], [800.0, 500.0]], dtype=torch.float64)
+    sense = _sense((500.0, 500.0), [[450.0, 500.0]])  # users 50 m south of UAV 0
+    out = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense, points,
+                                torch.tensor(0))
+    assert float(out[0]) == pytest.approx(500.0 - (0.95 * 350.0 - 300.0) / 2, abs=1e-3)
+    free = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense)
+    assert float(free[0]) == pytest.approx(470.0, abs=1e-3)  # without the plan's points: the 30 m bound alone

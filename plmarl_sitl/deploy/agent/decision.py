@@ -35,6 +35,7 @@ from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.agent.plan import AgentPlan
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.learning.nn.contract import PolicyInputs
@@ -273,7 +274,9 @@ class Decision:
                 self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask,
                                                closed=self.table.closed)
                 # moved toward the sensed users (mission `track_sensed_m`, model/sensed_track.py), as the twin's Perception
-                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense)
+                points = self.plan.team_points() if isinstance(self.plan, AgentPlan) else None
+                me = None if points is None else torch.tensor(self.me)
+                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, points, me)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:

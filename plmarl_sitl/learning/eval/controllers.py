@@ -13,7 +13,7 @@ import torch
 from torch import nn
 
 from plmarl_sitl.learning.nn.contract import PolicyCall
-from plmarl_sitl.learning.nn.perception import Perception
+from plmarl_sitl.learning.nn.perception import Perception, plan_points
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED
 from plmarl_sitl.model.sensed_track import mission_toward_sensed
@@ -53,4 +53,4 @@ class ServiceController:
     def act(self, obs: Observation) -> torch.Tensor:
         xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                  alive=obs.alive, gossip=obs.gossip)
-        return self.targets.accel(obs.ego, mission_toward_sensed(self.mission, xy, obs.ego, obs.sense))
+        return self.targets.accel(obs.ego, mission_toward_sensed(self.mission, xy, obs.ego, obs.sense, *plan_points(self.targets)))

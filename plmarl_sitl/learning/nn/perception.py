@@ -28,6 +28,16 @@ from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.model.sensed_track import mission_toward_sensed
 
 
+def plan_points(plan) -> tuple[torch.Tensor | None, torch.Tensor | None]:  # noqa: ANN001 - ServiceTargets | LocalTargets
+    """(each agent's copy of the team plan's points (B, N, n, 2), each agent's identity (B, N)) for
+    the sensed-users shift's link bound (model/sensed_track.py); (None, None) for the neighbourhood plan."""
+    points = plan.copy_points() if isinstance(plan, ServiceTargets) else None
+    if points is None:
+        return None, None
+    b, n = points.shape[:2]
+    return points, torch.arange(n).expand(b, n)
+
+
 class Perception:
     def __init__(self, tracker: torch.nn.Module, form: PolicyForm, r_comm: float, mission=None,  # noqa: ANN001 - Mission
                  sources: str = "plan") -> None:
@@ -62,5 +72,5 @@ class Perception:
         if self.plan is not None:
             target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                       alive=obs.alive, gossip=obs.gossip)
-            self.point = target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense)
+            self.point = target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense, *plan_points(self.plan))
         return PolicyInputs(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
