@@ -66,6 +66,22 @@ def tree_slack(points: torch.Tensor, link_m: float) -> torch.Tensor:
     return slack
 
 
+class SlackCache:
+    """`tree_slack` of the last points asked for. The plan's points change only at a new map or a
+    re-plan (about every tenth decision), and the tree costs 0.4 ms at N = 4 and ~2 ms at N = 20
+    per call on one agent's copy (docs/RESULTS.md, session 19); comparing the points costs microseconds."""
+
+    def __init__(self) -> None:
+        self.key: tuple[tuple[int, ...], float, bytes] | None = None
+        self.slack: torch.Tensor | None = None
+
+    def __call__(self, points: torch.Tensor, link_m: float) -> torch.Tensor:
+        key = (tuple(points.shape), link_m, points.numpy().tobytes())
+        if key != self.key or self.slack is None:
+            self.key, self.slack = key, tree_slack(points, link_m)
+        return self.slack
+
+
 def toward_sensed(target: torch.Tensor, ego_xy: torch.Tensor, sense: torch.Tensor, sensing_m: float,
                   max_m: float | torch.Tensor) -> torch.Tensor:
     """target (..., 2) plan point, ego_xy (..., 2), sense (..., SENSING_FEATURES) [count / cluster
@@ -85,20 +101,24 @@ def toward_sensed(target: torch.Tensor, ego_xy: torch.Tensor, sense: torch.Tenso
 
 
 def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor,  # noqa: ANN001 - Mission
-                          points: torch.Tensor | None = None, me: torch.Tensor | None = None) -> torch.Tensor:
+                          points: torch.Tensor | None = None, me: torch.Tensor | None = None,
+                          cache: SlackCache | None = None) -> torch.Tensor:
     """`toward_sensed` with the mission's R_s and `track_sensed_m`; ego (..., >= 2) [north, east, ...].
     points (..., n, 2): the agent's copy of the plan's points (identity order, NaN: failed) and
     me (...) its identity: the shift is also bounded by its spanning-tree slack (`tree_slack`).
-    Without them (the neighbourhood plan) only by `track_sensed_m`."""
+    Without them (the neighbourhood plan) only by `track_sensed_m`. `cache` keeps the tree's slack
+    while the points stay the same (the same numbers as without)."""
     metres = float(mission.track_sensed_m)
     if metres <= 0:
         return target
     if points is None or me is None:
         return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), metres)
-    slack = tree_slack(points.to(torch.float64), LINK_FRAC * float(mission.radii.comm_m))
+    points = points.to(torch.float64)
+    link_m = LINK_FRAC * float(mission.radii.comm_m)
+    slack = tree_slack(points, link_m) if cache is None else cache(points, link_m)
     own = torch.gather(slack, -1, me.unsqueeze(-1)).squeeze(-1)
     bound = torch.clamp(own, max=metres)
     return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), bound)
 
 
-__all__ = ["mission_toward_sensed", "toward_sensed", "tree_slack"]
+__all__ = ["SlackCache", "mission_toward_sensed", "toward_sensed", "tree_slack"]

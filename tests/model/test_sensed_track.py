@@ -6,7 +6,7 @@ import torch
 from plmarl_sitl.config import ConfigError
 from plmarl_sitl.mission import load_mission, mission_from_dict
 from plmarl_sitl.model.coverage import sensing_features
-from plmarl_sitl.model.sensed_track import mission_toward_sensed, toward_sensed, tree_slack
+from plmarl_sitl.model.sensed_track import SlackCache, mission_toward_sensed, toward_sensed, tree_slack
 
 MISSION = load_mission("missions/paper_urban.yaml")
 
@@ -99,3 +99,11 @@ def test_the_plan_tree_bounds_the_shift():
     assert float(out[0]) == pytest.approx(500.0 - (0.95 * 350.0 - 300.0) / 2, abs=1e-3)
     free = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense)
     assert float(free[0]) == pytest.approx(470.0, abs=1e-3)  # without the plan's points: the 30 m bound alone
+
+
+def test_slack_cache_recomputes_when_the_points_change():
+    cache = SlackCache()
+    a = torch.tensor([[0.0, 0.0], [300.0, 0.0], [float("nan"), float("nan")]], dtype=torch.float64)
+    b = torch.tensor([[0.0, 0.0], [200.0, 0.0], [float("nan"), float("nan")]], dtype=torch.float64)
+    for pts in (a, a, b, a, b):
+        assert torch.equal(cache(pts, 332.5), tree_slack(pts, 332.5))

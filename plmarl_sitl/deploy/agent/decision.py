@@ -42,7 +42,7 @@ from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
-from plmarl_sitl.model.sensed_track import mission_toward_sensed
+from plmarl_sitl.model.sensed_track import SlackCache, mission_toward_sensed
 
 log = logging.getLogger("plmarl.agent")
 
@@ -68,6 +68,7 @@ class Decision:
         self.plan = agent_plan(mission, me, table.knowledge) if self.form.takes_plan else None
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.point: torch.Tensor | None = None  # the policy's target input then: the point moved toward the sensed users
+        self.slack = SlackCache()  # the plan tree's slack, kept while the plan's points stay (model/sensed_track.py)
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
@@ -276,7 +277,7 @@ class Decision:
                 # moved toward the sensed users (mission `track_sensed_m`, model/sensed_track.py), as the twin's Perception
                 points = self.plan.team_points() if isinstance(self.plan, AgentPlan) else None
                 me = None if points is None else torch.tensor(self.me)
-                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, points, me)
+                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, points, me, self.slack)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
