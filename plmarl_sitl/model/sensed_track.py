@@ -33,6 +33,22 @@ import torch
 from plmarl_sitl.model.service import LINK_FRAC
 
 
+def spacing_slack(points: torch.Tensor, apart_m: float) -> torch.Tensor:
+    """points (..., n, 2) float64 (NaN rows left out) -> (..., n): for each point, min over the
+    other points of (distance - apart_m) / 2, at least 0 (inf alone). Two UAVs that converge on
+    one crowd (two plan points 100 m apart, each shifted 30 m toward the crowd's centroid) sit
+    20-50 m apart and drown the rest of the team's links in their interference (measured: the
+    swarm split with every link distance under R_comm); points closer than apart_m in the plan
+    do not move at all, the others not closer than apart_m."""
+    valid = ~torch.isnan(points[..., 0])
+    diff = points.unsqueeze(-2) - points.unsqueeze(-3)
+    dist = torch.sqrt((diff * diff).sum(-1))
+    n = points.shape[-2]
+    other = valid.unsqueeze(-1) & valid.unsqueeze(-2) & ~torch.eye(n, dtype=torch.bool)
+    half = torch.where(other, torch.clamp((dist - apart_m) / 2, min=0.0), torch.tensor(float("inf"), dtype=points.dtype))
+    return half.amin(-1)
+
+
 def tree_slack(points: torch.Tensor, link_m: float) -> torch.Tensor:
     """points (..., n, 2) float64 (NaN rows: failed identities, left out) -> (..., n): for each
     point, min over its edges in the minimum spanning tree of the points of (link_m - edge) / 2,
@@ -75,11 +91,16 @@ class SlackCache:
         self.key: tuple[tuple[int, ...], float, bytes] | None = None
         self.slack: torch.Tensor | None = None
 
-    def __call__(self, points: torch.Tensor, link_m: float) -> torch.Tensor:
-        key = (tuple(points.shape), link_m, points.numpy().tobytes())
+    def __call__(self, points: torch.Tensor, link_m: float, apart_m: float) -> torch.Tensor:
+        key = (tuple(points.shape), link_m, apart_m, points.numpy().tobytes())
         if key != self.key or self.slack is None:
-            self.key, self.slack = key, tree_slack(points, link_m)
+            self.key, self.slack = key, plan_slack(points, link_m, apart_m)
         return self.slack
+
+
+def plan_slack(points: torch.Tensor, link_m: float, apart_m: float) -> torch.Tensor:
+    """(..., n) how far each point may shift: `tree_slack` and `spacing_slack`, the smaller."""
+    return torch.minimum(tree_slack(points, link_m), spacing_slack(points, apart_m))
 
 
 def toward_sensed(target: torch.Tensor, ego_xy: torch.Tensor, sense: torch.Tensor, sensing_m: float,
@@ -115,10 +136,11 @@ def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sens
         return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), metres)
     points = points.to(torch.float64)
     link_m = LINK_FRAC * float(mission.radii.comm_m)
-    slack = tree_slack(points, link_m) if cache is None else cache(points, link_m)
+    apart_m = 2.0 * float(mission.radii.sensing_m)  # coverage disks that did not overlap in the plan do not
+    slack = plan_slack(points, link_m, apart_m) if cache is None else cache(points, link_m, apart_m)
     own = torch.gather(slack, -1, me.unsqueeze(-1)).squeeze(-1)
     bound = torch.clamp(own, max=metres)
     return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), bound)
 
 
-__all__ = ["SlackCache", "mission_toward_sensed", "toward_sensed", "tree_slack"]
+__all__ = ["SlackCache", "mission_toward_sensed", "plan_slack", "spacing_slack", "toward_sensed", "tree_slack"]

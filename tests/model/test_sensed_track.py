@@ -6,7 +6,14 @@ import torch
 from plmarl_sitl.config import ConfigError
 from plmarl_sitl.mission import load_mission, mission_from_dict
 from plmarl_sitl.model.coverage import sensing_features
-from plmarl_sitl.model.sensed_track import SlackCache, mission_toward_sensed, toward_sensed, tree_slack
+from plmarl_sitl.model.sensed_track import (
+    SlackCache,
+    mission_toward_sensed,
+    plan_slack,
+    spacing_slack,
+    toward_sensed,
+    tree_slack,
+)
 
 MISSION = load_mission("missions/paper_urban.yaml")
 
@@ -106,4 +113,18 @@ def test_slack_cache_recomputes_when_the_points_change():
     a = torch.tensor([[0.0, 0.0], [300.0, 0.0], [float("nan"), float("nan")]], dtype=torch.float64)
     b = torch.tensor([[0.0, 0.0], [200.0, 0.0], [float("nan"), float("nan")]], dtype=torch.float64)
     for pts in (a, a, b, a, b):
-        assert torch.equal(cache(pts, 332.5), tree_slack(pts, 332.5))
+        assert torch.equal(cache(pts, 332.5, 200.0), plan_slack(pts, 332.5, 200.0))
+
+
+def test_points_close_in_the_plan_do_not_converge():
+    """Two plan points 100 m apart on one crowd (R_s 100 m: closer than 2 R_s) keep their places;
+    points 260 m apart may each close in by 30 m, the pair then 200 m apart, not less."""
+    nan = float("nan")
+    pts = torch.tensor([[0.0, 0.0], [100.0, 0.0], [nan, nan]], dtype=torch.float64)
+    assert spacing_slack(pts, 200.0).tolist()[:2] == [0.0, 0.0]
+    far = torch.tensor([[0.0, 0.0], [260.0, 0.0]], dtype=torch.float64)
+    assert spacing_slack(far, 200.0).tolist() == pytest.approx([30.0, 30.0])
+    m = MISSION.with_track_sensed(30.0)
+    sense = _sense((0.0, 0.0), [[50.0, 0.0]])  # UAV 0 senses the crowd between the two
+    out = mission_toward_sensed(m, torch.tensor([0.0, 0.0]), torch.tensor([0.0, 0.0, -80.0]), sense, pts[:2], torch.tensor(0))
+    assert out.tolist() == [0.0, 0.0]
