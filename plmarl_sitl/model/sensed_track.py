@@ -10,15 +10,19 @@ centroid by at most `track_sensed_m` metres, so it follows its crowd between map
 team plan still decides which crowd is whose.
 
 The plan keeps the swarm connected: each point is within the link length (LINK_FRAC R_comm)
-of another. Shifts of two linked points add up, and measured on training seeds an unbounded
-30 m shift split the swarm (lambda_2 = 0) for about half of the steady state where the plan
-alone split it 6-9 % of the time. So the shift of a point is also bounded by half the slack
-of each of its edges in the minimum spanning tree of the plan's points (`tree_slack`): the
-tree's links then stay within the plan's own link length whatever the others do. This
-halves the coverage gain on the training probes and still leaves the swarm split about twice
-as often as the plan alone (16-17 % against 6-9 % of the steady state: moving UAVs lag their
-points, and links near R_comm also fail on interference); docs/RESULTS.md, session 19. Every copy of the plan
-holds the same points, so every agent computes the same bounds.
+of another. Unbounded, a 30 m shift split the swarm (lambda_2 = 0) for about half of the
+steady state on training seeds where the plan alone split it 6-9 % of the time, for two
+reasons, each with its bound (both computed from the plan's points, which every copy holds
+alike, so every agent computes the same bounds):
+
+* shifts of two linked points add up: a point moves at most half the spare length of each of
+  its edges in the minimum spanning tree of the plan's points (`tree_slack`);
+* two UAVs whose plan points share one crowd (100 m apart) converge on its centroid and, 20-50 m
+  apart, drown the team's other links in their interference (split with every distance under
+  R_comm): points closer than 2 R_s in the plan do not move, the others never come closer than
+  2 R_s (`spacing_slack`).
+
+With both, the split share is the plan's own again (docs/RESULTS.md, session 19).
 
 The twin (`learning/nn/perception.py`, `learning/eval/controllers.py`) and the deployed agent
 (`deploy/agent/decision.py`) call `mission_toward_sensed` on the same sensing features, plan
