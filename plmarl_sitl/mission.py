@@ -52,6 +52,11 @@ class Users:
     # `fixed`: one (north, east) centre per cluster. `lattice`: spacing of a centred grid.
     cluster_centers: tuple[tuple[float, float], ...] = ()
     cluster_spacing_m: float = field(default=300.0, metadata={"min": 1.0})
+    # RPGM: radius around its cluster's home within which a group's reference point picks its
+    # waypoints (clamped into the area). 0: the default, 2 cluster_std_m (70 m on the paper
+    # map). A wide range with a fast max_speed_mps makes crowds that walk across the area
+    # (issue 24.3, moving demand).
+    rpgm_range_m: float = field(default=0.0, metadata={"min": 0.0})
 
     @property
     def n_clusters(self) -> int:
@@ -249,6 +254,9 @@ class Mission:
     events: tuple[Event, ...] = ()
     coordination: Coordination = "team"
     placement: Placement = "search"
+    # Metres a UAV's plan point moves toward the centroid of the users it senses
+    # (model/sensed_track.py: follow a moving crowd between demand maps); 0: off.
+    track_sensed_m: float = field(default=0.0, metadata={"min": 0.0})
 
     def __post_init__(self) -> None:
         for i, ev in enumerate(self.events):
@@ -304,6 +312,9 @@ class Mission:
 
     def with_placement(self, placement: str) -> Mission:
         return dataclasses.replace(self, placement=placement)
+
+    def with_track_sensed(self, metres: float) -> Mission:
+        return dataclasses.replace(self, track_sensed_m=float(metres))
 
     def with_tup(self, tup_s: int) -> Mission:
         return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))

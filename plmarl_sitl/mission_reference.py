@@ -43,6 +43,9 @@ FIELD_DOCS: dict[str, str] = {
                              "within R_comm (`radii.comm_m`) of another, or one UAV per cluster cannot stay "
                              "connected (loading warns).",
     "users.cluster_spacing_m": "`lattice` layout: spacing of the grid (m).",
+    "users.rpgm_range_m": "`rpgm` mobility: radius around its cluster's home within which a group picks its "
+                          "waypoints, clamped into the area (m); 0: 2 `cluster_std_m`. Wide and fast: crowds "
+                          "that walk across the area.",
     "channel": "Air-to-ground (Al-Hourani) and UAV-to-UAV radio (docs/ARCHITECTURE.md, *Coverage*, *Connectivity*).",
     "channel.environment": "Label of the environment (the parameters below define it).",
     "channel.los_a": "Al-Hourani LoS-probability parameter a.",
@@ -101,6 +104,7 @@ FIELD_DOCS: dict[str, str] = {
     "events[].tup_s": "`tup_change`: the new T_up (s).",
     "events[].std_m": "`gnss_noise`: standard deviation per axis (m).",
     "coordination": "How each agent gets its point of the plan (a policy that takes the plan, and `service`): `team`, the whole team's plan solved in every agent (model/service.py), or `local`, a plan of the agent's own neighbourhood (model/local_plan.py), whose cost per map does not grow with N or the area but which covers less (docs/RESULTS.md, *Session 13*).",
+    "track_sensed_m": "Metres a UAV's plan point moves toward the centroid of the users it senses (model/sensed_track.py): it follows a moving crowd between demand maps, the team plan still deciding which crowd is whose. 0 (the default): the plan point. The same in every agent and in the twin (docs/RESULTS.md, *Session 19: moving demand*).",
     "placement": "How the team plan places its points (`coordination: team`): `greedy`, each point where it serves the most still-unserved users of the map; `search`, that greedy from several first points, each plan improved by moving points locally, the best kept (model/placement.py); `learned`, a greedy whose picks a learnt scorer ranks (policies/pl-marl/placement.pt). The same in every agent and in the twin (docs/RESULTS.md, *Session 15*).",
 }
 

@@ -178,7 +178,7 @@ def init_users(
     speed = _uniform(gen, home.shape[:-1], 0.1 * u.max_speed_mps, u.max_speed_mps, home)
     pause = _uniform(gen, home.shape[:-1], 0.0, _RWP_PAUSE_MAX_S, home)
     group_ref = centres.repeat_interleave(u.cluster_size, dim=1)
-    group_wp = _in_disk(gen, centres, _GROUP_RADIUS_STD * u.cluster_std_m).repeat_interleave(u.cluster_size, dim=1)
+    group_wp = _group_waypoints(_in_disk(gen, centres, _group_range(u)), mission).repeat_interleave(u.cluster_size, dim=1)
     offset = pos - group_ref
     sigma_v = 0.5 * u.max_speed_mps
     vel = clip_norm(sigma_v * torch.randn(home.shape, generator=gen, dtype=home.dtype), u.max_speed_mps)
@@ -231,6 +231,20 @@ def _gauss_markov_vel(s: UserState, u: Users, dt: float, gen: torch.Generator) -
     return torch.add(noise.mul_(math.sqrt(max(0.0, 1 - alpha * alpha)) * sigma_v), s.vel, alpha=alpha)
 
 
+def _group_range(u: Users) -> float:
+    """Radius around home within which an RPGM group picks its waypoints."""
+    return u.rpgm_range_m if u.rpgm_range_m > 0 else _GROUP_RADIUS_STD * u.cluster_std_m
+
+
+def _group_waypoints(wp: torch.Tensor, mission: Mission) -> torch.Tensor:
+    """(..., 2) RPGM waypoints; with a set `rpgm_range_m` clamped into the area (a wide range
+    reaches past the edge; the default range never does, and its draws stay bit for bit)."""
+    if mission.users.rpgm_range_m <= 0:
+        return wp
+    hi = torch.tensor([mission.area.north_m, mission.area.east_m], dtype=wp.dtype)
+    return torch.minimum(torch.clamp(wp, min=0.0), hi)
+
+
 def _rwp_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
     """Random waypoint inside the user's cluster disk: go, arrive, pause, pick again."""
     to_wp = s.waypoint - s.pos
@@ -248,9 +262,10 @@ def _rwp_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple[
     return vel, waypoint, pause, speed
 
 
-def _rpgm_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
+def _rpgm_step(s: UserState, mission: Mission, dt: float, gen: torch.Generator) -> tuple[torch.Tensor, ...]:
     """Reference Point Group Mobility: the group's reference point does a slow random
-    waypoint walk around the cluster home; each user follows it at its own offset."""
+    waypoint walk around the cluster home (within `rpgm_range_m`); each user follows it at its own offset."""
+    u = mission.users
     group_speed = 0.6 * u.max_speed_mps
     to_wp = s.group_wp - s.group_ref
     dist = _norm_planar(to_wp).unsqueeze(1)
@@ -258,7 +273,9 @@ def _rpgm_step(s: UserState, u: Users, dt: float, gen: torch.Generator) -> tuple
     group_ref = s.group_ref + ref_vel * dt
     arrived = dist.squeeze(1) <= group_speed * dt
     # All users of a cluster share the reference point: draw one new target per cluster.
-    new_wp = _in_disk_planar(gen, s.home[..., :: u.cluster_size].double(), _GROUP_RADIUS_STD * u.cluster_std_m)
+    new_wp = _in_disk_planar(gen, s.home[..., :: u.cluster_size].double(), _group_range(u))
+    if u.rpgm_range_m > 0:
+        new_wp = _group_waypoints(new_wp.transpose(-1, -2), mission).transpose(-1, -2)
     new_wp = new_wp.to(s.pos.dtype).repeat_interleave(u.cluster_size, dim=-1)
     group_wp = torch.where(arrived.unsqueeze(1), new_wp, s.group_wp)
     local = _clip_planar((group_ref + s.offset - s.pos) / 5.0, 0.4 * u.max_speed_mps)
@@ -285,7 +302,7 @@ def step_users(s: UserState, mission: Mission, dt: float, gen: torch.Generator) 
         vel = select(1, v1, vel)
         fields.update(waypoint=select(1, wp, s.waypoint), pause=select(1, pause, s.pause), speed=select(1, speed, s.speed))
     if 2 in present:
-        v2, ref, gwp = _rpgm_step(s, u, dt, gen)
+        v2, ref, gwp = _rpgm_step(s, mission, dt, gen)
         vel = select(2, v2, vel)
         fields.update(group_ref=select(2, ref, s.group_ref), group_wp=select(2, gwp, s.group_wp))
     vel = _clip_planar(vel, u.max_speed_mps)

@@ -34,8 +34,9 @@ TUP = 5
 EPISODE_S = 95  # four demand maps (t = 0, 30, 60, 90)
 
 
-def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, placement: str = "greedy") -> dict[str, int]:
-    m = dataclasses.replace(load_mission(MISSION), n_uavs=4).with_tup(TUP).with_placement(placement)
+def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, placement: str = "greedy",
+           track_m: float = 0.0) -> dict[str, int]:
+    m = dataclasses.replace(load_mission(MISSION), n_uavs=4).with_tup(TUP).with_placement(placement).with_track_sensed(track_m)
     m = dataclasses.replace(m, timing=dataclasses.replace(m.timing, episode_s=EPISODE_S))
     lp = load_policy(policy_dir, m)
     n, tau, topics = m.n_uavs, m.timing.decision_every_s, Topics()
@@ -111,6 +112,9 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, p
                 assert ctl.perceive.plan is not None and ctl.perceive.plan.last is not None
                 assert torch.equal(dec.target, ctl.perceive.plan.last[0, i]), (t, i, dec.target, ctl.perceive.plan.last[0, i])
                 seen["plan"] = seen.get("plan", 0) + 1
+                # the policy's target input: the point moved toward the sensed users (track_sensed_m)
+                assert ctl.perceive.point is not None and torch.equal(dec.point, ctl.perceive.point[0, i]), (t, i)
+                seen["tracked"] = seen.get("tracked", 0) + int(not torch.equal(dec.point, dec.target))
                 # the failure re-plan (model/gossip.py): the same knowledge and the same copy of the plan
                 assert np.array_equal(dec.plan.plans.failed[0, 0], ctl.perceive.plan.plans.failed[0, i]), (t, i)
                 assert np.array_equal(dec.plan.plans.slot[0, 0], ctl.perceive.plan.plans.slot[0, i]), (t, i)
@@ -144,6 +148,14 @@ def test_agent_places_as_the_twin_with_the_search_and_the_learnt_placement(v2_po
         seen = replay(v2_policy_dir, 1, 70.0, placement=placement)
         assert seen["decisions"] > 90 and seen["plan"] == seen["decisions"], (placement, seen)
         assert seen["replanned"] > 0, (placement, seen)
+
+
+def test_agent_follows_its_sensed_users_as_the_twin() -> None:
+    """`track_sensed_m` (model/sensed_track.py, issue 24.3): the point moved toward the sensed
+    users is the twin's at every decision, and it moves at most decisions."""
+    seen = replay(ROOT / "policies" / "pl-marl", 1, 70.0, track_m=30.0)
+    assert seen["decisions"] > 90 and seen["plan"] == seen["decisions"], seen
+    assert seen["tracked"] > seen["decisions"] // 2, seen
 
 
 def test_flag_booked_late_still_equals_the_twins(v2_policy_dir: Path) -> None:

@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from plmarl_sitl.config import ConfigError
-from plmarl_sitl.mission import Area, Users, load_mission
+from plmarl_sitl.mission import Area, Users, load_mission, mission_from_dict
 from plmarl_sitl.model.users import MOBILITY_KINDS, cluster_centres, init_users, step_users
 
 MISSION = load_mission("missions/paper_urban.yaml")
@@ -80,3 +80,44 @@ def test_random_layout_that_cannot_exist_is_a_config_error(change, says):
     with pytest.raises(ConfigError, match=says) as err:
         cluster_centres(m, 2, torch.Generator().manual_seed(0))
     assert err.value.path == "users.layout"
+
+
+def _rpgm(range_m: float, speed: float = 0.5) -> object:
+    return dataclasses.replace(MISSION, users=dataclasses.replace(MISSION.users, mobility="rpgm", max_speed_mps=speed,
+                                                                  rpgm_range_m=range_m))
+
+
+def test_rpgm_range_unset_is_the_two_cluster_std_walk_bit_for_bit():
+    """rpgm_range_m 0 (the default) and 2 cluster_std_m draw the same walks: existing missions keep their users."""
+    runs = []
+    for m in (_rpgm(0.0), _rpgm(2 * MISSION.users.cluster_std_m)):
+        gen = torch.Generator().manual_seed(5)
+        s = init_users(m, 4, gen)
+        for _ in range(200):
+            s = step_users(s, m, 1.0, gen)
+        runs.append(s.pos)
+    # the explicit range clamps waypoints into the area; none of the paper map's reach the edge
+    assert torch.equal(runs[0], runs[1])
+
+
+def test_rpgm_wide_range_walks_groups_far_from_home_inside_the_area():
+    """A wide, fast RPGM (the moving-demand missions): group reference points leave the 70 m of
+    the default walk and every waypoint stays in the area."""
+    far = []
+    for range_m in (0.0, 400.0):
+        m = _rpgm(range_m, speed=4.0)
+        gen = torch.Generator().manual_seed(6)
+        s = init_users(m, 4, gen)
+        dist = torch.zeros(())
+        for _ in range(400):
+            s = step_users(s, m, 1.0, gen)
+            dist = torch.maximum(dist, torch.linalg.vector_norm(s.group_ref - s.home, dim=1).max())
+            assert float(s.group_wp.min()) >= 0.0 and float(s.group_wp.max()) <= 1000.0
+        far.append(float(dist))
+    assert far[0] <= 2 * MISSION.users.cluster_std_m + 1e-3
+    assert far[1] > 200.0, far
+
+
+def test_rpgm_range_must_not_be_negative():
+    with pytest.raises(ConfigError, match="rpgm_range_m"):
+        mission_from_dict({"name": "x", "users": {"mobility": "rpgm", "rpgm_range_m": -1.0}})

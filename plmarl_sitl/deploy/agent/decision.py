@@ -7,7 +7,8 @@ decisions run at the next decision, back to back, from copies of what was held t
 nothing reads their beliefs sooner: `Decision.track`), and every tau seconds perceive
 (`perceive`: ego at the first sample of second k, beliefs, N_i mask, sensing features, f,
 demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
-takes it, as one `PolicyInputs`) and run `policy.pt` on it through the typed call
+takes it, moved toward its sensed users by the mission's `track_sensed_m`, as one
+`PolicyInputs`) and run `policy.pt` on it through the typed call
 (`learning/nn/contract.py::PolicyCall`) -> an acceleration, held until the next decision.
 The inputs are the twin's (`learning/nn/perception.py`, checked by the replay test): f
 latches `model.signalling.silent_in_range` on the beliefs of the decision at which the twin
@@ -34,12 +35,14 @@ from plmarl_sitl.deploy.agent.failure import FailureFlag
 from plmarl_sitl.deploy.agent.guard import band_guard
 from plmarl_sitl.deploy.agent.inbox import SenseHistory
 from plmarl_sitl.deploy.agent.neighbours import NeighbourTable
+from plmarl_sitl.deploy.agent.plan import AgentPlan
 from plmarl_sitl.deploy.agent.stats import LoopStats, Trace
 from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
+from plmarl_sitl.model.sensed_track import SlackCache, mission_toward_sensed
 
 log = logging.getLogger("plmarl.agent")
 
@@ -64,6 +67,8 @@ class Decision:
         # the plan's point: the team plan (model/service.py) or, with `coordination: local`, the neighbourhood plan
         self.plan = agent_plan(mission, me, table.knowledge) if self.form.takes_plan else None
         self.target: torch.Tensor | None = None  # that point at the last decision
+        self.point: torch.Tensor | None = None  # the policy's target input then: the point moved toward the sensed users
+        self.slack = SlackCache()  # the plan tree's slack, kept while the plan's points stay (model/sensed_track.py)
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
         self.clock, self.table, self.stats, self.trace = clock, table, stats, trace
@@ -267,8 +272,12 @@ class Decision:
                 demand = got[1]
             self.used_demand_t = None if got is None else got[0]
             if self.plan is not None:
-                self.target = target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask,
-                                                         closed=self.table.closed)
+                self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask,
+                                               closed=self.table.closed)
+                # moved toward the sensed users (mission `track_sensed_m`, model/sensed_track.py), as the twin's Perception
+                points = self.plan.team_points() if isinstance(self.plan, AgentPlan) else None
+                me = None if points is None else torch.tensor(self.me)
+                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, points, me, self.slack)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:

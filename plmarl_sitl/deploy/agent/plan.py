@@ -85,6 +85,11 @@ class AgentPlan:
         self.me_t = torch.tensor([self.me])  # this agent's identity, as the link functions take it
         self.goals: np.ndarray | None = None  # (1, 1, n, 2) every identity's point: the plan's, kept until it changes
 
+    def team_points(self) -> torch.Tensor | None:
+        """(n, 2) float64 every identity's point in this agent's copy (NaN: failed); None before the
+        plan starts. What bounds the sensed-users shift (model/sensed_track.py), as the twin's `copy_points`."""
+        return None if self.plans.points is None else torch.from_numpy(self.plans.all_targets()[0, 0])
+
     def target(self, k: int, ego: torch.Tensor, held: torch.Tensor, t_rx: torch.Tensor,
                demand: tuple[float, torch.Tensor] | None, mask: torch.Tensor | None = None,
                closed: int | None = None) -> torch.Tensor | None:

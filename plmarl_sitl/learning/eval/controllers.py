@@ -13,9 +13,10 @@ import torch
 from torch import nn
 
 from plmarl_sitl.learning.nn.contract import PolicyCall
-from plmarl_sitl.learning.nn.perception import Perception
+from plmarl_sitl.learning.nn.perception import Perception, plan_points
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED
+from plmarl_sitl.model.sensed_track import mission_toward_sensed
 from plmarl_sitl.twin.env import Observation
 
 
@@ -36,7 +37,9 @@ class ServiceController:
     """Not learnt: every agent flies to its point of the team plan (model/service.py) at the
     altitude of the largest coverage radius. What implicit coordination alone achieves.
     With `replan` (the default) the plan is re-solved at failures from the gossiped
-    knowledge (model/gossip.py); without, it is today's plan fixed at t = 0 and new maps."""
+    knowledge (model/gossip.py); without, it is today's plan fixed at t = 0 and new maps.
+    With the mission's `track_sensed_m` the point moves toward the users the UAV senses
+    (model/sensed_track.py)."""
 
     def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
                  declare_after: int = DECLARE_AFTER_MISSED) -> None:
@@ -50,4 +53,4 @@ class ServiceController:
     def act(self, obs: Observation) -> torch.Tensor:
         xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                  alive=obs.alive, gossip=obs.gossip)
-        return self.targets.accel(obs.ego, xy)
+        return self.targets.accel(obs.ego, mission_toward_sensed(self.mission, xy, obs.ego, obs.sense, *plan_points(self.targets)))

@@ -29,6 +29,9 @@ from plmarl_sitl.mission import Mission
 from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
+# `service-track` and `pl-marl-track`: metres the plan point follows the sensed users (model/sensed_track.py),
+# chosen on training-seed probes (docs/RESULTS.md, session 19); a mission's own track_sensed_m > 0 is kept
+TRACK_METHOD_M = 30.0
 
 
 @dataclass
@@ -41,7 +44,7 @@ class MethodRun:
 
 def needed_policies(methods: list[str]) -> set[str]:
     need = {m for m in methods if m in LEARNT}
-    if "dead-reckoning" in methods or "pl-marl-learned" in methods:
+    if {"dead-reckoning", "pl-marl-learned", "pl-marl-track"} & set(methods):
         need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker; pl-marl-learned its plan
     return need
 
@@ -75,6 +78,13 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
     if method == "pl-marl-learned":  # PL-MARL on the team plan with the learnt placement
         lp = loaded["pl-marl"]
         return lambda env: LearnedController(lp.tracker, lp.policy, env.mission.with_placement("learned"))
+    if method == "service-track":  # the plan follower following its sensed users between maps (issue 24.3)
+        from plmarl_sitl.learning.eval.controllers import ServiceController
+
+        return lambda env: ServiceController(tracking(env.mission))
+    if method == "pl-marl-track":
+        lp = loaded["pl-marl"]
+        return lambda env: LearnedController(lp.tracker, lp.policy, tracking(env.mission))
     if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
@@ -91,6 +101,11 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
         lp = loaded[method]
         return lambda env: LearnedController(lp.tracker, lp.policy, env.mission)
     raise UserError(f"unknown method {method!r} (choose from {', '.join(ALL_METHODS)})")
+
+
+def tracking(mission: Mission) -> Mission:
+    """The mission with its plan point following the sensed users (its own track_sensed_m, else TRACK_METHOD_M)."""
+    return mission if mission.track_sensed_m > 0 else mission.with_track_sensed(TRACK_METHOD_M)
 
 
 def run_method(

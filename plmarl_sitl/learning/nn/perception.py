@@ -11,7 +11,8 @@ is what a deployed agent perceives (`deploy/agent/decision.py` builds the same
   of input version 1 (the twin's `fail_flag`);
 * demand: the published map, one per environment, as a view per agent (version 2);
 * target: the agent's point of the team plan (`plan.ServiceTargets`), for a policy that
-  takes it.
+  takes it, moved toward its sensed users by at most the mission's `track_sensed_m`
+  (model/sensed_track.py; 0 by default: the plan point).
 
 `obs` is any object with the fields of `plmarl_sitl.twin.env.Observation` (learning.nn does
 not import the twin: tests/test_layers.py).
@@ -24,6 +25,17 @@ import torch
 from plmarl_sitl.learning.nn.belief import Beliefs, FailureFlags
 from plmarl_sitl.learning.nn.contract import PolicyForm, PolicyInputs
 from plmarl_sitl.learning.nn.plan import ServiceTargets
+from plmarl_sitl.model.sensed_track import mission_toward_sensed
+
+
+def plan_points(plan) -> tuple[torch.Tensor | None, torch.Tensor | None]:  # noqa: ANN001 - ServiceTargets | LocalTargets
+    """(each agent's copy of the team plan's points (B, N, n, 2), each agent's identity (B, N)) for
+    the sensed-users shift's link bound (model/sensed_track.py); (None, None) for the neighbourhood plan."""
+    points = plan.copy_points() if isinstance(plan, ServiceTargets) else None
+    if points is None:
+        return None, None
+    b, n = points.shape[:2]
+    return points, torch.arange(n).expand(b, n)
 
 
 class Perception:
@@ -36,9 +48,11 @@ class Perception:
         if form.takes_plan and mission is None:
             raise ValueError("a policy that takes the team plan needs the mission (its plan grid)")
         self.form = form
+        self.mission = mission
         self.beliefs = Beliefs(tracker)
         self.flags = FailureFlags(r_comm)
         self.plan = ServiceTargets.of(mission, True, sources) if form.takes_plan else None
+        self.point: torch.Tensor | None = None  # the policy's target input at the last call (B, N, 2)
 
     def reset(self) -> None:
         self.beliefs.reset()
@@ -58,4 +72,5 @@ class Perception:
         if self.plan is not None:
             target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                       alive=obs.alive, gossip=obs.gossip)
+            self.point = target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense, *plan_points(self.plan))
         return PolicyInputs(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)

@@ -143,6 +143,11 @@ class ServiceTargets:
         goal = torch.cat([target, torch.full_like(target[..., :1], -self.alt)], -1)
         return goto_accel(ego[..., :3], ego[..., 3:], goal, self.v_max, self.a_max, time_const=self.tau)
 
+    def copy_points(self) -> torch.Tensor | None:
+        """(B, N, n, 2) float64: every identity's point in each agent's copy of the plan (NaN: failed);
+        None before the plan starts. What bounds the sensed-users shift (model/sensed_track.py)."""
+        return None if self.plans is None else torch.from_numpy(self.plans.all_targets())
+
     def reset(self) -> None:
         self.plans: TeamPlans | None = None
         self.map_t = -1
