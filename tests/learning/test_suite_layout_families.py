@@ -78,3 +78,15 @@ def test_every_new_mission_flies_in_the_twin(families) -> None:  # noqa: ANN001
             run = run_method(short, make, 2, EVAL_SEED_BASE + 999_000, from_s=0)
             assert np.all((run.trace >= 0) & (run.trace <= 1)), m.name
             assert run.trace.shape == (2, 40), m.name
+
+
+def test_a_family_mixing_episode_lengths_is_a_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Its traces are averaged second by second: mixing a 200 s and a 250 s mission used
+    to end in a numpy traceback minutes into the run; now the suite refuses it at load."""
+    paper = ROOT / "missions" / "paper_urban.yaml"
+    (tmp_path / "long.yaml").write_text(f"extends: {paper}\nname: long\ntiming: {{episode_s: 250}}\n")
+    (tmp_path / "suite.yaml").write_text(
+        f"families:\n  - name: mixed\n    about: two clocks\n    missions: [{paper}, long.yaml]\n")
+    assert main(["suite", "mixed", "--suite-file", str(tmp_path / "suite.yaml"), "--episodes", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "mixed" in err and "long.yaml 250 s" in err and "paper_urban.yaml 200 s" in err
