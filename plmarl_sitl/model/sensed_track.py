@@ -32,6 +32,8 @@ default): the plan point.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
 from plmarl_sitl.model.service import LINK_FRAC
@@ -125,17 +127,21 @@ def toward_sensed(target: torch.Tensor, ego_xy: torch.Tensor, sense: torch.Tenso
     return torch.where((sense[..., :1] > 0), target + step, target)
 
 
+Team = Callable[[], tuple[torch.Tensor | None, torch.Tensor | None]]
+
+
 def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor,  # noqa: ANN001 - Mission
-                          points: torch.Tensor | None = None, me: torch.Tensor | None = None,
-                          cache: SlackCache | None = None) -> torch.Tensor:
+                          team: Team | None = None, cache: SlackCache | None = None) -> torch.Tensor:
     """`toward_sensed` with the mission's R_s and `track_sensed_m`; ego (..., >= 2) [north, east, ...].
-    points (..., n, 2): the agent's copy of the plan's points (identity order, NaN: failed) and
-    me (...) its identity: the shift is also bounded by its spanning-tree slack (`tree_slack`).
-    Without them (the neighbourhood plan) only by `track_sensed_m`. `cache` keeps the tree's slack
-    while the points stay the same (the same numbers as without)."""
+    team() -> (points (..., n, 2), me (...)): the agent's copy of the plan's points (identity order,
+    NaN: failed) and its identity; the shift is then also bounded by the plan's slack (`plan_slack`).
+    It is called only when the shift is on (the copy costs a gather per call), and may give (None,
+    None) (the neighbourhood plan, or before the plan starts): then only `track_sensed_m` bounds it.
+    `cache` keeps the slack while the points stay the same (the same numbers as without)."""
     metres = float(mission.track_sensed_m)
     if metres <= 0:
         return target
+    points, me = team() if team is not None else (None, None)
     if points is None or me is None:
         return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), metres)
     points = points.to(torch.float64)
@@ -147,4 +153,4 @@ def mission_toward_sensed(mission, target: torch.Tensor, ego: torch.Tensor, sens
     return toward_sensed(target, ego[..., :2], sense, float(mission.radii.sensing_m), bound)
 
 
-__all__ = ["SlackCache", "mission_toward_sensed", "plan_slack", "spacing_slack", "toward_sensed", "tree_slack"]
+__all__ = ["SlackCache", "Team", "mission_toward_sensed", "plan_slack", "spacing_slack", "toward_sensed", "tree_slack"]

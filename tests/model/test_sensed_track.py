@@ -52,6 +52,11 @@ def test_nothing_sensed_or_off_keeps_the_plan_point():
     assert torch.equal(toward_sensed(target, ego, sense, 100.0, 0.0), target)
     assert torch.equal(mission_toward_sensed(MISSION, target, ego, sense), target)  # the default: off
 
+    def no_copy() -> tuple[torch.Tensor, torch.Tensor]:
+        raise AssertionError("the plan's points were copied with the shift off")
+
+    assert torch.equal(mission_toward_sensed(MISSION, target, ego, sense, no_copy), target)  # off: no copy asked for
+
 
 def test_mission_option_is_validated():
     assert MISSION.track_sensed_m == 0.0
@@ -101,8 +106,8 @@ def test_the_plan_tree_bounds_the_shift():
     m = MISSION.with_track_sensed(30.0)
     points = torch.tensor([[500.0, 500.0], [800.0, 500.0]], dtype=torch.float64)
     sense = _sense((500.0, 500.0), [[450.0, 500.0]])  # users 50 m south of UAV 0
-    out = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense, points,
-                                torch.tensor(0))
+    out = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense,
+                                lambda: (points, torch.tensor(0)))
     assert float(out[0]) == pytest.approx(500.0 - (0.95 * 350.0 - 300.0) / 2, abs=1e-3)
     free = mission_toward_sensed(m, torch.tensor([500.0, 500.0]), torch.tensor([500.0, 500.0, -80.0]), sense)
     assert float(free[0]) == pytest.approx(470.0, abs=1e-3)  # without the plan's points: the 30 m bound alone
@@ -126,5 +131,5 @@ def test_points_close_in_the_plan_do_not_converge():
     assert spacing_slack(far, 200.0).tolist() == pytest.approx([30.0, 30.0])
     m = MISSION.with_track_sensed(30.0)
     sense = _sense((0.0, 0.0), [[50.0, 0.0]])  # UAV 0 senses the crowd between the two
-    out = mission_toward_sensed(m, torch.tensor([0.0, 0.0]), torch.tensor([0.0, 0.0, -80.0]), sense, pts[:2], torch.tensor(0))
+    out = mission_toward_sensed(m, torch.tensor([0.0, 0.0]), torch.tensor([0.0, 0.0, -80.0]), sense, lambda: (pts[:2], torch.tensor(0)))
     assert out.tolist() == [0.0, 0.0]

@@ -275,12 +275,14 @@ class Decision:
                 self.target = self.plan.target(k, ego, self.table.state, self.table.t_rx, got, mask,
                                                closed=self.table.closed)
                 # moved toward the sensed users (mission `track_sensed_m`, model/sensed_track.py), as the twin's Perception
-                self.point = target = self.target
-                if self.mission.track_sensed_m > 0:  # off (the default): no copy of the plan's points per decision
-                    points = self.plan.team_points() if isinstance(self.plan, AgentPlan) else None
-                    me = None if points is None else torch.tensor(self.me)
-                    self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, points, me, self.slack)
+                self.point = target = mission_toward_sensed(self.mission, self.target, ego, sense, self._team, self.slack)
         return PolicyInputs(ego, self.belief, mask, sense, fail, demand, target)
+
+    def _team(self) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+        """This agent's copy of the team plan's points and its identity (model/sensed_track.py);
+        (None, None) with the neighbourhood plan or before the plan starts."""
+        points = self.plan.team_points() if isinstance(self.plan, AgentPlan) else None
+        return (None, None) if points is None else (points, torch.tensor(self.me))
 
     def _sense(self, ego: torch.Tensor, k: int) -> torch.Tensor:
         """Sensing features of the newest users' message not after second k (usually

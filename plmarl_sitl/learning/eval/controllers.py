@@ -53,4 +53,5 @@ class ServiceController:
     def act(self, obs: Observation) -> torch.Tensor:
         xy = self.targets.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                  alive=obs.alive, gossip=obs.gossip)
-        return self.targets.accel(obs.ego, mission_toward_sensed(self.mission, xy, obs.ego, obs.sense, *plan_points(self.targets)))
+        return self.targets.accel(obs.ego, mission_toward_sensed(self.mission, xy, obs.ego, obs.sense,
+                                                                  lambda: plan_points(self.targets)))

@@ -72,7 +72,5 @@ class Perception:
         if self.plan is not None:
             target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                       alive=obs.alive, gossip=obs.gossip)
-            if self.mission.track_sensed_m > 0:  # off (the default): the plan point, no copy of the plan's points
-                target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense, *plan_points(self.plan))
-            self.point = target
+            self.point = target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense, lambda: plan_points(self.plan))
         return PolicyInputs(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
