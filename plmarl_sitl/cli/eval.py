@@ -44,7 +44,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run deterministic policies on the same episodes for every method and T_up. "
         "Coverage of an episode is the mean C(t) after --from-s seconds (steady state; the "
         "whole-episode mean is in the saved results); mean and 95% CI over episodes, lambda_2, "
-        "and the two-sided Mann-Whitney U p-value of PL-MARL against each other method. "
+        "and PL-MARL against each other method: the two-sided Mann-Whitney U p-value (unpaired), the two-sided "
+        "Wilcoxon signed-rank p-value of the per-episode differences (paired: the same episodes) and the episodes "
+        "it wins and loses. "
         "Fractions are of the best reference of each episode (the best of service, greedy and clairvoyant among "
         "the methods run; none is a proven bound) and the table names it.\n\nMethods: " + methods_help() + ". "
         "('oracle' is still accepted for greedy, for one release.)",

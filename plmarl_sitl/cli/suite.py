@@ -36,8 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "Each row: coverage (mean C(t) for t > --from-s, mean and 95% CI over episodes), the mean per-episode "
         "fraction of the best reference on the same episodes and which reference that was (per episode the best of "
         "service, greedy and clairvoyant among the methods run; none is a proven bound: a reference a method beats "
-        "is no ceiling), lambda_2, and the two-sided Mann-Whitney U p-value of "
-        "PL-MARL against the row's method; failure families add the transient against the same best reference "
+        "is no ceiling), lambda_2, and PL-MARL against the row's method: the two-sided Mann-Whitney U p-value "
+        "(unpaired), the two-sided Wilcoxon signed-rank p-value of the per-episode differences (paired: every "
+        "method flies the same episodes, so this is the test of the design) and the episodes PL-MARL wins and "
+        "loses; failure families add the transient against the same best reference "
         "(trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
         "greedy and clairvoyant ignore signalling, so they run once per family and serve every T_up.\n\n"
         "Methods: " + methods_help() + ". ('oracle' is still accepted for greedy, for one release.)",

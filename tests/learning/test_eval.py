@@ -12,7 +12,7 @@ from scipy import stats
 
 from plmarl_sitl.cli import main
 from plmarl_sitl.cli.eval import _tups
-from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.eval.stats import compare, mann_whitney_p, mean_ci95, paired_wilcoxon_p
 from plmarl_sitl.learning.nn import Actor, BeliefTracker, DeployedPolicy, FeatureScales, make_predictor
 from plmarl_sitl.learning.nn.io import export_policy
 from plmarl_sitl.mission import load_mission
@@ -33,6 +33,22 @@ def test_mann_whitney_matches_scipy() -> None:
     a, b = rng.normal(0.8, 0.05, 100), rng.normal(0.78, 0.05, 100)
     assert mann_whitney_p(a, b) == pytest.approx(stats.mannwhitneyu(a, b, alternative="two-sided").pvalue)
     assert mann_whitney_p(a, a + 1.0) < 1e-10
+
+
+def test_paired_wilcoxon_sees_a_small_shift_that_mann_whitney_misses_across_spread_episodes() -> None:
+    """The suite's design: every method flies the same episodes, and episodes differ far more than methods."""
+    rng = np.random.default_rng(2)
+    base = rng.uniform(0.3, 0.9, 30)  # episodes of several missions: a wide spread
+    better = base + 0.01 + rng.normal(0, 0.003, 30)
+    assert paired_wilcoxon_p(better, base) == pytest.approx(stats.wilcoxon(better - base).pvalue)
+    assert paired_wilcoxon_p(better, base) < 1e-5
+    assert mann_whitney_p(better, base) > 0.5
+    c = compare(better, base)
+    assert c["wins"] + c["losses"] <= 30 and c["wins"] > 25 and c["p"] == mann_whitney_p(better, base)
+    # Identical episodes: no evidence either way; ties count as neither a win nor a loss.
+    assert compare(base, base) == {"p": 1.0, "p_paired": 1.0, "wins": 0, "losses": 0}
+    with pytest.raises(ValueError, match="differ in length"):
+        paired_wilcoxon_p(base, base[:-1])
 
 
 def test_tup_ranges() -> None:
@@ -60,9 +76,11 @@ def test_eval_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]
         assert set(r) == {"method", "tup", "coverage_mean", "coverage_ci95", "lambda2_mean"}
         assert r["coverage_ci95"][0] <= r["coverage_mean"] <= r["coverage_ci95"][1]
     for p in doc["p_values"]:
-        assert set(p) == {"method", "versus", "tup", "p"} and p["method"] == "pl-marl" and 0 <= p["p"] <= 1
+        assert set(p) == {"method", "versus", "tup", "p", "p_paired", "wins", "losses"} and p["method"] == "pl-marl"
+        assert 0 <= p["p"] <= 1 and 0 <= p["p_paired"] <= 1 and p["wins"] + p["losses"] <= 3
     assert (tmp_path / "out" / "coverage_vs_tup.png").stat().st_size > 1000
-    assert "| T_up (s) |" in (tmp_path / "out" / "results.md").read_text()
+    md = (tmp_path / "out" / "results.md").read_text()
+    assert "| T_up (s) |" in md and "paired Wilcoxon signed-rank p" in md
 
 
 def test_eval_missing_policy_is_one_line_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

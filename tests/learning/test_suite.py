@@ -155,7 +155,9 @@ def test_suite_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str
     for r in doc["rows"]:
         assert r["episodes"] == 2 and r["coverage_ci95"][0] <= r["coverage_mean"] <= r["coverage_ci95"][1]
         assert "fraction_of_best_mean" in r and r["lambda2_ci95"][0] <= r["lambda2_mean"] <= r["lambda2_ci95"][1]
-        assert ("p_pl_marl_vs" in r) == (r["method"] != "pl-marl")
+        assert ("p_pl_marl_vs" in r) == ("p_paired_pl_marl_vs" in r) == (r["method"] != "pl-marl")
+        if "pl_marl_wins_losses" in r:
+            assert sum(r["pl_marl_wins_losses"]) <= r["episodes"]
         if r["method"] in ("service", "greedy", "clairvoyant"):  # a reference never exceeds the best one
             assert r["fraction_of_best_mean"] <= 1.0 + 1e-9
     # The best reference per (family, T_up), named with how often each one was best.

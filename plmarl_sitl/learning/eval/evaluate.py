@@ -22,7 +22,7 @@ from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.controllers import LearnedController
 from plmarl_sitl.learning.eval.methods import ALL_METHODS, GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import best_reference
-from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.eval.stats import compare, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
 from plmarl_sitl.mission import Mission
@@ -173,8 +173,8 @@ def evaluate_methods(
             for other in methods:
                 if other == "pl-marl":
                     continue
-                p = mann_whitney_p(runs[("pl-marl", tup)].coverage, runs[(other, tup)].coverage)
-                p_values.append({"method": "pl-marl", "versus": other, "tup": tup, "p": p})
+                c = compare(runs[("pl-marl", tup)].coverage, runs[(other, tup)].coverage)
+                p_values.append({"method": "pl-marl", "versus": other, "tup": tup, **c})
     traces = {f"{m}@{t}": r.trace.mean(0).tolist() for (m, t), r in runs.items()}
     return {"results": results, "p_values": p_values,
             "extra": {"rows": extra, "from_s": from_s, "episodes": episodes, "seed": seed,

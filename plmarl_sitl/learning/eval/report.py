@@ -70,13 +70,23 @@ def full_table_md(res: dict) -> str:
     return _per_tup_table(res, "coverage_full_mean", ".3f")
 
 
+def comparison_text(c: dict) -> str:
+    """One comparison (`stats.compare`) for a table cell: 'MWU p / paired p (wins/losses)'."""
+    return f"{c['p']:.2g} / {c['p_paired']:.2g} ({c['wins']}/{c['losses']})"
+
+
+def _p_cell(p: dict) -> str:
+    """Results written before the paired test carry only the MWU p."""
+    return comparison_text(p) if "p_paired" in p else f"{p['p']:.2g}"
+
+
 def pvalue_table_md(res: dict) -> str:
     others = list(dict.fromkeys(p["versus"] for p in res["p_values"]))
     tups = sorted({p["tup"] for p in res["p_values"]})
-    pv = {(p["versus"], p["tup"]): p["p"] for p in res["p_values"]}
+    pv = {(p["versus"], p["tup"]): _p_cell(p) for p in res["p_values"]}
     lines = ["| T_up (s) | " + " | ".join(f"vs {o}" for o in others) + " |", "|" + "---|" * (len(others) + 1)]
     for t in tups:
-        lines.append(f"| {t} | " + " | ".join(f"{pv[(o, t)]:.2g}" for o in others) + " |")
+        lines.append(f"| {t} | " + " | ".join(pv[(o, t)] for o in others) + " |")
     return "\n".join(lines)
 
 
@@ -211,7 +221,8 @@ def results_markdown(res: dict, figs_rel: dict[str, str], command: str, failures
         lambda_table_md(res),
     ]
     if res["p_values"]:
-        parts += ["", "Mann-Whitney U (two-sided) p-values, PL-MARL vs each method, per-episode coverage:", "", pvalue_table_md(res)]
+        parts += ["", "PL-MARL vs each method, per-episode coverage on the same episodes: two-sided Mann-Whitney U p / "
+                  "paired Wilcoxon signed-rank p (episodes PL-MARL wins / loses):", "", pvalue_table_md(res)]
     for title, rel in figs_rel.items():
         parts += ["", f"![{title}]({rel})"]
     return "\n".join(parts) + "\n"
@@ -266,12 +277,12 @@ def print_tables(res: dict) -> None:
 
     rows = _rows_by(res)
     t = Table(title=f"coverage (t > {res['extra']['from_s']} s), deterministic, {res['extra']['episodes']} episodes")
-    for c in ("method", "T_up", "coverage", "95% CI", "of best ref.", "best reference", "full episode", "lambda2", "p vs PL-MARL"):
+    for c in ("method", "T_up", "coverage", "95% CI", "of best ref.", "best reference", "full episode", "lambda2", "PL-MARL vs: MWU p / paired p (w/l)"):
         t.add_column(c)
-    pv = {(p["versus"], p["tup"]): p["p"] for p in res["p_values"]}
+    pv = {(p["versus"], p["tup"]): _p_cell(p) for p in res["p_values"]}
     for (m, tup), r in rows.items():
         frac = f"{100 * r['fraction_of_best_mean']:.0f}%" if "fraction_of_best_mean" in r else "-"
-        p = f"{pv[(m, tup)]:.2g}" if (m, tup) in pv else "-"
+        p = pv.get((m, tup), "-")
         t.add_row(m, str(tup), f"{r['coverage_mean']:.3f}", f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]",
                   frac, r.get("best_reference", "-"), f"{r['coverage_full_mean']:.3f}", f"{r['lambda2_mean']:.2f}", p)
     console = table_console()

@@ -28,7 +28,7 @@ from plmarl_sitl.errors import UserError
 from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, run_method
 from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import ABOUT, REFERENCES, best_reference, pairwise_wins
-from plmarl_sitl.learning.eval.stats import mann_whitney_p, mean_ci95
+from plmarl_sitl.learning.eval.stats import compare, mean_ci95
 from plmarl_sitl.learning.eval.transient import failure_transient
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.learning.train.seeds import EVAL_SEED_BASE, suite_twin_seed
@@ -214,9 +214,10 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
                 row.update({"fraction_of_best_mean": fm, "fraction_of_best_ci95": list(fci), "best_reference": best.label(),
                             "best_reference_coverage_mean": float(best.coverage.mean())})
             if method != "pl-marl" and "pl-marl" in methods:
-                p = mann_whitney_p(runs[("pl-marl", tup)].coverage, r.coverage)
-                row["p_pl_marl_vs"] = p
-                p_values.append({"family": family.name, "tup": tup, "method": "pl-marl", "versus": method, "p": p})
+                c = compare(runs[("pl-marl", tup)].coverage, r.coverage)
+                row.update({"p_pl_marl_vs": c["p"], "p_paired_pl_marl_vs": c["p_paired"],
+                            "pl_marl_wins_losses": [c["wins"], c["losses"]]})
+                p_values.append({"family": family.name, "tup": tup, "method": "pl-marl", "versus": method, **c})
             rows.append(row)
             horizon = r.trace.shape[1]
             fail_s = family.spec.failure_at_s or (FAILURE_AT_S if family.spec.failure_prob > 0 else None)

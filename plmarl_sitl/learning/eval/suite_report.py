@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plmarl_sitl.learning.eval.report import COLOURS
+from plmarl_sitl.learning.eval.report import COLOURS, comparison_text
 from plmarl_sitl.learning.eval.transient import PLATEAU_FRACTION, WINDOW_S
 
 SUMMARY_METHODS = ("pl-marl", "tag-mappo", "gru", "dead-reckoning", "service")
@@ -16,6 +16,14 @@ REFERENCE_COLUMNS = ("greedy", "clairvoyant")  # service is a method column too
 
 def _pct(row: dict, key: str = "fraction_of_best_mean") -> str:
     return f"{100 * row[key]:.0f}%" if key in row else "-"
+
+
+def _vs_cell(row: dict) -> str:
+    """PL-MARL against the row's method; rows written before the paired test carry only the MWU p."""
+    if "p_paired_pl_marl_vs" in row:
+        wins, losses = row["pl_marl_wins_losses"]
+        return comparison_text({"p": row["p_pl_marl_vs"], "p_paired": row["p_paired_pl_marl_vs"], "wins": wins, "losses": losses})
+    return f"{row['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in row else "-"
 
 
 def references_text(res: dict) -> str:
@@ -54,12 +62,12 @@ def summary_table_md(res: dict) -> str:
 
 def family_table_md(res: dict, family: str) -> str:
     lines = ["| T_up (s) | method | coverage [95% CI] | of best reference [95% CI] | best reference | full episode "
-             "| lambda_2 [95% CI] | p (PL-MARL vs) |",
+             "| lambda_2 [95% CI] | PL-MARL vs: MWU p / paired p (wins/losses) |",
              "|---|---|---|---|---|---|---|---|"]
     for r in (r for r in res["rows"] if r["family"] == family):
         frac = (f"{100 * r['fraction_of_best_mean']:.1f}% [{100 * r['fraction_of_best_ci95'][0]:.1f}, "
                 f"{100 * r['fraction_of_best_ci95'][1]:.1f}]") if "fraction_of_best_mean" in r else "-"
-        p = f"{r['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in r else "-"
+        p = _vs_cell(r)
         lines.append(
             f"| {r['tup']} | {r['method']} | {r['coverage_mean']:.3f} [{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}] "
             f"| {frac} | {r.get('best_reference', '-')} | {r['coverage_full_mean']:.3f} | {r['lambda2_mean']:.2f} [{r['lambda2_ci95'][0]:.2f}, "
@@ -94,8 +102,10 @@ def results_markdown(res: dict, figures: dict[str, str]) -> str:
         f"(twin seeds {res['eval_seed_base']} + {res['seed']} x 10000 + 100 x mission + batch: the evaluation range, "
         "disjoint from every training seed). Coverage = mean C(t) for t > "
         f"{res['from_s']} s; lambda_2 = mean "
-        "algebraic connectivity of the weighted comm graph over the same window; p = two-sided Mann-Whitney U of "
-        "PL-MARL's per-episode coverage against the row's method.", "",
+        "algebraic connectivity of the weighted comm graph over the same window; PL-MARL vs: the two-sided "
+        "Mann-Whitney U p of PL-MARL's per-episode coverage against the row's method (unpaired), then the two-sided "
+        "Wilcoxon signed-rank p of the per-episode differences (paired: every method flies the same episodes), then "
+        "the episodes PL-MARL wins / loses.", "",
         references_text(res), "",
         "## Summary: coverage (share of the best reference)", "", summary_table_md(res), "",
     ]
@@ -266,10 +276,10 @@ def print_summary(res: dict) -> None:
     from plmarl_sitl.cmdline import table_console
 
     t = Table(title=f"held-out suite, coverage t > {res['from_s']} s, {res['episodes']} episodes per cell")
-    for c in ("family", "T_up", "method", "coverage", "95% CI", "of best ref.", "best reference", "lambda2", "p PL-MARL vs"):
+    for c in ("family", "T_up", "method", "coverage", "95% CI", "of best ref.", "best reference", "lambda2", "PL-MARL vs: MWU p / paired p (w/l)"):
         t.add_column(c)
     for r in res["rows"]:
-        p = f"{r['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in r else "-"
+        p = _vs_cell(r)
         t.add_row(r["family"], str(r["tup"]), r["method"], f"{r['coverage_mean']:.3f}",
                   f"[{r['coverage_ci95'][0]:.3f}, {r['coverage_ci95'][1]:.3f}]", _pct(r), r.get("best_reference", "-"),
                   f"{r['lambda2_mean']:.2f}", p)
