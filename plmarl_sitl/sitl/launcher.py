@@ -90,6 +90,10 @@ class ComponentFailed(PlmarlError):
         self.reason = reason
 
 
+WAITING_EVERY_S = 10  # vehicle s between `--headless` start-up lines, as between its mission lines
+WAITING_SHOWN = 4  # vehicles named in such a line
+
+
 def default_out_dir() -> Path:
     return Path("runs") / _dt.datetime.now().strftime("%Y-%m-%dT%H-%M-%S")
 
@@ -287,6 +291,14 @@ class _Run:
             self._last_headless = float(m["t"])
             self.console.print(headless_line(self.monitor.view()), highlight=False)
 
+    def say_waiting(self, second: float, not_ready: list[str], takeoff_alt: float) -> None:
+        """`--headless` before the start, every WAITING_EVERY_S vehicle seconds: what start-up waits for."""
+        if int(second) % WAITING_EVERY_S or not not_ready:
+            return
+        shown = ", ".join(not_ready[:WAITING_SHOWN]) + (f", +{len(not_ready) - WAITING_SHOWN} more" if len(not_ready) > WAITING_SHOWN else "")
+        self.console.print(f"start-up, {second:.0f} s: waiting for {len(not_ready)} of {self.n} vehicles to fly under their agents "
+                           f"(armed, offboard, at {takeoff_alt:.0f} m): {shown}", highlight=False)
+
     async def start_and_fly(self, stack: contextlib.AsyncExitStack) -> None:
         from rich.live import Live
 
@@ -415,6 +427,8 @@ class _Run:
         self.world = world = SitlWorld(cfg, on_metrics=self.on_metrics, on_event=self.record_event)
         stack.callback(_close_world, world)
         world.on_behind = lambda msg: console.print(f"[yellow]world:[/] {msg}", highlight=False)
+        if opts.headless:  # the live view shows each vehicle's state itself
+            world.on_waiting = lambda second, not_ready: self.say_waiting(second, not_ready, world.takeoff_alt)
         script = LauncherEvents(world.events, fleet, gate, self.record_event)  # registers its handlers on the world's dispatcher
         world.vehicles.record_tlogs(out / "tlogs")
         await world.start()

@@ -140,6 +140,9 @@ class SitlWorld:
         self.on_event = on_event
         self.on_agent_failed: Callable[[int, int | None, str], None] | None = None  # (uav, mission s, why)
         self.on_behind: Callable[[str], None] | None = None  # free-running: the once-per-run "running behind"
+        # Before the mission starts, at each whole boot second: the vehicles not yet flying under
+        # their agents (`StartGate.not_ready`), so a launcher can say what start-up waits for.
+        self.on_waiting: Callable[[float, list[str]], None] | None = None
         # Lockstep: which of these agents are still computing (`AgentFleet.working`); one that
         # is, is not a straggler yet (None: every agent overdue is one).
         self.agents_working: Callable[[list[int]], list[int]] | None = None
@@ -363,6 +366,8 @@ class SitlWorld:
     def _maybe_start(self, second: float) -> None:
         due = self.start_gate.t0_at(second, self.now)
         if due is None:
+            if self.on_waiting is not None:
+                self.on_waiting(second, self.start_gate.not_ready())
             return
         t0, left_behind = due
         if left_behind:

@@ -66,6 +66,8 @@ def test_same_seed_same_outputs_with_a_cpu_hog_beside_one_run(tmp_path):
                 p.kill()
                 p.wait()
         assert r.returncode == 0, r.stderr[-2000:]
+        # --headless says what start-up waits for (the take-off takes ~40 vehicle s), not only the mission's lines.
+        assert "start-up, 10 s: waiting for 4 of 4 vehicles to fly under their agents" in r.stdout, r.stdout[:2000]
         digests.append(_digest(out))
         flown = json.loads(r.stdout.strip().splitlines()[-1])  # wall-clock figures: printed, not in summary.json
         assert flown["achieved_speedup"] == pytest.approx(25 / flown["mission_wall_s"])
