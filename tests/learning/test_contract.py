@@ -23,7 +23,7 @@ from plmarl_sitl.twin.env import CoverageEnv
 ROOT = Path(__file__).resolve().parents[2]
 SHIPPED = ["pl-marl", "gru", "tag-mappo", "wave1/pl-marl", "wave1/gru", "wave1/tag-mappo"]
 # Outputs of the shipped files on fixed inputs, recorded at commit cde96d6 (before the
-# contract) with each file's positional call written out per input version.
+# contract, on an Intel Xeon) with each file's positional call written out per input version.
 GOLDEN = json.loads((Path(__file__).parent / "data" / "shipped_policy_outputs.json").read_text())
 MISSION = load_mission(PAPER_MISSION)
 
@@ -45,7 +45,10 @@ def test_every_shipped_policy_gives_its_recorded_outputs_through_the_adapter(nam
         pytest.skip(f"policies/{name}/policy.pt is not the file the outputs were recorded from")
     with torch.no_grad():
         for x, want in zip(CASES, golden["accel"], strict=True):
-            assert lp.call(x).flatten().tolist() == want  # bit for bit
+            # To float32's last bits: the golden outputs were recorded on an Intel Xeon, and on an AMD EPYC
+            # torch's CPU kernels round the same products differently (1e-7 relative). A wrong input
+            # through the adapter moves an acceleration by far more than that.
+            assert lp.call(x).flatten().tolist() == pytest.approx(want, rel=1e-5, abs=1e-6)
 
 
 @pytest.mark.parametrize("name", SHIPPED)
