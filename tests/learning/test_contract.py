@@ -46,9 +46,9 @@ def test_every_shipped_policy_gives_its_recorded_outputs_through_the_adapter(nam
     with torch.no_grad():
         for x, want in zip(CASES, golden["accel"], strict=True):
             # To float32's last bits: the golden outputs were recorded on an Intel Xeon, and on an AMD EPYC
-            # torch's CPU kernels round the same products differently (1e-7 relative). A wrong input
+            # torch's CPU kernels round the same products differently (up to 1.2e-6 m/s^2). A wrong input
             # through the adapter moves an acceleration by far more than that.
-            assert lp.call(x).flatten().tolist() == pytest.approx(want, rel=1e-5, abs=1e-6)
+            assert lp.call(x).flatten().tolist() == pytest.approx(want, rel=1e-5, abs=1e-5)
 
 
 @pytest.mark.parametrize("name", SHIPPED)
