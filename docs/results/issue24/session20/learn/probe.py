@@ -33,6 +33,7 @@ from plmarl_sitl.learning.nn.perception import plan_points
 from plmarl_sitl.learning.train.teacher import joint_track, track_target, true_sense
 from plmarl_sitl.model.service import LINK_FRAC
 from plmarl_sitl.mission import load_mission
+from plmarl_sitl.twin.rollout import rollout
 
 HERE = Path(__file__).parent
 S19 = HERE.parent.parent / "session19" / "move"
@@ -83,6 +84,7 @@ def main():
     ap.add_argument("--seed", type=int, default=5001)
     ap.add_argument("--tup", default="15")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--failure-prob", type=float, default=0.0)
     a = ap.parse_args()
     assert a.seed < 1_000_000_000, "probes use training twin seeds only"
     methods = a.methods.split(",")
@@ -100,10 +102,13 @@ def main():
             cov = {}
             for meth in methods:
                 t0 = time.process_time()
-                r = run_method(m, factory(meth, loaded), a.episodes, a.seed, batch=a.episodes)
-                cov[meth] = r.coverage
+                runs = rollout(m, factory(meth, loaded), a.episodes, a.seed, batch=a.episodes,
+                               failure_prob=a.failure_prob)
+                cov[meth] = np.concatenate([x.coverage[:, 50:].mean(-1).numpy() for x in runs])
+                l2 = np.concatenate([x.lambda2[:, 50:].numpy() for x in runs])
+                r = argparse.Namespace(lambda2=l2.mean(-1), split=(l2 <= 1e-6).mean(-1))
                 cpu = time.process_time() - t0
-                line = f"{mname} T_up {tup} {meth:28s} {cov[meth].mean():.4f} l2 {r.lambda2.mean():.2f}"
+                line = f"{mname} T_up {tup} {meth:28s} {cov[meth].mean():.4f} l2 {r.lambda2.mean():.2f} split {r.split.mean():.3f}"
                 if meth != "service" and "service" in cov:
                     d = cov[meth] - cov["service"]
                     pw = stats.wilcoxon(cov[meth], cov["service"]).pvalue if np.any(d != 0) else 1.0
@@ -112,7 +117,7 @@ def main():
                     d = cov[meth] - cov["service-track"]
                     line += f"  vs track {d.mean():+.4f} w/l {(d > 0).sum()}/{(d < 0).sum()}"
                 print(line + f"  cpu {cpu:.0f}s", flush=True)
-                out[f"{mname}@{tup}/{meth}"] = {"coverage": cov[meth].tolist(), "lambda2": r.lambda2.tolist()}
+                out[f"{mname}@{tup}/{meth}"] = {"coverage": cov[meth].tolist(), "lambda2": r.lambda2.tolist(), "split": r.split.tolist()}
     if a.out:
         Path(a.out).write_text(json.dumps({"seed": a.seed, "episodes": a.episodes, "coverage": out}, indent=1))
 
