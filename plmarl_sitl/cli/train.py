@@ -60,6 +60,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "a check no deployed UAV can make; the student still sees the unshifted plan point (default: plan)")
     p.add_argument("--teacher-track-m", type=float, default=30.0,
                    help="the track teacher's leash in metres (default: 30)")
+    p.add_argument("--teacher-track-link", type=float, default=0.95,
+                   help="the track teacher's link length as a fraction of R_comm; below 0.95 it keeps a margin for the "
+                   "student's imitation error (default: 0.95, the plan's own)")
     p.add_argument("--moving-share", type=float, default=0.0,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
                    "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
@@ -103,6 +106,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--moving-share needs --scenarios general (the mission as given keeps its own users)")
     if not args.teacher_track_m > 0:
         raise UserError(f"--teacher-track-m {args.teacher_track_m:g}: must be > 0")
+    if not 0.0 < args.teacher_track_link <= 1.0:
+        raise UserError(f"--teacher-track-link {args.teacher_track_link:g}: must be in (0, 1]")
     out = Path(args.out or f"runs/train/{args.method}-seed{args.seed}")
     _check_out(out, args.force)
     t0 = time.time()
@@ -151,7 +156,8 @@ def run(args: argparse.Namespace) -> int:
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",
                             "reads_map": args.policy_inputs == "plan+map", "imitation_teacher": args.teacher,
                             "imitation_failures": "scripted" if args.teacher == "react" else "random",
-                            "imitation_track_m": args.teacher_track_m, "moving_share": args.moving_share}
+                            "imitation_track_m": args.teacher_track_m,
+                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

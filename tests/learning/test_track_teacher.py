@@ -79,6 +79,7 @@ def test_the_joint_teacher_keeps_two_uavs_off_one_crowd() -> None:
     (["--moving-share", "1.5"], "--moving-share 1.5: must be in [0, 1]"),
     (["--moving-share", "0.5", "--scenarios", "mission"], "--moving-share needs --scenarios general"),
     (["--teacher-track-m", "0"], "--teacher-track-m 0: must be > 0"),
+    (["--teacher-track-link", "1.2"], "--teacher-track-link 1.2: must be in (0, 1]"),
 ])
 def test_bad_moving_options_are_one_line(tmp_path: Path, monkeypatch, capsys, argv: list[str], said: str) -> None:
     from plmarl_sitl.cli import main

@@ -72,6 +72,7 @@ class ImitationArgs:
     # (learning/train/teacher.py::joint_track); the student sees only its own perception (the
     # unshifted plan point, its sensing, its beliefs).
     track_m: float = 30.0
+    track_link_frac: float = LINK_FRAC  # the "track" teacher's link length, in R_comm (smaller: a margin)
     # ScenarioArgs.moving_share: the share of batches with moving demand (general scenarios only).
     moving_share: float = 0.0
 
@@ -142,7 +143,7 @@ def imitate_oracle(
                     elif args.teacher == "track":
                         rs = float(m.radii.sensing_m)
                         point = joint_track(inputs.target, obs.ego, obs.sense, obs.alive, radius_m=rs, leash_m=args.track_m,
-                                            link_m=LINK_FRAC * float(m.radii.comm_m), apart_m=2.0 * rs)
+                                            link_m=args.track_link_frac * float(m.radii.comm_m), apart_m=2.0 * rs)
                         a_teacher = perceive.plan.accel(obs.ego, point)
                     else:
                         a_teacher = teacher.act_from_state(obs)

@@ -100,6 +100,7 @@ class Args:
     imitation_teacher: str = "plan"  # ImitationArgs.teacher: "plan", "oracle" (greedy) or "react" (CTDE, issue 24)
     imitation_failures: str = "random"  # ImitationArgs.failures: "random" or "scripted"
     imitation_track_m: float = 30.0  # ImitationArgs.track_m: the "track" teacher's leash
+    imitation_track_link: float = 0.95  # ImitationArgs.track_link_frac: its link length in R_comm
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     # False: a map-blind actor (the plan target, own state, sensing, f, neighbours; no demand
@@ -259,7 +260,7 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
                           tup_chunks=args.imitation_tup_chunks, general=args.general, teacher=args.imitation_teacher,
                           failures=args.imitation_failures, moving_share=args.moving_share,
-                          track_m=args.imitation_track_m),
+                          track_m=args.imitation_track_m, track_link_frac=args.imitation_track_link),
             on_round=on_imitation_round,
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)

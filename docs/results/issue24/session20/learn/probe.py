@@ -11,7 +11,7 @@ Methods beyond `plmarl eval`'s:
   within k R_s (sensed: the UAV's own sensing, k = 1; true: the twin's true users, privileged), by at
   most L m, within the plan's link and spacing slack (-u: without);
 * teach-<jsensed|jtrue>-r<k>-m<L>: the centralised teacher (teacher.py::joint_track): each point
-  shifted as far as the team's true chosen points stay linked and spaced;
+  shifted as far as the team's true chosen points stay linked and spaced; -l<f>: links of f R_comm (0.95);
 * pol:<dir>: the policy in <dir> (policy.pt, predictor.pt, card.yaml) on the plan point;
   pol:<dir>+track: the same with track_sensed_m 30.
 """
@@ -40,8 +40,9 @@ S19 = HERE.parent.parent / "session19" / "move"
 
 
 class Teach(ServiceController):
-    def __init__(self, env, kind, k, leash, bounded):
+    def __init__(self, env, kind, k, leash, bounded, link=LINK_FRAC):
         super().__init__(env.mission)
+        self.link = link
         self.env, self.kind, self.k, self.leash, self.bounded = env, kind, k, leash, bounded
         self.rs = float(env.mission.radii.sensing_m)
 
@@ -54,7 +55,7 @@ class Teach(ServiceController):
         if self.kind.startswith("j"):
             m = self.env.mission
             tgt = joint_track(xy, obs.ego, sense, obs.alive, radius_m=r, leash_m=self.leash,
-                              link_m=LINK_FRAC * float(m.radii.comm_m), apart_m=2.0 * self.rs)
+                              link_m=self.link * float(m.radii.comm_m), apart_m=2.0 * self.rs)
             return self.targets.accel(obs.ego, tgt)
         tgt = track_target(self.env.mission, xy, obs.ego, sense, lambda: plan_points(self.targets), radius_m=r,
                            leash_m=self.leash, bounded=self.bounded)
@@ -66,7 +67,8 @@ def factory(name, loaded):
         parts = name.split("-")
         kind, k, leash = parts[1], float(parts[2][1:]), float(parts[3][1:])
         bounded = not (len(parts) > 4 and parts[4] == "u")
-        return lambda env: Teach(env, kind, k, leash, bounded)
+        link = float(parts[4][1:]) if len(parts) > 4 and parts[4].startswith("l") else LINK_FRAC
+        return lambda env: Teach(env, kind, k, leash, bounded, link)
     if name.startswith("pol:"):
         d, _, tr = name[4:].partition("+")
         lp = loaded[d]
