@@ -61,8 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--teacher-track-m", type=float, default=30.0,
                    help="the track teacher's leash in metres (default: 30)")
     p.add_argument("--teacher-track-link", type=float, default=0.95,
-                   help="the track teacher's link length as a fraction of R_comm; below 0.95 it keeps a margin for the "
-                   "student's imitation error (default: 0.95, the plan's own)")
+                   help="the track teacher's link margin as a fraction of R_comm: a pair linked in the plan stays linked while "
+                   "it is at most this far apart (or its plan distance, if longer); below 0.95 it leaves room for the "
+                   "student's imitation error (default: 0.95, the plan's own link length)")
     p.add_argument("--moving-share", type=float, default=0.0,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
                    "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")

@@ -101,3 +101,20 @@ def test_imitation_with_the_track_teacher_on_moving_demand_runs() -> None:
                          moving_share=1.0)
     res = imitate_oracle(Actor(), tracker, mission, args, log=lambda s: None)
     assert res["episodes"] == 2 and res["final_mse"] == res["final_mse"] and res["args"]["teacher"] == "track"
+
+
+def test_a_link_margin_holds_linked_pairs_closer_and_never_looser() -> None:
+    """margin 250 m: the pair 290 m apart in the plan may not grow at all (max(250, 290) = 290), and
+    the margin never lets a point go where the plain check would not."""
+    plan = torch.tensor([[[0.0, 0.0], [0.0, 290.0], [1000.0, 1000.0]]], dtype=torch.float64)
+    ego = torch.cat([plan, torch.zeros(1, 3, 1)], -1)
+    sense = _sense(ego, plan + torch.tensor([[[0.0, -31.0], [0.0, 30.0], [0.0, 0.0]]], dtype=torch.float64))
+    sense[0, 2] = 0.0
+    alive = torch.ones(1, 3, dtype=torch.bool)
+    tight = joint_track(plan, ego, sense, alive, radius_m=RS, leash_m=30.0, link_m=LINK, apart_m=APART, margin_m=250.0)
+    assert torch.equal(tight[0, :2], plan[0, :2])
+    # pulled together they may move (the pair gets shorter)
+    sense = _sense(ego, plan + torch.tensor([[[0.0, 30.0], [0.0, -30.0], [0.0, 0.0]]], dtype=torch.float64))
+    sense[0, 2] = 0.0
+    closer = joint_track(plan, ego, sense, alive, radius_m=RS, leash_m=30.0, link_m=LINK, apart_m=APART, margin_m=250.0)
+    assert float(torch.linalg.norm(closer[0, 0] - closer[0, 1])) < 290.0

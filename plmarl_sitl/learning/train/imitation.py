@@ -143,7 +143,8 @@ def imitate_oracle(
                     elif args.teacher == "track":
                         rs = float(m.radii.sensing_m)
                         point = joint_track(inputs.target, obs.ego, obs.sense, obs.alive, radius_m=rs, leash_m=args.track_m,
-                                            link_m=args.track_link_frac * float(m.radii.comm_m), apart_m=2.0 * rs)
+                                            link_m=LINK_FRAC * float(m.radii.comm_m), apart_m=2.0 * rs,
+                                            margin_m=args.track_link_frac * float(m.radii.comm_m))
                         a_teacher = perceive.plan.accel(obs.ego, point)
                     else:
                         a_teacher = teacher.act_from_state(obs)

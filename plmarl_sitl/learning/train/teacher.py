@@ -80,8 +80,9 @@ def true_sense(env, radius_m: float) -> torch.Tensor:  # noqa: ANN001 - twin.env
 __all__ += ["track_target", "true_sense"]
 
 
-def _components(xy: np.ndarray, link_m: float) -> int:
-    """Connected components of the points (n, 2) with an edge where two are within link_m."""
+def _components(xy: np.ndarray, link_m: float | np.ndarray) -> int:
+    """Connected components of the points (n, 2) with an edge where two are within link_m (a
+    number, or (n, n) per pair)."""
     n = xy.shape[0]
     if n == 0:
         return 0
@@ -104,14 +105,19 @@ def _components(xy: np.ndarray, link_m: float) -> int:
 
 
 def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, alive: torch.Tensor, *, radius_m: float,
-                leash_m: float, link_m: float, apart_m: float, fracs: tuple[float, ...] = (1.0, 0.5, 0.25)) -> torch.Tensor:
+                leash_m: float, link_m: float, apart_m: float, margin_m: float | None = None,
+                fracs: tuple[float, ...] = (1.0, 0.5, 0.25)) -> torch.Tensor:
     """A centralised tracking teacher (CTDE, issue 24.3; training only): every live UAV's plan point
     `target` (B, N, 2) moved toward the centroid in `sense` (over `radius_m`) by at most `leash_m`,
     agents taken by the length of their step (longest first), each with the largest fraction in
     `fracs` that keeps, over the team's current points (its teammates' true chosen points,
     knowledge no agent has deployed): no more link components (edges <= link_m) than the plan's own
     points, and no pair closer than min(apart_m, its distance in the plan). A fraction that breaks
-    either is not taken (the point stays where the smaller fractions put it, or on the plan)."""
+    either is not taken (the point stays where the smaller fractions put it, or on the plan).
+    `margin_m` (<= link_m; default link_m): a pair linked in the plan stays linked while its distance is
+    at most max(margin_m, its plan distance), a pair not linked in the plan links within margin_m:
+    below link_m it keeps a margin for a student's error, and link_m itself is the plain check."""
+    margin = link_m if margin_m is None else min(margin_m, link_m)
     plan = target.double().numpy()
     centroid = (ego[..., :2] + sense[..., 1:3] * radius_m).double().numpy()
     has = (sense[..., 0] > 0).numpy() & alive.numpy()
@@ -129,6 +135,7 @@ def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, al
         p0 = plan[e, idx]
         base_comps = _components(p0, link_m)
         d0 = np.sqrt(((p0[:, None] - p0[None]) ** 2).sum(-1))
+        reach = np.where(d0 <= link_m, np.maximum(margin, d0), margin)  # a moved pair is linked within this
         floor = np.minimum(apart_m, d0) - 1e-6
         np.fill_diagonal(floor, -np.inf)
         cur = p0.copy()
@@ -140,7 +147,7 @@ def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, al
                 cand = cur.copy()
                 cand[j] = p0[j] + f * step[e, idx[j]]
                 dj = np.sqrt(((cand - cand[j]) ** 2).sum(-1))
-                if np.any(dj < floor[j]) or _components(cand, link_m) > base_comps:
+                if np.any(dj < floor[j]) or _components(cand, reach) > base_comps:
                     continue
                 cur = cand
                 break

@@ -55,7 +55,7 @@ class Teach(ServiceController):
         if self.kind.startswith("j"):
             m = self.env.mission
             tgt = joint_track(xy, obs.ego, sense, obs.alive, radius_m=r, leash_m=self.leash,
-                              link_m=self.link * float(m.radii.comm_m), apart_m=2.0 * self.rs)
+                              link_m=LINK_FRAC * float(m.radii.comm_m), margin_m=self.link * float(m.radii.comm_m), apart_m=2.0 * self.rs)
             return self.targets.accel(obs.ego, tgt)
         tgt = track_target(self.env.mission, xy, obs.ego, sense, lambda: plan_points(self.targets), radius_m=r,
                            leash_m=self.leash, bounded=self.bounded)
