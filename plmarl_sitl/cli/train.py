@@ -51,10 +51,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--imitation-tup-chunks", type=int, default=5,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
                    "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
-    p.add_argument("--teacher", choices=("plan", "react"), default="plan",
+    p.add_argument("--teacher", choices=("plan", "react", "track"), default="plan",
                    help="the imitation teacher: plan, fly to your own point of the team plan (what the student has); "
                    "react (CTDE, issue 24): the plan re-solved the second a UAV fails from the survivors' true positions, "
-                   "with 1-2 UAVs failing in every imitation batch at a random second in 20..160 s (default: plan)")
+                   "with 1-2 UAVs failing in every imitation batch at a random second in 20..160 s; "
+                   "track (CTDE, issue 24.3): your plan point moved toward the users you sense by at most --teacher-track-m, "
+                   "each UAV in turn as far as the team's true chosen points stay linked (0.95 R_comm) and spaced (2 R_s), "
+                   "a check no deployed UAV can make; the student still sees the unshifted plan point (default: plan)")
+    p.add_argument("--teacher-track-m", type=float, default=30.0,
+                   help="the track teacher's leash in metres (default: 30)")
+    p.add_argument("--teacher-track-link", type=float, default=0.95,
+                   help="the track teacher's link margin as a fraction of R_comm: a pair linked in the plan stays linked while "
+                   "it is at most this far apart (or its plan distance, if longer); below 0.95 it leaves room for the "
+                   "student's imitation error (default: 0.95, the plan's own link length)")
+    p.add_argument("--moving-share", type=float, default=0.0,
+                   help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
+                   "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
     p.add_argument("--scenarios", choices=("general", "mission"), default="general",
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
@@ -89,6 +101,14 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--predictor {args.predictor}: no such file")
     if args.num_envs < 1:
         raise UserError("--num-envs must be >= 1")
+    if not 0.0 <= args.moving_share <= 1.0:
+        raise UserError(f"--moving-share {args.moving_share:g}: must be in [0, 1]")
+    if args.moving_share > 0 and args.scenarios != "general":
+        raise UserError("--moving-share needs --scenarios general (the mission as given keeps its own users)")
+    if not args.teacher_track_m > 0:
+        raise UserError(f"--teacher-track-m {args.teacher_track_m:g}: must be > 0")
+    if not 0.0 < args.teacher_track_link <= 1.0:
+        raise UserError(f"--teacher-track-link {args.teacher_track_link:g}: must be in (0, 1]")
     out = Path(args.out or f"runs/train/{args.method}-seed{args.seed}")
     _check_out(out, args.force)
     t0 = time.time()
@@ -98,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         fits_engine = args.method in ("pl-marl", "gru") and args.predictor is None
         engine = (bar.add_task("inference engine fit", total=engine_iters("mlp" if args.method == "pl-marl" else "gru",
                                                                           args.predictor_iters)) if fits_engine else None)
-        teacher = {"plan": "the plan follower", "react": "re-plans at each failure with true states"}[args.teacher]
+        teacher = {"plan": "the plan follower", "react": "re-plans at each failure with true states",
+                   "track": "follows its sensed users as far as the team stays linked"}[args.teacher]
         imitation = (bar.add_task(f"imitation (DAgger; teacher: {teacher})", total=args.imitation_rounds)
                      if args.imitation_rounds > 0 else None)
         task = bar.add_task(f"{args.method} (seed {args.seed})", total=total)
@@ -135,7 +156,9 @@ def run(args: argparse.Namespace) -> int:
             args_overrides={"imitation_rounds": args.imitation_rounds, "imitation_episodes_per_round": args.imitation_episodes,
                             "imitation_tup_chunks": args.imitation_tup_chunks, "general": args.scenarios == "general",
                             "reads_map": args.policy_inputs == "plan+map", "imitation_teacher": args.teacher,
-                            "imitation_failures": "scripted" if args.teacher == "react" else "random"}
+                            "imitation_failures": "scripted" if args.teacher == "react" else "random",
+                            "imitation_track_m": args.teacher_track_m,
+                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

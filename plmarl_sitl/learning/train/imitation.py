@@ -32,8 +32,9 @@ from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
 from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
-from plmarl_sitl.learning.train.teacher import ReactTargets
+from plmarl_sitl.learning.train.teacher import ReactTargets, joint_track
 from plmarl_sitl.mission import Failure, Mission
+from plmarl_sitl.model.service import LINK_FRAC
 from plmarl_sitl.twin.env import CoverageEnv
 from plmarl_sitl.twin.greedy import GreedyController
 
@@ -66,6 +67,14 @@ class ImitationArgs:
     # failure_window_s (in transit early, on station later).
     failures: str = "random"
     failure_window_s: tuple[int, int] = (20, 160)
+    # "track" (issue 24.3, CTDE): the plan point moved toward the users the UAV senses by at most
+    # track_m, each UAV as far as the team's true chosen points stay linked and spaced
+    # (learning/train/teacher.py::joint_track); the student sees only its own perception (the
+    # unshifted plan point, its sensing, its beliefs).
+    track_m: float = 30.0
+    track_link_frac: float = LINK_FRAC  # the "track" teacher's link length, in R_comm (smaller: a margin)
+    # ScenarioArgs.moving_share: the share of batches with moving demand (general scenarios only).
+    moving_share: float = 0.0
 
 
 INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
@@ -111,7 +120,7 @@ def imitate_oracle(
                        for c in range(args.tup_chunks)]
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
-            m = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+            m = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
             m = m.with_tup(tup)
             p_fail = args.failure_prob
             if args.failures == "scripted":
@@ -131,6 +140,12 @@ def imitate_oracle(
                         a_teacher = react.accel(obs.ego, react.update_true(obs))
                     elif args.teacher == "plan":
                         a_teacher = perceive.plan.accel(obs.ego, inputs.target)
+                    elif args.teacher == "track":
+                        rs = float(m.radii.sensing_m)
+                        point = joint_track(inputs.target, obs.ego, obs.sense, obs.alive, radius_m=rs, leash_m=args.track_m,
+                                            link_m=LINK_FRAC * float(m.radii.comm_m), apart_m=2.0 * rs,
+                                            margin_m=args.track_link_frac * float(m.radii.comm_m))
+                        a_teacher = perceive.plan.accel(obs.ego, point)
                     else:
                         a_teacher = teacher.act_from_state(obs)
                     u = torch.clamp(a_teacher / scales.a_max, -0.999, 0.999)

@@ -90,12 +90,17 @@ class Args:
     # layouts of 2..8 clusters; plmarl_sitl.learning.train.scenarios) and per environment a
     # random launch line. False: the mission as given, from its launch line.
     general: bool = True
+    # Moving demand (issue 24.3): the share of training scenarios whose crowds walk 1.5-3 m/s far from
+    # home (ScenarioArgs.moving_share); 0: the distribution of before.
+    moving_share: float = 0.0
     # Oracle-imitation warm start (plmarl_sitl.learning.train.imitation), 0 rounds = MAPPO from scratch.
     imitation_rounds: int = 6
     imitation_episodes_per_round: int = 40
     imitation_tup_chunks: int = 5  # >1: every T_up imitated equally often (ImitationArgs.tup_chunks)
     imitation_teacher: str = "plan"  # ImitationArgs.teacher: "plan", "oracle" (greedy) or "react" (CTDE, issue 24)
     imitation_failures: str = "random"  # ImitationArgs.failures: "random" or "scripted"
+    imitation_track_m: float = 30.0  # ImitationArgs.track_m: the "track" teacher's leash
+    imitation_track_link: float = 0.95  # ImitationArgs.track_link_frac: its link length in R_comm
     critic_warmup_iters: int = 3  # first iterations update only the critic (after a warm start)
     embed_dim: int = 32
     # False: a map-blind actor (the plan target, own state, sensing, f, neighbours; no demand
@@ -203,7 +208,7 @@ def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
     tups = [int(x) for x in np.linspace(min(args.tup_choices), max(args.tup_choices), args.validation_batches)]
     out = []
     for j, tup in enumerate(tups):
-        scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
         out.append((scenario.with_tup(tup), training_twin_seed(args.seed * 100_003 + 90_000 + j)))
     return out
 
@@ -254,7 +259,8 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
             actor, tracker, mission,
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
                           tup_chunks=args.imitation_tup_chunks, general=args.general, teacher=args.imitation_teacher,
-                          failures=args.imitation_failures),
+                          failures=args.imitation_failures, moving_share=args.moving_share,
+                          track_m=args.imitation_track_m, track_link_frac=args.imitation_track_link),
             on_round=on_imitation_round,
         )
     opt_a = torch.optim.Adam(actor.parameters(), lr=args.lr_actor, eps=1e-5)
@@ -289,7 +295,7 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
-        scenario = training_mission(mission, rng, ScenarioArgs()) if args.general else mission
+        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
         env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
                           failure_at_s=args.failure_at_s, random_launch=args.general)
         N = env.n

@@ -8,7 +8,11 @@ are (B, N, ...)), `training_mission` draws from the mission given to `plmarl tra
   on the twin's `random` connected layout (a new layout in every environment);
 * with probability `mission_share`, the mission itself instead (its N and layout), so the
   paper map stays in the distribution;
-* mixed mobility (Gauss-Markov, Random Waypoint, RPGM per environment).
+* mixed mobility (Gauss-Markov, Random Waypoint, RPGM per environment);
+* with probability `moving_share` (0 by default; `plmarl train --moving-share`), moving demand
+  (issue 24.3): RPGM groups walking at a speed drawn in `moving_speed_mps` (the group's speed,
+  0.6 of the users' max_speed_mps) up to a range drawn in `moving_range_m` from home
+  (`users.rpgm_range_m`), the crowds the 30-s, 50-m demand map goes stale on.
 
 The launch line's centre and orientation are drawn per environment by the twin
 (`CoverageEnv(random_launch=True)`); T_up and the failure curriculum are drawn by the
@@ -30,9 +34,25 @@ class ScenarioArgs:
     n_uavs: tuple[int, int] = (3, 8)
     clusters: tuple[int, int] = (2, 8)
     mission_share: float = 0.15
+    moving_share: float = 0.0
+    moving_speed_mps: tuple[float, float] = (1.5, 3.0)  # the RPGM group's speed
+    moving_range_m: tuple[float, float] = (200.0, 400.0)
+
+
+RPGM_GROUP_SPEED = 0.6  # an RPGM group walks at this share of the users' max_speed_mps (model/users.py)
 
 
 def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs = ScenarioArgs()) -> Mission:
+    m = _scenario(base, rng, args)
+    if args.moving_share > 0 and rng.random() < args.moving_share:  # no draw at all when off: the old stream
+        speed = float(rng.uniform(*args.moving_speed_mps))
+        reach = float(rng.uniform(*args.moving_range_m))
+        m = dataclasses.replace(m, users=dataclasses.replace(m.users, mobility="rpgm", max_speed_mps=speed / RPGM_GROUP_SPEED,
+                                                             rpgm_range_m=reach))
+    return m
+
+
+def _scenario(base: Mission, rng: np.random.Generator, args: ScenarioArgs) -> Mission:
     users = dataclasses.replace(base.users, mobility="mixed")
     if rng.random() < args.mission_share:
         return dataclasses.replace(base, users=users)
@@ -47,13 +67,22 @@ def describe_distribution(general: bool, tup_choices: tuple[int, ...], failure: 
     """The training distribution as the policy card records it."""
     if not general:
         return {"scenarios": "the mission as given, from its launch line", "tup_s": list(tup_choices), "failure": failure}
+    fields = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(args).items()}
+    moving = {}
+    if args.moving_share > 0:
+        moving = {"moving": "with probability moving_share, RPGM groups walking at a speed in moving_speed_mps up to a "
+                            "range in moving_range_m from home (users.rpgm_range_m)"}
+    else:  # the card of before moving demand, key for key
+        for k in ("moving_share", "moving_speed_mps", "moving_range_m"):
+            fields.pop(k)
     return {
         "scenarios": "per rollout batch: N uniform in n_uavs, C clusters of 60 uniform in [max(2, N - 2), min(8, N + 2)] on "
                      "the twin's random connected layout (a new layout per environment); the mission itself with "
                      "probability mission_share",
-        **{k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(args).items()},
+        **fields,
         "launch": "a random line centre and orientation per environment (CoverageEnv(random_launch=True))",
         "mobility": "mixed: Gauss-Markov, Random Waypoint, RPGM per environment",
+        **moving,
         "tup_s": list(tup_choices),
         "failure": failure,
     }

@@ -47,3 +47,112 @@ class ReactTargets(ServiceTargets):
 
 
 __all__ = ["ReactTargets"]
+
+
+def track_target(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, team, *,  # noqa: ANN001 - Mission, Team
+                 radius_m: float, leash_m: float, bounded: bool = True) -> torch.Tensor:
+    """The tracking teachers' point (issue 24.3): `target` (B, N, 2), the plan point, moved toward
+    the centroid in `sense` (sensing features over `radius_m`, `model/coverage.py::sensing_features`)
+    by at most `leash_m`, and, if `bounded`, at most the plan's link and spacing slack
+    (`model/sensed_track.py::plan_slack`; team() -> (points, me) as `mission_toward_sensed` takes)."""
+    from plmarl_sitl.model.sensed_track import plan_slack, toward_sensed
+    from plmarl_sitl.model.service import LINK_FRAC
+
+    bound: float | torch.Tensor = leash_m
+    if bounded:
+        points, me = team()
+        if points is not None and me is not None:
+            slack = plan_slack(points.to(torch.float64), LINK_FRAC * float(mission.radii.comm_m),
+                               2.0 * float(mission.radii.sensing_m))
+            bound = torch.clamp(torch.gather(slack, -1, me.unsqueeze(-1)).squeeze(-1), max=leash_m)
+    return toward_sensed(target, ego[..., :2], sense, radius_m, bound)
+
+
+def true_sense(env, radius_m: float) -> torch.Tensor:  # noqa: ANN001 - twin.env.CoverageEnv
+    """(B, N, SENSING_FEATURES) what each live UAV would sense of the TRUE users within radius_m of
+    its true position (privileged: the twin's users, beyond R_s; training only)."""
+    from plmarl_sitl.model.coverage import sensing_features
+
+    sense = sensing_features(env.pos, env.users.xy, radius_m, env.mission.users.cluster_size)
+    return torch.where(env.alive.unsqueeze(-1), sense, torch.zeros_like(sense))
+
+
+__all__ += ["track_target", "true_sense"]
+
+
+def _components(xy: np.ndarray, link_m: float | np.ndarray) -> int:
+    """Connected components of the points (n, 2) with an edge where two are within link_m (a
+    number, or (n, n) per pair)."""
+    n = xy.shape[0]
+    if n == 0:
+        return 0
+    d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1))
+    adj = d <= link_m
+    seen = np.zeros(n, dtype=bool)
+    comps = 0
+    for s in range(n):
+        if seen[s]:
+            continue
+        comps += 1
+        stack = [s]
+        seen[s] = True
+        while stack:
+            k = stack.pop()
+            nxt = np.nonzero(adj[k] & ~seen)[0]
+            seen[nxt] = True
+            stack.extend(nxt.tolist())
+    return comps
+
+
+def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, alive: torch.Tensor, *, radius_m: float,
+                leash_m: float, link_m: float, apart_m: float, margin_m: float | None = None,
+                fracs: tuple[float, ...] = (1.0, 0.5, 0.25)) -> torch.Tensor:
+    """A centralised tracking teacher (CTDE, issue 24.3; training only): every live UAV's plan point
+    `target` (B, N, 2) moved toward the centroid in `sense` (over `radius_m`) by at most `leash_m`,
+    agents taken by the length of their step (longest first), each with the largest fraction in
+    `fracs` that keeps, over the team's current points (its teammates' true chosen points,
+    knowledge no agent has deployed): no more link components (edges <= link_m) than the plan's own
+    points, and no pair closer than min(apart_m, its distance in the plan). A fraction that breaks
+    either is not taken (the point stays where the smaller fractions put it, or on the plan).
+    `margin_m` (<= link_m; default link_m): a pair linked in the plan stays linked while its distance is
+    at most max(margin_m, its plan distance), a pair not linked in the plan links within margin_m:
+    below link_m it keeps a margin for a student's error, and link_m itself is the plain check."""
+    margin = link_m if margin_m is None else min(margin_m, link_m)
+    plan = target.double().numpy()
+    centroid = (ego[..., :2] + sense[..., 1:3] * radius_m).double().numpy()
+    has = (sense[..., 0] > 0).numpy() & alive.numpy()
+    step = centroid - plan
+    norm = np.sqrt((step**2).sum(-1, keepdims=True))
+    step = step * np.minimum(1.0, leash_m / np.maximum(norm, 1e-9))
+    step[~has] = 0.0
+    out = plan.copy()
+    live = alive.numpy()
+    for e in range(plan.shape[0]):
+        idx = np.nonzero(live[e])[0]
+        if len(idx) < 2:
+            out[e, idx] = plan[e, idx] + step[e, idx]
+            continue
+        p0 = plan[e, idx]
+        base_comps = _components(p0, link_m)
+        d0 = np.sqrt(((p0[:, None] - p0[None]) ** 2).sum(-1))
+        reach = np.where(d0 <= link_m, np.maximum(margin, d0), margin)  # a moved pair is linked within this
+        floor = np.minimum(apart_m, d0) - 1e-6
+        np.fill_diagonal(floor, -np.inf)
+        cur = p0.copy()
+        order = np.argsort(-np.sqrt((step[e, idx] ** 2).sum(-1)), kind="stable")
+        for j in order:
+            if not np.any(step[e, idx[j]]):
+                continue
+            for f in fracs:
+                cand = cur.copy()
+                cand[j] = p0[j] + f * step[e, idx[j]]
+                dj = np.sqrt(((cand - cand[j]) ** 2).sum(-1))
+                if np.any(dj < floor[j]) or _components(cand, reach) > base_comps:
+                    continue
+                cur = cand
+                break
+        out[e, idx] = cur
+    return torch.from_numpy(out).to(target.dtype)
+
+
+__all__ += ["joint_track"]
