@@ -51,9 +51,9 @@ def peaks(grid: ServiceGrid, gain: np.ndarray, k: int, apart_m: float) -> list[i
     return out
 
 
-def components(xy: np.ndarray, link_m: float, skip: int) -> np.ndarray:
+def components(xy: np.ndarray, link_m: float | np.ndarray, skip: int) -> np.ndarray:
     """(k,) component label (lowest member index) of each point of the link graph of xy (k, 2)
-    without point `skip` (its label: -1)."""
+    without point `skip` (its label: -1); link_m a length, or (k, k) one per pair."""
     k = len(xy)
     d = np.sqrt((xy[:, None, 0] - xy[None, :, 0]) ** 2 + (xy[:, None, 1] - xy[None, :, 1]) ** 2)
     rows, cols = np.nonzero(d <= link_m)  # row-major: each point's neighbours together

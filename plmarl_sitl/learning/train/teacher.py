@@ -1,5 +1,8 @@
-"""A CTDE teacher that reacts at once: the team plan re-solved the second a UAV fails, from the
-true positions of the survivors (training only; the student sees only its own beliefs).
+"""The CTDE imitation teachers (training only; the student sees only its own beliefs and sensing):
+`ReactTargets` reacts at once to a failure, `joint_track` follows moving crowds (below).
+
+The react teacher: the team plan re-solved the second a UAV fails, from the true positions of
+the survivors.
 
 Why: the plan follower `service` (and a student imitating it) learns of a failure only from
 missed signalling instants (`drop_after_missed` of them, then gossip hops): 30-100 s at
@@ -18,6 +21,7 @@ import torch
 
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.model.gossip import Gossip
+from plmarl_sitl.model.placement import components
 
 
 class ReactTargets(ServiceTargets):
@@ -46,62 +50,10 @@ class ReactTargets(ServiceTargets):
             self.replans_done += 1
 
 
-__all__ = ["ReactTargets"]
-
-
-def track_target(mission, target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, team, *,  # noqa: ANN001 - Mission, Team
-                 radius_m: float, leash_m: float, bounded: bool = True) -> torch.Tensor:
-    """The tracking teachers' point (issue 24.3): `target` (B, N, 2), the plan point, moved toward
-    the centroid in `sense` (sensing features over `radius_m`, `model/coverage.py::sensing_features`)
-    by at most `leash_m`, and, if `bounded`, at most the plan's link and spacing slack
-    (`model/sensed_track.py::plan_slack`; team() -> (points, me) as `mission_toward_sensed` takes)."""
-    from plmarl_sitl.model.sensed_track import plan_slack, toward_sensed
-    from plmarl_sitl.model.service import LINK_FRAC
-
-    bound: float | torch.Tensor = leash_m
-    if bounded:
-        points, me = team()
-        if points is not None and me is not None:
-            slack = plan_slack(points.to(torch.float64), LINK_FRAC * float(mission.radii.comm_m),
-                               2.0 * float(mission.radii.sensing_m))
-            bound = torch.clamp(torch.gather(slack, -1, me.unsqueeze(-1)).squeeze(-1), max=leash_m)
-    return toward_sensed(target, ego[..., :2], sense, radius_m, bound)
-
-
-def true_sense(env, radius_m: float) -> torch.Tensor:  # noqa: ANN001 - twin.env.CoverageEnv
-    """(B, N, SENSING_FEATURES) what each live UAV would sense of the TRUE users within radius_m of
-    its true position (privileged: the twin's users, beyond R_s; training only)."""
-    from plmarl_sitl.model.coverage import sensing_features
-
-    sense = sensing_features(env.pos, env.users.xy, radius_m, env.mission.users.cluster_size)
-    return torch.where(env.alive.unsqueeze(-1), sense, torch.zeros_like(sense))
-
-
-__all__ += ["track_target", "true_sense"]
-
-
-def _components(xy: np.ndarray, link_m: float | np.ndarray) -> int:
-    """Connected components of the points (n, 2) with an edge where two are within link_m (a
-    number, or (n, n) per pair)."""
-    n = xy.shape[0]
-    if n == 0:
-        return 0
-    d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1))
-    adj = d <= link_m
-    seen = np.zeros(n, dtype=bool)
-    comps = 0
-    for s in range(n):
-        if seen[s]:
-            continue
-        comps += 1
-        stack = [s]
-        seen[s] = True
-        while stack:
-            k = stack.pop()
-            nxt = np.nonzero(adj[k] & ~seen)[0]
-            seen[nxt] = True
-            stack.extend(nxt.tolist())
-    return comps
+def _count_components(xy: np.ndarray, link_m: float | np.ndarray) -> int:
+    """Connected components of the points (n, 2), an edge where two are within link_m (a number,
+    or (n, n) per pair)."""
+    return len(np.unique(components(xy, link_m, skip=-1))) if len(xy) else 0
 
 
 def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, alive: torch.Tensor, *, radius_m: float,
@@ -133,7 +85,7 @@ def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, al
             out[e, idx] = plan[e, idx] + step[e, idx]
             continue
         p0 = plan[e, idx]
-        base_comps = _components(p0, link_m)
+        base_comps = _count_components(p0, link_m)
         d0 = np.sqrt(((p0[:, None] - p0[None]) ** 2).sum(-1))
         reach = np.where(d0 <= link_m, np.maximum(margin, d0), margin)  # a moved pair is linked within this
         floor = np.minimum(apart_m, d0) - 1e-6
@@ -147,7 +99,7 @@ def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, al
                 cand = cur.copy()
                 cand[j] = p0[j] + f * step[e, idx[j]]
                 dj = np.sqrt(((cand - cand[j]) ** 2).sum(-1))
-                if np.any(dj < floor[j]) or _components(cand, reach) > base_comps:
+                if np.any(dj < floor[j]) or _count_components(cand, reach) > base_comps:
                     continue
                 cur = cand
                 break
@@ -155,4 +107,4 @@ def joint_track(target: torch.Tensor, ego: torch.Tensor, sense: torch.Tensor, al
     return torch.from_numpy(out).to(target.dtype)
 
 
-__all__ += ["joint_track"]
+__all__ = ["ReactTargets", "joint_track"]
