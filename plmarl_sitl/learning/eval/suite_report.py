@@ -19,11 +19,11 @@ def _pct(row: dict, key: str = "fraction_of_best_mean") -> str:
 
 
 def _vs_cell(row: dict) -> str:
-    """PL-MARL against the row's method; rows written before the paired test carry only the MWU p."""
-    if "p_paired_pl_marl_vs" in row:
-        wins, losses = row["pl_marl_wins_losses"]
-        return comparison_text({"p": row["p_pl_marl_vs"], "p_paired": row["p_paired_pl_marl_vs"], "wins": wins, "losses": losses})
-    return f"{row['p_pl_marl_vs']:.2g}" if "p_pl_marl_vs" in row else "-"
+    """PL-MARL against the row's method (`suite.summarise` writes all three figures or none)."""
+    if "p_pl_marl_vs" not in row:
+        return "-"
+    wins, losses = row["pl_marl_wins_losses"]
+    return comparison_text({"p": row["p_pl_marl_vs"], "p_paired": row["p_paired_pl_marl_vs"], "wins": wins, "losses": losses})
 
 
 def references_text(res: dict) -> str:
