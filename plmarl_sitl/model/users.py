@@ -22,6 +22,7 @@ from plmarl_sitl.model.vehicle import clip_norm
 MOBILITY_KINDS = ("gauss_markov", "random_waypoint", "rpgm")
 _RWP_PAUSE_MAX_S = 10.0
 _GROUP_RADIUS_STD = 2.0  # RPGM reference points roam within this many cluster std of home
+RPGM_GROUP_SPEED = 0.6  # an RPGM group's reference point walks at this share of the users' max_speed_mps
 
 
 @dataclass(frozen=True)
@@ -266,7 +267,7 @@ def _rpgm_step(s: UserState, mission: Mission, dt: float, gen: torch.Generator) 
     """Reference Point Group Mobility: the group's reference point does a slow random
     waypoint walk around the cluster home (within `rpgm_range_m`); each user follows it at its own offset."""
     u = mission.users
-    group_speed = 0.6 * u.max_speed_mps
+    group_speed = RPGM_GROUP_SPEED * u.max_speed_mps
     to_wp = s.group_wp - s.group_ref
     dist = _norm_planar(to_wp).unsqueeze(1)
     ref_vel = to_wp / torch.clamp(dist, min=1e-9) * torch.clamp(dist / dt, max=group_speed)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.users import RPGM_GROUP_SPEED
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,6 @@ class ScenarioArgs:
     moving_range_m: tuple[float, float] = (200.0, 400.0)
 
 
-RPGM_GROUP_SPEED = 0.6  # an RPGM group walks at this share of the users' max_speed_mps (model/users.py)
 
 
 def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs = ScenarioArgs()) -> Mission:
