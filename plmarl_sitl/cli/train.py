@@ -13,6 +13,64 @@ from plmarl_sitl.errors import UserError
 
 METHODS = ("pl-marl", "gru", "tag-mappo")
 
+# The recipe: flags whose value, when not given, comes from --like's card, else from here (the
+# letter's Table I and the pipeline's defaults; the help texts say the same).
+RECIPE_DEFAULTS = {
+    "method": "pl-marl", "episodes": 1000, "num_envs": 16, "imitation_rounds": 6, "imitation_episodes": 40,
+    "imitation_tup_chunks": 5, "teacher": "plan", "teacher_track_m": 30.0, "teacher_track_link": 0.95,
+    "moving_share": 0.0, "scenarios": "general", "policy_inputs": "plan",
+}
+
+
+def recipe_from_card(card: dict) -> dict:
+    """The training recipe a policy's card records (its `config`: the trainer's Args), as this
+    command's flags; the seed, mission and output are the new run's own."""
+    c = card.get("config")
+    if not isinstance(c, dict) or c.get("method") not in METHODS:
+        raise ValueError("its card.yaml has no training config (`config.method`): not a policy `plmarl train` wrote")
+    keys = {"method": "method", "episodes": "episodes", "num_envs": "num_envs", "imitation_rounds": "imitation_rounds",
+            "imitation_episodes": "imitation_episodes_per_round", "imitation_tup_chunks": "imitation_tup_chunks",
+            "teacher": "imitation_teacher", "teacher_track_m": "imitation_track_m",
+            "teacher_track_link": "imitation_track_link", "moving_share": "moving_share"}
+    recipe = {flag: c[key] for flag, key in keys.items() if key in c}
+    if "general" in c:
+        recipe["scenarios"] = "general" if c["general"] else "mission"
+    if "reads_map" in c:
+        recipe["policy_inputs"] = "plan+map" if c["reads_map"] else "plan"
+    return recipe
+
+
+def _resolve_recipe(args: argparse.Namespace) -> None:
+    """Fill the recipe's flags not given: from --like DIR's card, else RECIPE_DEFAULTS; with
+    --like, also the engine (DIR/predictor.pt) unless --predictor gives one."""
+    recipe: dict = {}
+    if args.like is not None:
+        import yaml
+
+        # A directory here, else a shipped policy by name ("pl-marl", "plan/pl-marl") or by its
+        # path in the project ("policies/pl-marl"), from any directory.
+        like = next((d for d in (Path(args.like), PROJECT_POLICIES / args.like, PROJECT_POLICIES.parent / args.like)
+                     if d.is_dir()), Path(args.like))
+        args.like = str(like)
+        card = like / "card.yaml"
+        if not card.is_file():
+            raise UserError(f"--like {like}: no card.yaml there (give a trained policy's directory, e.g. policies/pl-marl)")
+        try:
+            recipe = recipe_from_card(yaml.safe_load(card.read_text()) or {})
+        except (ValueError, yaml.YAMLError) as exc:
+            raise UserError(f"--like {like}: {str(exc).splitlines()[0]}") from None
+    from_card = {flag for flag in RECIPE_DEFAULTS if getattr(args, flag) is None and flag in recipe}
+    for flag, default in RECIPE_DEFAULTS.items():
+        if getattr(args, flag) is None:
+            setattr(args, flag, recipe.get(flag, default))
+    if args.scenarios == "mission" and "moving_share" in from_card and args.moving_share > 0:
+        # Walking crowds are drawn only in the general scenarios; the mission as given keeps its users.
+        print(f"--like {args.like}: its moving share {args.moving_share:g} does not apply with --scenarios mission")
+        args.moving_share = 0.0
+    if args.like is not None and args.predictor is None and args.method in ("pl-marl", "gru") \
+            and recipe.get("method") == args.method and (Path(args.like) / "predictor.pt").is_file():
+        args.predictor = str(Path(args.like) / "predictor.pt")
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -28,49 +86,56 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  plmarl train --method pl-marl --seed 1                  # -> runs/train/pl-marl-seed1\n"
         "  plmarl train --method pl-marl --predictor policies/pl-marl/predictor.pt --episodes 200\n"
         "  plmarl train --method tag-mappo --episodes 50 --out runs/smoke\n"
+        "  plmarl train --like policies/pl-marl --seed 2 --out runs/mine  # the shipped policy's recipe, a new seed\n"
+        "  plmarl train --like policies/pl-marl --mission my_site.yaml     # ... with your site among the scenarios\n"
         "  plmarl train --method pl-marl --out policies/pl-marl --force   # replace the shipped policy",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--method", choices=METHODS, default="pl-marl")
+    p.add_argument("--like", metavar="DIR", default=None,
+                   help="train with the recipe a trained policy's card records (DIR/card.yaml: method, episodes, "
+                   "imitation, teacher, scenarios, policy inputs) and its engine (DIR/predictor.pt); flags given here "
+                   "win. `--like policies/pl-marl` is how the shipped default was trained (default: none, the flags' "
+                   "own defaults: Table I)")
+    p.add_argument("--method", choices=METHODS, default=None, help="the method (default: pl-marl)")
     p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
-    p.add_argument("--episodes", type=int, default=1000, help="training episodes (default: 1000, Table I)")
+    p.add_argument("--episodes", type=int, default=None, help="training episodes (default: 1000, Table I)")
     add_seed(p, default=1)
     p.add_argument("--out", default=None, help="output directory (default: runs/train/<method>-seed<S>)")
     p.add_argument("--force", action="store_true",
                    help="write over a trained policy in --out (a card.yaml there, or anything under the project's policies/)")
-    p.add_argument("--num-envs", type=int, default=16, help="parallel episodes per rollout (default: 16)")
+    p.add_argument("--num-envs", type=int, default=None, help="parallel episodes per rollout (default: 16)")
     p.add_argument("--predictor", default=None,
                    help="a trained engine to reuse, skipping the fit: a policy's predictor.pt or an engine state dict")
     p.add_argument("--predictor-iters", type=int, default=None, help="engine fit iterations (default: 800 mlp / 300 gru)")
     p.add_argument("--eval-episodes", type=int, default=100, help="deterministic evaluation episodes for the card (0: skip)")
     p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1; measured fastest here)")
-    p.add_argument("--imitation-rounds", type=int, default=6,
+    p.add_argument("--imitation-rounds", type=int, default=None,
                    help="warm-start rounds imitating the team-plan follower (`service`; DAgger-style: the student "
                    "flies, the plan follower labels its states) before MAPPO; 0 = MAPPO from scratch (default: 6)")
-    p.add_argument("--imitation-episodes", type=int, default=40, help="imitation episodes per round (default: 40)")
-    p.add_argument("--imitation-tup-chunks", type=int, default=5,
+    p.add_argument("--imitation-episodes", type=int, default=None, help="imitation episodes per round (default: 40)")
+    p.add_argument("--imitation-tup-chunks", type=int, default=None,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
                    "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
-    p.add_argument("--teacher", choices=("plan", "react", "track"), default="plan",
+    p.add_argument("--teacher", choices=("plan", "react", "track"), default=None,
                    help="the imitation teacher: plan, fly to your own point of the team plan (what the student has); "
                    "react (CTDE, issue 24): the plan re-solved the second a UAV fails from the survivors' true positions, "
                    "with 1-2 UAVs failing in every imitation batch at a random second in 20..160 s; "
                    "track (CTDE, issue 24.3): your plan point moved toward the users you sense by at most --teacher-track-m, "
                    "each UAV in turn as far as the team's true chosen points stay linked (0.95 R_comm) and spaced (2 R_s), "
                    "a check no deployed UAV can make; the student still sees the unshifted plan point (default: plan)")
-    p.add_argument("--teacher-track-m", type=float, default=30.0,
+    p.add_argument("--teacher-track-m", type=float, default=None,
                    help="the track teacher's leash in metres (default: 30)")
-    p.add_argument("--teacher-track-link", type=float, default=0.95,
+    p.add_argument("--teacher-track-link", type=float, default=None,
                    help="the track teacher's link margin as a fraction of R_comm: a pair linked in the plan stays linked while "
                    "it is at most this far apart (or its plan distance, if longer); below 0.95 it leaves room for the "
                    "student's imitation error (default: 0.95, the plan's own link length)")
-    p.add_argument("--moving-share", type=float, default=0.0,
+    p.add_argument("--moving-share", type=float, default=None,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
                    "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
-    p.add_argument("--scenarios", choices=("general", "mission"), default="general",
+    p.add_argument("--scenarios", choices=("general", "mission"), default=None,
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
-    p.add_argument("--policy-inputs", choices=("plan", "plan+map"), default="plan",
+    p.add_argument("--policy-inputs", choices=("plan", "plan+map"), default=None,
                    help="plan: the actor reads its own state, sensing, f, the neighbours' beliefs and the offset to its "
                    "team-plan point; the demand map reaches it only through the plan (a map-blind policy, the light "
                    "decision). plan+map: also the demand descriptor and an attention over the map's cells (the "
@@ -92,6 +157,7 @@ def _check_out(out: Path, force: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    _resolve_recipe(args)  # a wrong --like is said before torch loads
     from plmarl_sitl.learning.pipeline import EVAL_TUPS, engine_iters, run_training  # heavy imports only when used
     from plmarl_sitl.mission import load_mission
 
