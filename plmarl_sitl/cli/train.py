@@ -67,6 +67,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--moving-share", type=float, default=0.0,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
                    "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
+    p.add_argument("--transit-share", type=float, default=0.0,
+                   help="with --scenarios general: the share of training scenarios with a long transit, the clusters a "
+                   "chain along a strip 350-600 m wide and the launch across it 0.5-1.5 km short of the first cluster "
+                   "(300-s episodes), recorded in the card (default: 0, none)")
     p.add_argument("--scenarios", choices=("general", "mission"), default="general",
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
@@ -105,6 +109,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--moving-share {args.moving_share:g}: must be in [0, 1]")
     if args.moving_share > 0 and args.scenarios != "general":
         raise UserError("--moving-share needs --scenarios general (the mission as given keeps its own users)")
+    if not 0.0 <= args.transit_share <= 1.0:
+        raise UserError(f"--transit-share {args.transit_share:g}: must be in [0, 1]")
+    if args.transit_share > 0 and args.scenarios != "general":
+        raise UserError("--transit-share needs --scenarios general (the mission as given keeps its own area and launch)")
     if not args.teacher_track_m > 0:
         raise UserError(f"--teacher-track-m {args.teacher_track_m:g}: must be > 0")
     if not 0.0 < args.teacher_track_link <= 1.0:
@@ -158,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
                             "reads_map": args.policy_inputs == "plan+map", "imitation_teacher": args.teacher,
                             "imitation_failures": "scripted" if args.teacher == "react" else "random",
                             "imitation_track_m": args.teacher_track_m,
-                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share}
+                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share,
+                            "transit_share": args.transit_share}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]
