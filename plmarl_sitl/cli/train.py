@@ -18,7 +18,7 @@ METHODS = ("pl-marl", "gru", "tag-mappo")
 RECIPE_DEFAULTS = {
     "method": "pl-marl", "episodes": 1000, "num_envs": 16, "imitation_rounds": 6, "imitation_episodes": 40,
     "imitation_tup_chunks": 5, "teacher": "plan", "teacher_track_m": 30.0, "teacher_track_link": 0.95,
-    "moving_share": 0.0, "scenarios": "general", "policy_inputs": "plan",
+    "moving_share": 0.0, "transit_share": 0.0, "scenarios": "general", "policy_inputs": "plan",
 }
 
 
@@ -31,7 +31,8 @@ def recipe_from_card(card: dict) -> dict:
     keys = {"method": "method", "episodes": "episodes", "num_envs": "num_envs", "imitation_rounds": "imitation_rounds",
             "imitation_episodes": "imitation_episodes_per_round", "imitation_tup_chunks": "imitation_tup_chunks",
             "teacher": "imitation_teacher", "teacher_track_m": "imitation_track_m",
-            "teacher_track_link": "imitation_track_link", "moving_share": "moving_share"}
+            "teacher_track_link": "imitation_track_link", "moving_share": "moving_share",
+            "transit_share": "transit_share"}
     recipe = {flag: c[key] for flag, key in keys.items() if key in c}
     if "general" in c:
         recipe["scenarios"] = "general" if c["general"] else "mission"
@@ -63,10 +64,12 @@ def _resolve_recipe(args: argparse.Namespace) -> None:
     for flag, default in RECIPE_DEFAULTS.items():
         if getattr(args, flag) is None:
             setattr(args, flag, recipe.get(flag, default))
-    if args.scenarios == "mission" and "moving_share" in from_card and args.moving_share > 0:
-        # Walking crowds are drawn only in the general scenarios; the mission as given keeps its users.
-        print(f"--like {args.like}: its moving share {args.moving_share:g} does not apply with --scenarios mission")
-        args.moving_share = 0.0
+    for share in ("moving_share", "transit_share"):
+        if args.scenarios == "mission" and share in from_card and getattr(args, share) > 0:
+            # Walking crowds and strips are drawn only in the general scenarios; the mission as given keeps its own.
+            print(f"--like {args.like}: its {share.replace('_', ' ')} {getattr(args, share):g} does not apply with "
+                  "--scenarios mission")
+            setattr(args, share, 0.0)
     if args.like is not None and args.predictor is None and args.method in ("pl-marl", "gru") \
             and recipe.get("method") == args.method and (Path(args.like) / "predictor.pt").is_file():
         args.predictor = str(Path(args.like) / "predictor.pt")
@@ -132,6 +135,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--moving-share", type=float, default=None,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
                    "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
+    p.add_argument("--transit-share", type=float, default=None,
+                   help="with --scenarios general: the share of training scenarios with a long transit, the clusters a "
+                   "chain along a strip 350-600 m wide and the launch across it 0.5-1.5 km short of the first cluster "
+                   "(300-s episodes), recorded in the card (default: 0, none)")
     p.add_argument("--scenarios", choices=("general", "mission"), default=None,
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
                    "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
@@ -171,6 +178,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--moving-share {args.moving_share:g}: must be in [0, 1]")
     if args.moving_share > 0 and args.scenarios != "general":
         raise UserError("--moving-share needs --scenarios general (the mission as given keeps its own users)")
+    if not 0.0 <= args.transit_share <= 1.0:
+        raise UserError(f"--transit-share {args.transit_share:g}: must be in [0, 1]")
+    if args.transit_share > 0 and args.scenarios != "general":
+        raise UserError("--transit-share needs --scenarios general (the mission as given keeps its own area and launch)")
     if not args.teacher_track_m > 0:
         raise UserError(f"--teacher-track-m {args.teacher_track_m:g}: must be > 0")
     if not 0.0 < args.teacher_track_link <= 1.0:
@@ -224,7 +235,8 @@ def run(args: argparse.Namespace) -> int:
                             "reads_map": args.policy_inputs == "plan+map", "imitation_teacher": args.teacher,
                             "imitation_failures": "scripted" if args.teacher == "react" else "random",
                             "imitation_track_m": args.teacher_track_m,
-                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share}
+                            "imitation_track_link": args.teacher_track_link, "moving_share": args.moving_share,
+                            "transit_share": args.transit_share}
             | ({} if args.imitation_rounds else {"critic_warmup_iters": 0, "log_std_init": -0.5}),
         )
     tr = card["training"]

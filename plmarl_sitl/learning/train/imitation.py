@@ -30,7 +30,7 @@ from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, fixed_launch, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.teacher import ReactTargets, joint_track
 from plmarl_sitl.mission import Failure, Mission
@@ -75,6 +75,8 @@ class ImitationArgs:
     track_link_frac: float = LINK_FRAC  # the "track" teacher's link length, in R_comm (smaller: a margin)
     # ScenarioArgs.moving_share: the share of batches with moving demand (general scenarios only).
     moving_share: float = 0.0
+    # ScenarioArgs.transit_share: the share of batches with a long transit (general scenarios only).
+    transit_share: float = 0.0
 
 
 INPUTS = ("ego", "nbr", "rel", "mask", "tok", "tok_mask")  # the actor's inputs, in order (policy_input)
@@ -120,12 +122,14 @@ def imitate_oracle(
                        for c in range(args.tup_chunks)]
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
-            m = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
+            m = (training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share, transit_share=args.transit_share))
+                 if args.general else mission)
             m = m.with_tup(tup)
             p_fail = args.failure_prob
             if args.failures == "scripted":
                 m, p_fail = scripted_failures(m, rng, args.failure_window_s), 0.0
-            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=p_fail, random_launch=args.general)
+            env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=p_fail,
+                              random_launch=args.general and not fixed_launch(m))
             teacher = GreedyController(env)
             react = ReactTargets.of(m) if args.teacher == "react" else None
             perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)

@@ -49,7 +49,7 @@ from plmarl_sitl.learning.nn.features import (
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, training_mission
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, fixed_launch, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
@@ -93,6 +93,9 @@ class Args:
     # Moving demand (issue 24.3): the share of training scenarios whose crowds walk 1.5-3 m/s far from
     # home (ScenarioArgs.moving_share); 0: the distribution of before.
     moving_share: float = 0.0
+    # Long transits (issue 24.3, session 21): the share of training scenarios flown along a strip from a launch
+    # 0.5-1.5 km short of its clusters (ScenarioArgs.transit_share); 0: the distribution of before.
+    transit_share: float = 0.0
     # Oracle-imitation warm start (plmarl_sitl.learning.train.imitation), 0 rounds = MAPPO from scratch.
     imitation_rounds: int = 6
     imitation_episodes_per_round: int = 40
@@ -208,7 +211,7 @@ def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
     tups = [int(x) for x in np.linspace(min(args.tup_choices), max(args.tup_choices), args.validation_batches)]
     out = []
     for j, tup in enumerate(tups):
-        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
+        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share, transit_share=args.transit_share)) if args.general else mission
         out.append((scenario.with_tup(tup), training_twin_seed(args.seed * 100_003 + 90_000 + j)))
     return out
 
@@ -219,7 +222,7 @@ def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: 
     """Mean coverage of the deterministic actor over the validation set (no failures)."""
     covs = []
     for m, seed in sets:
-        env = CoverageEnv(m, envs, seed, random_launch=general)
+        env = CoverageEnv(m, envs, seed, random_launch=general and not fixed_launch(m))
         obs = env.reset()
         perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
         while not env.done:
@@ -259,7 +262,7 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
             actor, tracker, mission,
             ImitationArgs(rounds=args.imitation_rounds, episodes_per_round=args.imitation_episodes_per_round, seed=args.seed,
                           tup_chunks=args.imitation_tup_chunks, general=args.general, teacher=args.imitation_teacher,
-                          failures=args.imitation_failures, moving_share=args.moving_share,
+                          failures=args.imitation_failures, moving_share=args.moving_share, transit_share=args.transit_share,
                           track_m=args.imitation_track_m, track_link_frac=args.imitation_track_link),
             on_round=on_imitation_round,
         )
@@ -295,9 +298,9 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
-        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share)) if args.general else mission
+        scenario = training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share, transit_share=args.transit_share)) if args.general else mission
         env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
-                          failure_at_s=args.failure_at_s, random_launch=args.general)
+                          failure_at_s=args.failure_at_s, random_launch=args.general and not fixed_launch(scenario))
         N = env.n
 
         # -------------------------------------------------------------- rollout buffers (N varies per rollout)

@@ -12,7 +12,15 @@ are (B, N, ...)), `training_mission` draws from the mission given to `plmarl tra
 * with probability `moving_share` (0 by default; `plmarl train --moving-share`), moving demand
   (issue 24.3): RPGM groups walking at a speed drawn in `moving_speed_mps` (the group's speed,
   0.6 of the users' max_speed_mps) up to a range drawn in `moving_range_m` from home
-  (`users.rpgm_range_m`), the crowds the 30-s, 50-m demand map goes stale on.
+  (`users.rpgm_range_m`), the crowds the 30-s, 50-m demand map goes stale on;
+* with probability `transit_share` (0 by default; `plmarl train --transit-share`), a long transit
+  (issue 24.3, session 21): the area becomes a strip `transit_width_m` wide and as long as it must
+  be, the scenario's C clusters a chain along it `transit_gap` R_comm apart (the longer gaps need
+  a relay) and laterally anywhere in its middle half, and the swarm launches across the strip
+  near one end, `transit_m` short of the chain's first cluster: a 0.5-1.5 km flight to the first
+  cluster and 1-3 km to the last, over the other UAVs' clusters. End, orientation (along east or
+  north) and all distances are drawn per batch; the launch is that line in every environment of
+  the batch (no random launch) and the episode lasts `transit_episode_s`.
 
 The launch line's centre and orientation are drawn per environment by the twin
 (`CoverageEnv(random_launch=True)`); T_up and the failure curriculum are drawn by the
@@ -38,7 +46,20 @@ class ScenarioArgs:
     moving_share: float = 0.0
     moving_speed_mps: tuple[float, float] = (1.5, 3.0)  # the RPGM group's speed
     moving_range_m: tuple[float, float] = (200.0, 400.0)
+    transit_share: float = 0.0
+    transit_m: tuple[float, float] = (500.0, 1500.0)  # launch line to the chain's first cluster, along the strip
+    transit_gap: tuple[float, float] = (0.6, 1.2)  # between neighbouring clusters along the strip, in R_comm
+    transit_width_m: tuple[float, float] = (350.0, 600.0)
+    transit_episode_s: int = 300
 
+
+# A transit scenario flies from its own launch line: the trainers give it no random launch (`fixed_launch`).
+TRANSIT_NAME = "training_transit"
+
+
+def fixed_launch(m: Mission) -> bool:
+    """True for a scenario that must start from its mission's launch line (a long transit)."""
+    return m.name == TRANSIT_NAME
 
 
 
@@ -49,7 +70,36 @@ def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs
         reach = float(rng.uniform(*args.moving_range_m))
         m = dataclasses.replace(m, users=dataclasses.replace(m.users, mobility="rpgm", max_speed_mps=speed / RPGM_GROUP_SPEED,
                                                              rpgm_range_m=reach))
+    if args.transit_share > 0 and rng.random() < args.transit_share:  # likewise
+        m = _transit(m, rng, args)
     return m
+
+
+def _transit(m: Mission, rng: np.random.Generator, args: ScenarioArgs) -> Mission:
+    """The scenario's N and C on a long strip, launched near one end (the module's docstring)."""
+    c = max(1, m.users.count // m.users.cluster_size)
+    width = float(rng.uniform(*args.transit_width_m))
+    first = float(rng.uniform(*args.transit_m))
+    gaps = rng.uniform(*args.transit_gap, size=c - 1) * m.radii.comm_m
+    lateral = rng.uniform(0.25, 0.75, size=c) * width
+    start = 200.0  # the launch line's distance from the strip's end
+    along = start + first + np.concatenate([[0.0], np.cumsum(gaps)])
+    length = float(along[-1] + 300.0)
+    if rng.random() < 0.5:  # launched from the other end
+        along, start = length - along, length - start
+    centres = np.stack([lateral, along], -1)
+    launch_across, launch_along = width / 2, start
+    if rng.random() < 0.5:  # the strip along north instead of east
+        centres = centres[:, ::-1]
+        area = dataclasses.replace(m.area, north_m=length, east_m=width)
+        launch = dataclasses.replace(m.launch, north_m=launch_along, east_m=launch_across, bearing_deg=90.0)
+    else:
+        area = dataclasses.replace(m.area, north_m=width, east_m=length)
+        launch = dataclasses.replace(m.launch, north_m=launch_across, east_m=launch_along, bearing_deg=0.0)
+    users = dataclasses.replace(m.users, count=c * m.users.cluster_size, layout="fixed",
+                                cluster_centers=tuple((float(a), float(b)) for a, b in centres))
+    return dataclasses.replace(m, name=TRANSIT_NAME, area=area, users=users, launch=launch,
+                               timing=dataclasses.replace(m.timing, episode_s=args.transit_episode_s))
 
 
 def _scenario(base: Mission, rng: np.random.Generator, args: ScenarioArgs) -> Mission:
@@ -75,6 +125,14 @@ def describe_distribution(general: bool, tup_choices: tuple[int, ...], failure: 
     else:  # the card of before moving demand, key for key
         for k in ("moving_share", "moving_speed_mps", "moving_range_m"):
             fields.pop(k)
+    transit = {}
+    if args.transit_share > 0:
+        transit = {"transit": "with probability transit_share, a strip transit_width_m wide, the C clusters a chain along "
+                              "it transit_gap R_comm apart, launched across it near one end transit_m short of the first "
+                              "cluster (end and orientation random), episodes of transit_episode_s"}
+    else:  # the card of before long transits, key for key
+        for k in ("transit_share", "transit_m", "transit_gap", "transit_width_m", "transit_episode_s"):
+            fields.pop(k)
     return {
         "scenarios": "per rollout batch: N uniform in n_uavs, C clusters of 60 uniform in [max(2, N - 2), min(8, N + 2)] on "
                      "the twin's random connected layout (a new layout per environment); the mission itself with "
@@ -83,6 +141,7 @@ def describe_distribution(general: bool, tup_choices: tuple[int, ...], failure: 
         "launch": "a random line centre and orientation per environment (CoverageEnv(random_launch=True))",
         "mobility": "mixed: Gauss-Markov, Random Waypoint, RPGM per environment",
         **moving,
+        **transit,
         "tup_s": list(tup_choices),
         "failure": failure,
     }
