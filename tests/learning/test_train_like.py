@@ -26,7 +26,10 @@ def test_the_shipped_defaults_card_gives_its_recipe() -> None:
     assert recipe == {"method": "pl-marl", "episodes": 16, "num_envs": 16, "imitation_rounds": 6,
                       "imitation_episodes": 40, "imitation_tup_chunks": 5, "teacher": "track",
                       "teacher_track_m": 30.0, "teacher_track_link": 0.7, "moving_share": 0.5,
-                      "scenarios": "general", "policy_inputs": "plan"}
+                      "transit_share": 0.25, "scenarios": "general", "policy_inputs": "plan"}
+    # A card of before a flag existed gives no value for it: the flag's own default then applies.
+    assert "transit_share" not in recipe_from_card(yaml.safe_load((ROOT / "policies" / "s20" / "pl-marl" /
+                                                                   "card.yaml").read_text()))
 
 
 def test_without_like_the_flags_keep_their_table_one_defaults() -> None:
@@ -46,9 +49,11 @@ def test_like_by_name_from_any_directory_and_given_flags_win(tmp_path: Path, mon
     assert _resolved("--like", "pl-marl", "--method", "gru").predictor is None
 
 
-def test_like_with_the_mission_as_given_drops_the_cards_walking_crowds(capsys) -> None:
+def test_like_with_the_mission_as_given_drops_the_cards_walking_crowds_and_strips(capsys) -> None:
     args = _resolved("--like", "pl-marl", "--scenarios", "mission")
-    assert args.moving_share == 0.0 and "does not apply with --scenarios mission" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert (args.moving_share, args.transit_share) == (0.0, 0.0)
+    assert "moving share 0.5 does not apply" in out and "transit share 0.25 does not apply" in out
 
 
 @pytest.mark.parametrize("like, said", [
