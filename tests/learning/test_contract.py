@@ -21,10 +21,10 @@ from plmarl_sitl.mission import load_mission
 from plmarl_sitl.twin.env import CoverageEnv
 
 ROOT = Path(__file__).resolve().parents[2]
-SHIPPED = ["pl-marl", "gru", "tag-mappo", "s20/pl-marl", "s20/gru", "s20/tag-mappo", "plan/pl-marl", "plan/gru", "plan/tag-mappo", "wave1/pl-marl", "wave1/gru", "wave1/tag-mappo"]
+SHIPPED = ["pl-marl", "gru", "tag-mappo", "transit/pl-marl", "transit/gru", "transit/tag-mappo", "plan/pl-marl", "plan/gru", "plan/tag-mappo", "wave1/pl-marl", "wave1/gru", "wave1/tag-mappo"]
 # Outputs of the shipped files on fixed inputs, recorded at commit cde96d6 (before the
 # contract, on an Intel Xeon) with each file's positional call written out per input version; the
-# session-20 files (now s20/) and the session-21 defaults (trained after the contract) through the adapter,
+# session-20 defaults and the session-21 transit/ files (trained after the contract) through the adapter,
 # on an AMD EPYC.
 GOLDEN = json.loads((Path(__file__).parent / "data" / "shipped_policy_outputs.json").read_text())
 MISSION = load_mission(PAPER_MISSION)

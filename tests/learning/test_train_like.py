@@ -26,10 +26,10 @@ def test_the_shipped_defaults_card_gives_its_recipe() -> None:
     assert recipe == {"method": "pl-marl", "episodes": 16, "num_envs": 16, "imitation_rounds": 6,
                       "imitation_episodes": 40, "imitation_tup_chunks": 5, "teacher": "track",
                       "teacher_track_m": 30.0, "teacher_track_link": 0.7, "moving_share": 0.5,
-                      "transit_share": 0.25, "scenarios": "general", "policy_inputs": "plan"}
-    # A card of before a flag existed gives no value for it: the flag's own default then applies.
-    assert "transit_share" not in recipe_from_card(yaml.safe_load((ROOT / "policies" / "s20" / "pl-marl" /
-                                                                   "card.yaml").read_text()))
+                      "scenarios": "general", "policy_inputs": "plan"}
+    # A card of before a flag existed gives no value for it (the flag's own default then applies); a later one does.
+    transit = recipe_from_card(yaml.safe_load((ROOT / "policies" / "transit" / "pl-marl" / "card.yaml").read_text()))
+    assert recipe | {"transit_share": 0.25} == transit
 
 
 def test_without_like_the_flags_keep_their_table_one_defaults() -> None:
@@ -50,7 +50,7 @@ def test_like_by_name_from_any_directory_and_given_flags_win(tmp_path: Path, mon
 
 
 def test_like_with_the_mission_as_given_drops_the_cards_walking_crowds_and_strips(capsys) -> None:
-    args = _resolved("--like", "pl-marl", "--scenarios", "mission")
+    args = _resolved("--like", "transit/pl-marl", "--scenarios", "mission")
     out = capsys.readouterr().out
     assert (args.moving_share, args.transit_share) == (0.0, 0.0)
     assert "moving share 0.5 does not apply" in out and "transit share 0.25 does not apply" in out
