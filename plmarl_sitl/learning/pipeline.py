@@ -122,7 +122,7 @@ def run_training(
     card["training"]["distribution"] = describe_distribution(
         args.general, args.tup_choices,
         {"from_episode": args.failure_start_episode, "probability": args.failure_prob, "at_s": args.failure_at_s},
-        ScenarioArgs(moving_share=args.moving_share, transit_share=args.transit_share))
+        ScenarioArgs.of(args))
     card["training"]["selection"] = {**res["selection"], "rule": "best mean coverage of the deterministic actor on a "
                                      "fixed validation set of training-distribution scenarios (training-range seeds)"}
     card["training"].update({"episodes": res["episodes"], "mappo_wall_s": res["wall_s"], "final": res["last"],

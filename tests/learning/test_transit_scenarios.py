@@ -83,14 +83,19 @@ def test_bad_transit_options_are_one_line(tmp_path: Path, monkeypatch, capsys, a
 
 
 def test_imitation_on_long_transits_runs(monkeypatch) -> None:
-    import functools
+    import dataclasses
 
     from plmarl_sitl.learning.nn import Actor, BeliefTracker, make_predictor
     from plmarl_sitl.learning.train import imitation
     from plmarl_sitl.learning.train.imitation import ImitationArgs, imitate_oracle
 
+    @dataclasses.dataclass(frozen=True)
+    class ShortTransits(ScenarioArgs):
+        transit_m: tuple[float, float] = (500.0, 600.0)
+        transit_episode_s: int = 30
+
     # 30-s episodes on a short strip: the path, not the flight (a 300-s one takes ~50 s here)
-    monkeypatch.setattr(imitation, "ScenarioArgs", functools.partial(ScenarioArgs, transit_episode_s=30, transit_m=(500.0, 600.0)))
+    monkeypatch.setattr(imitation, "ScenarioArgs", ShortTransits)
 
     mission = load_mission(ROOT / "missions" / "paper_urban.yaml")
     torch.manual_seed(0)

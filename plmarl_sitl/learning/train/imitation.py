@@ -122,7 +122,7 @@ def imitate_oracle(
                        for c in range(args.tup_chunks)]
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
-            m = (training_mission(mission, rng, ScenarioArgs(moving_share=args.moving_share, transit_share=args.transit_share))
+            m = (training_mission(mission, rng, ScenarioArgs.of(args))
                  if args.general else mission)
             m = m.with_tup(tup)
             p_fail = args.failure_prob

@@ -52,6 +52,12 @@ class ScenarioArgs:
     transit_width_m: tuple[float, float] = (350.0, 600.0)
     transit_episode_s: int = 300
 
+    @classmethod
+    def of(cls, trainer_args) -> ScenarioArgs:
+        """The distribution a trainer's args ask for (`mappo.Args`, `imitation.ImitationArgs`: their
+        moving and transit shares; the rest as drawn here)."""
+        return cls(moving_share=trainer_args.moving_share, transit_share=trainer_args.transit_share)
+
 
 # A transit scenario flies from its own launch line: the trainers give it no random launch (`fixed_launch`).
 TRANSIT_NAME = "training_transit"
@@ -60,7 +66,6 @@ TRANSIT_NAME = "training_transit"
 def fixed_launch(m: Mission) -> bool:
     """True for a scenario that must start from its mission's launch line (a long transit)."""
     return m.name == TRANSIT_NAME
-
 
 
 def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs = ScenarioArgs()) -> Mission:
