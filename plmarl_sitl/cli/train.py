@@ -25,7 +25,7 @@ RECIPE_DEFAULTS = {
 def recipe_from_card(card: dict) -> dict:
     """The training recipe a policy's card records (its `config`: the trainer's Args), as this
     command's flags; the seed, mission and output are the new run's own."""
-    c = card.get("config")
+    c = card.get("config") if isinstance(card, dict) else None
     if not isinstance(c, dict) or c.get("method") not in METHODS:
         raise ValueError("its card.yaml has no training config (`config.method`): not a policy `plmarl train` wrote")
     keys = {"method": "method", "episodes": "episodes", "num_envs": "num_envs", "imitation_rounds": "imitation_rounds",

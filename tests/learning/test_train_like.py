@@ -60,12 +60,13 @@ def test_like_with_the_mission_as_given_drops_the_cards_walking_crowds_and_strip
     ("nosuch-dir", "--like nosuch-dir: no card.yaml there"),
     ("missions", "no card.yaml there"),
     ("CARD", "has no training config"),
+    ("LIST", "has no training config"),
 ])
 def test_a_wrong_like_is_one_line_and_exit_2(tmp_path: Path, monkeypatch, capsys, like: str, said: str) -> None:
     monkeypatch.chdir(tmp_path)
-    if like == "CARD":
+    if like in ("CARD", "LIST"):
         (tmp_path / "odd").mkdir()
-        (tmp_path / "odd" / "card.yaml").write_text("method: pl-marl\n")
+        (tmp_path / "odd" / "card.yaml").write_text("method: pl-marl\n" if like == "CARD" else "- 1\n- 2\n")
         like = "odd"
     assert main(["train", "--like", like, "--out", "x"]) == 2
     err = capsys.readouterr().err
