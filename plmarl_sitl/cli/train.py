@@ -14,7 +14,7 @@ from plmarl_sitl.errors import UserError
 METHODS = ("pl-marl", "gru", "tag-mappo")
 
 # The recipe: flags whose value, when not given, comes from --like's card, else from here (the
-# letter's Table I and the pipeline's defaults; the help texts say the same).
+# letter's Table I and the pipeline's defaults; the help texts read their defaults from here).
 RECIPE_DEFAULTS = {
     "method": "pl-marl", "episodes": 1000, "num_envs": 16, "imitation_rounds": 6, "imitation_episodes": 40,
     "imitation_tup_chunks": 5, "teacher": "plan", "teacher_track_m": 30.0, "teacher_track_link": 0.95,
@@ -41,7 +41,7 @@ def recipe_from_card(card: dict) -> dict:
     return recipe
 
 
-def _resolve_recipe(args: argparse.Namespace) -> None:
+def resolve_recipe(args: argparse.Namespace) -> None:
     """Fill the recipe's flags not given: from --like DIR's card, else RECIPE_DEFAULTS; with
     --like, also the engine (DIR/predictor.pt) unless --predictor gives one."""
     recipe: dict = {}
@@ -76,6 +76,7 @@ def _resolve_recipe(args: argparse.Namespace) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    D = RECIPE_DEFAULTS
     p = sub.add_parser(
         "train",
         help="train PL-MARL or a learnt baseline in the digital twin and export it",
@@ -99,14 +100,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "imitation, teacher, scenarios, policy inputs) and its engine (DIR/predictor.pt); flags given here "
                    "win. `--like policies/pl-marl` is how the shipped default was trained (default: none, the flags' "
                    "own defaults: Table I)")
-    p.add_argument("--method", choices=METHODS, default=None, help="the method (default: pl-marl)")
+    p.add_argument("--method", choices=METHODS, default=None, help=f"the method (default: {D['method']})")
     p.add_argument("--mission", default=str(PAPER_MISSION), help="mission YAML (default: the project's missions/paper_urban.yaml)")
-    p.add_argument("--episodes", type=int, default=None, help="training episodes (default: 1000, Table I)")
+    p.add_argument("--episodes", type=int, default=None, help=f"training episodes (default: {D['episodes']}, Table I)")
     add_seed(p, default=1)
     p.add_argument("--out", default=None, help="output directory (default: runs/train/<method>-seed<S>)")
     p.add_argument("--force", action="store_true",
                    help="write over a trained policy in --out (a card.yaml there, or anything under the project's policies/)")
-    p.add_argument("--num-envs", type=int, default=None, help="parallel episodes per rollout (default: 16)")
+    p.add_argument("--num-envs", type=int, default=None, help=f"parallel episodes per rollout (default: {D['num_envs']})")
     p.add_argument("--predictor", default=None,
                    help="a trained engine to reuse, skipping the fit: a policy's predictor.pt or an engine state dict")
     p.add_argument("--predictor-iters", type=int, default=None, help="engine fit iterations (default: 800 mlp / 300 gru)")
@@ -114,39 +115,47 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--threads", type=int, default=1, help="torch threads (default: 1; measured fastest here)")
     p.add_argument("--imitation-rounds", type=int, default=None,
                    help="warm-start rounds imitating the team-plan follower (`service`; DAgger-style: the student "
-                   "flies, the plan follower labels its states) before MAPPO; 0 = MAPPO from scratch (default: 6)")
-    p.add_argument("--imitation-episodes", type=int, default=None, help="imitation episodes per round (default: 40)")
+                   "flies, the plan follower labels its states) before MAPPO; 0 = MAPPO from scratch "
+                   f"(default: {D['imitation_rounds']})")
+    p.add_argument("--imitation-episodes", type=int, default=None, help=f"imitation episodes per round (default: {D['imitation_episodes']})")
     p.add_argument("--imitation-tup-chunks", type=int, default=None,
                    help="split each imitation round into this many batches whose T_up cycle through 5..50 s, so every "
-                   "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) (default: 5)")
+                   "T_up is imitated equally often; 1 = one random T_up per round (the pipeline before 2026-11-21) "
+                   f"(default: {D['imitation_tup_chunks']})")
     p.add_argument("--teacher", choices=("plan", "react", "track"), default=None,
                    help="the imitation teacher: plan, fly to your own point of the team plan (what the student has); "
                    "react (CTDE, issue 24): the plan re-solved the second a UAV fails from the survivors' true positions, "
                    "with 1-2 UAVs failing in every imitation batch at a random second in 20..160 s; "
                    "track (CTDE, issue 24.3): your plan point moved toward the users you sense by at most --teacher-track-m, "
                    "each UAV in turn as far as the team's true chosen points stay linked (0.95 R_comm) and spaced (2 R_s), "
-                   "a check no deployed UAV can make; the student still sees the unshifted plan point (default: plan)")
+                   "a check no deployed UAV can make; the student still sees the unshifted plan point "
+                   f"(default: {D['teacher']})")
     p.add_argument("--teacher-track-m", type=float, default=None,
-                   help="the track teacher's leash in metres (default: 30)")
+                   help=f"the track teacher's leash in metres (default: {D['teacher_track_m']:g})")
     p.add_argument("--teacher-track-link", type=float, default=None,
                    help="the track teacher's link margin as a fraction of R_comm: a pair linked in the plan stays linked while "
                    "it is at most this far apart (or its plan distance, if longer); below 0.95 it leaves room for the "
-                   "student's imitation error (default: 0.95, the plan's own link length)")
+                   "student's imitation error "
+                   f"(default: {D['teacher_track_link']:g}, the plan's own link length)")
     p.add_argument("--moving-share", type=float, default=None,
                    help="with --scenarios general: the share of training scenarios with moving demand, RPGM crowds walking "
-                   "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card (default: 0, none)")
+                   "1.5-3 m/s up to 200-400 m from home (users.rpgm_range_m), recorded in the card "
+                   f"(default: {D['moving_share']:g}, none)")
     p.add_argument("--transit-share", type=float, default=None,
                    help="with --scenarios general: the share of training scenarios with a long transit, the clusters a "
                    "chain along a strip 350-600 m wide and the launch across it 0.5-1.5 km short of the first cluster "
-                   "(300-s episodes), recorded in the card (default: 0, none)")
+                   "(300-s episodes), recorded in the card "
+                   f"(default: {D['transit_share']:g}, none)")
     p.add_argument("--scenarios", choices=("general", "mission"), default=None,
                    help="general: per rollout a random scenario (N 3..8, random connected layouts of 2..8 clusters, "
-                   "random launch lines; the mission itself 15 %% of the time); mission: the mission as given (default: general)")
+                   "random launch lines; the mission itself 15 %% of the time); mission: the mission as given "
+                   f"(default: {D['scenarios']})")
     p.add_argument("--policy-inputs", choices=("plan", "plan+map"), default=None,
                    help="plan: the actor reads its own state, sensing, f, the neighbours' beliefs and the offset to its "
                    "team-plan point; the demand map reaches it only through the plan (a map-blind policy, the light "
                    "decision). plan+map: also the demand descriptor and an attention over the map's cells (the "
-                   "generalising policies shipped before the map-blind ones; docs/POLICY_IO.md) (default: plan)")
+                   "generalising policies shipped before the map-blind ones; docs/POLICY_IO.md) "
+                   f"(default: {D['policy_inputs']})")
     p.set_defaults(func=run)
 
 
@@ -164,7 +173,7 @@ def _check_out(out: Path, force: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    _resolve_recipe(args)  # a wrong --like is said before torch loads
+    resolve_recipe(args)  # a wrong --like is said before torch loads
     from plmarl_sitl.learning.pipeline import EVAL_TUPS, engine_iters, run_training  # heavy imports only when used
     from plmarl_sitl.mission import load_mission
 

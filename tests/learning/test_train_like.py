@@ -9,14 +9,14 @@ import pytest
 import yaml
 
 from plmarl_sitl.cli import build_parser, main
-from plmarl_sitl.cli.train import RECIPE_DEFAULTS, _resolve_recipe, recipe_from_card
+from plmarl_sitl.cli.train import RECIPE_DEFAULTS, recipe_from_card, resolve_recipe
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _resolved(*argv: str):
     args = build_parser("train").parse_args(["train", *argv])
-    _resolve_recipe(args)
+    resolve_recipe(args)
     return args
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, describe_distribution, fixed_launch, training_mission
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, describe_distribution, random_launch, training_mission
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.twin.env import CoverageEnv
 
@@ -22,7 +22,7 @@ def test_transit_share_off_keeps_the_old_stream() -> None:
     old = [training_mission(base, a, ScenarioArgs(moving_share=0.5)) for _ in range(30)]
     off = [training_mission(base, b, ScenarioArgs(moving_share=0.5, transit_share=0.0)) for _ in range(30)]
     assert old == off  # no extra draw when off: the scenarios of before, one for one
-    assert not any(fixed_launch(m) for m in off)
+    assert all(random_launch(m, True) for m in off)
 
 
 def test_a_transit_is_a_strip_launched_far_short_of_a_chain_of_clusters() -> None:
@@ -32,7 +32,7 @@ def test_a_transit_is_a_strip_launched_far_short_of_a_chain_of_clusters() -> Non
     along_north = 0
     for _ in range(40):
         m = training_mission(base, rng, args)
-        assert fixed_launch(m) and m.timing.episode_s == 300
+        assert not random_launch(m, True) and m.timing.episode_s == 300
         along_north += m.area.north_m > m.area.east_m
         axis = 0 if m.area.north_m > m.area.east_m else 1  # the strip's long axis
         length, width = (m.area.north_m, m.area.east_m)[axis], (m.area.north_m, m.area.east_m)[1 - axis]
@@ -49,14 +49,14 @@ def test_a_transit_is_a_strip_launched_far_short_of_a_chain_of_clusters() -> Non
         assert np.all((c[:, 1 - axis] >= 0.25 * width - 1e-6) & (c[:, 1 - axis] <= 0.75 * width + 1e-6))
         assert np.all(c[:, axis] <= length - 300.0 + 1e-6)
     assert 5 < along_north < 35  # both orientations drawn
-    some = [fixed_launch(training_mission(base, rng, ScenarioArgs(transit_share=0.3))) for _ in range(200)]
+    some = [not random_launch(training_mission(base, rng, ScenarioArgs(transit_share=0.3)), True) for _ in range(200)]
     assert 30 < sum(some) < 90
 
 
 def test_a_transit_scenario_starts_from_its_launch_line_in_the_twin() -> None:
     base = load_mission(ROOT / "missions" / "paper_urban.yaml")
     m = training_mission(base, np.random.default_rng(2), ScenarioArgs(transit_share=1.0))
-    env = CoverageEnv(m, 2, 7, random_launch=not fixed_launch(m))
+    env = CoverageEnv(m, 2, 7, random_launch=random_launch(m, True))
     env.reset()
     centre = env.pos[:, :, :2].mean(1)
     assert torch.allclose(centre, torch.tensor([m.launch.north_m, m.launch.east_m], dtype=centre.dtype).expand(2, 2), atol=1e-3)

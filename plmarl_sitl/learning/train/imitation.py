@@ -30,7 +30,7 @@ from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, fixed_launch, training_mission
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, random_launch, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.teacher import ReactTargets, joint_track
 from plmarl_sitl.mission import Failure, Mission
@@ -129,7 +129,7 @@ def imitate_oracle(
             if args.failures == "scripted":
                 m, p_fail = scripted_failures(m, rng, args.failure_window_s), 0.0
             env = CoverageEnv(m, n_eps, training_twin_seed(env_seed), failure_prob=p_fail,
-                              random_launch=args.general and not fixed_launch(m))
+                              random_launch=random_launch(m, args.general))
             teacher = GreedyController(env)
             react = ReactTargets.of(m) if args.teacher == "react" else None
             perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)

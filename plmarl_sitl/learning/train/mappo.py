@@ -49,7 +49,7 @@ from plmarl_sitl.learning.nn.features import (
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, fixed_launch, training_mission
+from plmarl_sitl.learning.train.scenarios import ScenarioArgs, random_launch, training_mission
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
@@ -222,7 +222,7 @@ def validate(actor: Actor, tracker: BeliefTracker, scales: FeatureScales, sets: 
     """Mean coverage of the deterministic actor over the validation set (no failures)."""
     covs = []
     for m, seed in sets:
-        env = CoverageEnv(m, envs, seed, random_launch=general and not fixed_launch(m))
+        env = CoverageEnv(m, envs, seed, random_launch=random_launch(m, general))
         obs = env.reset()
         perceive = Perception(tracker, PolicyForm.trained(actor.reads_map), scales.r_comm, m)
         while not env.done:
@@ -300,7 +300,7 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
         scenario = training_mission(mission, rng, ScenarioArgs.of(args)) if args.general else mission
         env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
-                          failure_at_s=args.failure_at_s, random_launch=args.general and not fixed_launch(scenario))
+                          failure_at_s=args.failure_at_s, random_launch=random_launch(scenario, args.general))
         N = env.n
 
         # -------------------------------------------------------------- rollout buffers (N varies per rollout)

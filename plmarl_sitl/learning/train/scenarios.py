@@ -59,13 +59,14 @@ class ScenarioArgs:
         return cls(moving_share=trainer_args.moving_share, transit_share=trainer_args.transit_share)
 
 
-# A transit scenario flies from its own launch line: the trainers give it no random launch (`fixed_launch`).
+# A transit scenario flies from its own launch line: the trainers give it no random launch (`random_launch`).
 TRANSIT_NAME = "training_transit"
 
 
-def fixed_launch(m: Mission) -> bool:
-    """True for a scenario that must start from its mission's launch line (a long transit)."""
-    return m.name == TRANSIT_NAME
+def random_launch(m: Mission, general: bool) -> bool:
+    """Whether a trainer's episodes of scenario `m` launch from a random line: in the general
+    scenarios yes, except a long transit, whose strip starts from its own launch line."""
+    return general and m.name != TRANSIT_NAME
 
 
 def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs = ScenarioArgs()) -> Mission:
