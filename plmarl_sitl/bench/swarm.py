@@ -18,7 +18,7 @@ its run directory) hash the same.
 Every row also gives the mission's own wall time (second 0 to the last) and the speedup
 achieved over it: a free-running world that cannot keep its --speedup falls behind
 (bounded catch-up), so on a loaded machine the nominal speedup overstates the pace.
-Every row also says what share of the 10 Hz telemetry the agents answered after the
+Every row also says what share of the telemetry (at the rate each asked for) the agents answered after the
 start ("answered"): a free-running agent that falls behind skips to the newest sample,
 which keeps it on time by the criteria above while it does less work per vehicle second
 than a lockstep one, which answers all of them.
@@ -82,12 +82,12 @@ def answered_share(run_dir: Path) -> float | None:
     rate they asked for (from agents/*.stats.json); None without stats."""
     from plmarl_sitl.deploy.agent.session import TELEMETRY_HZ
 
-    samples = seconds = 0
+    samples = expected = 0.0
     for f in (run_dir / "agents").glob("*.stats.json"):
         st = json.loads(f.read_text())
         samples += int(st.get("mission_samples", 0))
-        seconds += int(st.get("seconds", 0))
-    return samples / (seconds * TELEMETRY_HZ) if seconds else None
+        expected += int(st.get("seconds", 0)) * float(st.get("telemetry_hz") or TELEMETRY_HZ)
+    return samples / expected if expected else None
 
 
 def _flown(flights: list[tuple[dict, float]]) -> dict:

@@ -12,7 +12,7 @@ with its own login and ACL. Its output comes back into agents/agentI.log, its tr
 stats when it exits. A `RemoteAgent` is the process-like handle `AgentFleet` keeps for it.
 
 A host is lost (`RemoteHosts.lost`) when none of its live agents has been heard on MAVLink
-(the world's per-vehicle datagram counters: every flying agent sends a setpoint at >= 10 Hz
+(the world's per-vehicle datagram counters: every flying agent sends a setpoint at >= 5 Hz
 and a heartbeat at 1 Hz of wall time) for the hosts file's `silence_s`; the launcher then
 records its UAVs as node failures.
 """

@@ -18,7 +18,7 @@ as the `Bus` and `session.Link` protocols. Flying, mission second k = boot_s - t
 * at the first telemetry of second k (at a signalling instant: once the updates of
   instant k have had time to arrive): close the signalling instant, advance the
   tracker one second, and every tau seconds run the policy, held until the next decision;
-* every telemetry message (10 Hz of vehicle time) re-sends the current setpoint, with a
+* every telemetry message (10 Hz of vehicle time, 5 Hz in lockstep) re-sends the current setpoint, with a
   wall-clock watchdog so the stream never stops while the process lives.
 
 With `--lockstep` (SITL only, `lockstep.TickGate`) the setpoint carries the telemetry's

@@ -43,6 +43,11 @@ log = logging.getLogger("plmarl.agent")
 # this is also the setpoint rate (>= 10 Hz; PX4 needs > 2 Hz). 20 Hz doubles the load on a
 # SITL world of 20 vehicles at speedup 10 for no gain in a policy acting every 3 s.
 TELEMETRY_HZ = 10.0
+# Lockstep SITL: the world moves vehicle time only once every agent has answered a sample, so each
+# sample is a round trip through every agent (issue 25). The command changes only at a second's
+# first sample (at whole vehicle seconds on lockstep's common grid, at either rate), so 5 Hz flies the
+# same seconds with half the round trips.
+LOCKSTEP_TELEMETRY_HZ = 5.0
 # LOCAL_POSITION_NED rate during the climb (vehicle time): the agent only watches the height
 # and, on PX4, keeps the offboard signal alive (COM_OF_LOSS_T 1 s; > 2 Hz before the switch,
 # which comes after TELEMETRY_HZ is back). At N = 100 the climb's 10 Hz samples were most of
@@ -132,6 +137,8 @@ class VehicleSession:
     def __init__(self, link: Link, cfg: AgentConfig, clock: MissionClock, decision: Decision, stats: LoopStats,
                  t_proc0: float, on_telemetry: Callable[[Any], None]) -> None:
         self.link, self.cfg, self.clock, self.decision, self.stats = link, cfg, clock, decision, stats
+        # The LOCAL_POSITION_NED rate asked for in flight, and so the setpoint rate.
+        self.telemetry_hz = stats.telemetry_hz = LOCKSTEP_TELEMETRY_HZ if cfg.lockstep else TELEMETRY_HZ
         self.view = VehicleView(link)  # heartbeat, home and optional requests, as every follower reads them
         self.t_proc0 = t_proc0  # unix time the process started (start-up is counted from it)
         self.on_telemetry = on_telemetry  # each LOCAL_POSITION_NED goes here
@@ -334,7 +341,7 @@ class VehicleSession:
             self.cfg.takeoff_timeout_s,
         )
         if slowed:  # the offboard switch and the mission need the full rate: not optional
-            await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
+            await link.set_message_interval("LOCAL_POSITION_NED", self.telemetry_hz)
 
     async def start(self) -> None:
         """Find the autopilot, then take off (or attach) and switch to the offboard mode."""
@@ -342,7 +349,7 @@ class VehicleSession:
         self.started = True
         p = self.personality = await self._find_autopilot()
         self.positions = link.subscribe("LOCAL_POSITION_NED")
-        await link.set_message_interval("LOCAL_POSITION_NED", TELEMETRY_HZ)
+        await link.set_message_interval("LOCAL_POSITION_NED", self.telemetry_hz)
         home = await self._wait_home()
         self._place(home)
         await self._wait_position()

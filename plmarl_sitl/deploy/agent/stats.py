@@ -31,6 +31,7 @@ class LoopStats:
     # rate, the share a free-running agent keeps up with (it skips to the newest sample
     # when it falls behind; a lockstep one answers every sample).
     mission_samples: int = 0
+    telemetry_hz: float = 0.0  # the in-flight rate the agent asked for (lockstep asks for less)
 
     def tick(self, t_in: float, c_in: float, decided: bool, rx_ns: int | None, in_mission: bool = False) -> None:
         """One telemetry message handled, from perf_counter t_in and thread_time c_in (its
@@ -64,6 +65,7 @@ class LoopStats:
             "decisions": self.decisions,
             "seconds": self.seconds,
             "mission_samples": self.mission_samples,
+            "telemetry_hz": self.telemetry_hz,
         }
 
 

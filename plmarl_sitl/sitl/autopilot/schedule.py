@@ -39,8 +39,11 @@ class Scheduler:
             self._interval.pop(key, None)
             return
         self._interval[key] = 1.0 / hz
-        phase = (vehicle % self.phases) * STREAM_GRID_S / self.phases
-        first = phase + math.ceil((now - phase) / STREAM_GRID_S - 1e-9) * STREAM_GRID_S
+        # Lockstep (one phase): a slower stream starts on its own period's grid, so a 5 Hz or 1 Hz
+        # stream also has a sample at every whole second, where an agent's second begins.
+        grid = STREAM_GRID_S if self.phases > 1 else max(STREAM_GRID_S, 1.0 / hz)
+        phase = (vehicle % self.phases) * grid / self.phases
+        first = phase + math.ceil((now - phase) / grid - 1e-9) * grid
         heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
 
     def rate(self, vehicle: int, msgid: int) -> float:
