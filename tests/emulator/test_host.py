@@ -277,6 +277,26 @@ def test_sysid_limits() -> None:
     assert [v.sysid for v in host.vehicles] == [7, 7, 9]
 
 
+def test_lockstep_streams_keep_a_sample_at_every_whole_second() -> None:
+    """Lockstep (one phase): a 5 Hz or 1 Hz stream asked for mid-second starts on its own
+    period's grid, so it has a sample at every whole second, where a lockstep agent's second
+    begins (its command changes only there); a 10 Hz stream starts on the 0.1 s grid."""
+    from plmarl_sitl.sitl.autopilot.schedule import Scheduler
+
+    sched = Scheduler(phases=1)
+    lpn = d.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+    for v, hz in ((0, 5.0), (1, 1.0), (2, 10.0)):
+        sched.set_rate(v, lpn, hz, 0.45)
+    ticks: dict[int, list[float]] = {}
+    for step in range(150):  # 3 s of 50 Hz substeps
+        t = round(step * 0.02, 10)
+        for vi, _ in sched.pop_due(t):
+            ticks.setdefault(vi, []).append(t)
+    assert ticks[0][:3] == [0.6, 0.8, 1.0] and {1.0, 2.0} <= set(ticks[0]) and len(ticks[0]) == 12
+    assert ticks[1] == [1.0, 2.0]
+    assert ticks[2][:2] == [0.5, 0.6] and len(ticks[2]) == 25
+
+
 def test_streams_share_a_per_vehicle_phase_and_leave_bundled() -> None:
     """A vehicle's 1 Hz telemetry falls on its 10 Hz ticks and goes out in the same UDP
     datagram (as PX4 bundles), and different vehicles tick at different phases."""
