@@ -15,7 +15,16 @@ from plmarl_sitl.learning.nn.placement import load_placement_scorer
 from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
-from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
+from plmarl_sitl.model.gossip import (
+    DECLARE_AFTER_MISSED,
+    Gossip,
+    clear_hearing,
+    key_of,
+    may_predict,
+    since_of,
+    steady,
+    suspects,
+)
 from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import (
@@ -28,6 +37,13 @@ from plmarl_sitl.model.service import (
     plan_geometry,
 )
 from plmarl_sitl.model.vehicle import Limits, goto_accel
+
+# Session 22 prototype (twin only, off): a silent teammate the `may_predict` guard blocks (its
+# last message lacked some of the receiver's declarations) is declared when it is in clear
+# hearing wherever it could be: at the receiver's plan-aware prediction (it learnt them) and at
+# its position and point in each plan before those declarations (it did not). See
+# `ServiceTargets._pre_replan_suspects`.
+DECLARE_PRE_REPLAN = False
 
 PLACEMENT_SCORER = PROJECT_POLICIES / "pl-marl" / "placement.pt"  # `placement: learned`'s scorer and its card
 
@@ -187,6 +203,33 @@ class ServiceTargets:
         self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
 
+    def _pre_replan_suspects(self, blocked: torch.Tensor, missed: list[int], gossip: Gossip) -> torch.Tensor:
+        """(B, N, N) bool: of the silent teammates the `may_predict` guard blocks (blocked), the
+        ones in clear hearing at each missed instant wherever they could be: at the plan-aware
+        prediction (they learnt the declarations their last message lacked) and at their
+        position and point in each plan the receiver held before those declarations (they did
+        not). A live teammate flying between the two is near the segment joining them."""
+        plans = self.plans
+        assert plans is not None and plans.motion is not None
+        out = torch.zeros_like(blocked)
+        for e, a, j in zip(*[x.tolist() for x in torch.nonzero(blocked, as_tuple=True)], strict=True):
+            cands = _pre_replan_candidates(plans, e, a, j, gossip.heard_rank[e, a, j])
+            if not cands:
+                continue
+            ok = True
+            for at in missed:
+                pred = plans.motion.at_array(at)[e, a]  # (n, 6)
+                rows = np.repeat(pred[None, :, :3], len(cands) + 1, 0)  # candidate 0: the prediction itself
+                for c, xy in enumerate(cands, 1):
+                    rows[c, j, :2] = xy
+                pos = torch.from_numpy(rows).unsqueeze(1)  # (C, 1, n, 3)
+                own = torch.from_numpy(pred[a, :3]).expand(len(cands) + 1, 1, 3)
+                if not bool(clear_hearing(pos, torch.tensor([a]), own, self.channel, self.comm_m)[:, 0, j].all()):
+                    ok = False
+                    break
+            out[e, a, j] = ok
+        return out
+
     def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor,
                     ego: torch.Tensor, held: torch.Tensor) -> None:
         """Declare the neighbours out of N_i that are predicted in clear hearing and whose last
@@ -199,8 +242,10 @@ class ServiceTargets:
         missed = recent[: self.declare_after]  # the instants j must have missed, newest first
         silent = (t_rx >= 0) & (t_rx < missed[-1]) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
         silent &= (t_rx == missed[0]).any(-1, keepdim=True)  # someone was heard at the newest instant
-        silent &= may_predict(gossip.heard_rank, gossip.rank, self.instants.last(t))
-        if len(missed) == self.declare_after and missed[-1] > 0 and bool(silent.any()):
+        guard = may_predict(gossip.heard_rank, gossip.rank, self.instants.last(t))
+        blocked = silent & ~guard
+        silent &= guard
+        if len(missed) == self.declare_after and missed[-1] > 0 and (bool(silent.any()) or (DECLARE_PRE_REPLAN and bool(blocked.any()))):
             # Silent at the instants it missed, at each of which the plan-aware prediction
             # says it should have been heard (the tracker's beliefs, 30 s after the last
             # state, declared live teammates failed: docs/RESULTS.md, issue 24).
@@ -215,6 +260,8 @@ class ServiceTargets:
                 for at in missed:
                     st = steady(st, plans.motion.at(at)[..., :3], before, torch.arange(n), self.channel, self.comm_m)
                 sus = sus | st
+            if DECLARE_PRE_REPLAN and bool(blocked.any()):
+                sus = sus | self._pre_replan_suspects(blocked, missed, gossip)
             at = torch.full_like(gossip.epoch, self.instants.last(t))
             gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
         known, since = gossip.failed.numpy(), gossip.since.numpy()
@@ -229,3 +276,23 @@ class ServiceTargets:
                     return xy
             if plans.settle(int(e), int(a), known[e, a].copy(), since[e, a].copy(), src):
                 self.replans_done += 1
+
+
+def _pre_replan_candidates(plans: TeamPlans, e: int, a: int, j: int, heard: torch.Tensor) -> list[np.ndarray] | None:
+    """Copy (e, a)'s candidate positions (xy) of teammate j in each plan it held before a re-plan step
+    that j's last message (its knowledge, heard (n,) ranks) did not know: j's position at the
+    step's epoch and its point in that plan. None when j knew every step, or was not in a plan."""
+    steps, before = plans.steps.get((e, a), []), plans.before.get((e, a), [])
+    jf = (key_of(heard) % 2 == 1).numpy()
+    js = since_of(heard).numpy()
+    k = next((i for i, (f, s) in enumerate(steps) if not (jf[f] & (js[f] <= s)).all()), None)
+    if k is None or plans.motion is None:
+        return None
+    out = []
+    for i in range(k, len(steps)):
+        _, _, _, points, slot, _, epoch = before[i]
+        if slot[j] < 0:
+            return None
+        out.append(plans.motion.at_array(epoch)[e, a, j, :2].copy())
+        out.append(points[slot[j]].copy())
+    return out
