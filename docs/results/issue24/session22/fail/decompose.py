@@ -106,6 +106,7 @@ def main() -> int:
     ap.add_argument("--controllers", nargs="+", default=["service", "pl-marl"])
     ap.add_argument("--ways", nargs="+", default=["replan", "spread", "instant", "phased"])
     ap.add_argument("--missions", nargs="+", default=MISSIONS)
+    ap.add_argument("--variants", type=int, nargs="+", help="each mission's suite variant index (default: its position; b alone is 1)")
     ap.add_argument("--policies", default="policies")
     ap.add_argument("--guard-lag-s", type=int, default=0, help="may_predict relaxed for declarations this old (0: off)")
     ap.add_argument("--hold", action="store_true", help="HOLD_UNTIL_TOLD: a knower keeps its point until it has told")
@@ -113,12 +114,20 @@ def main() -> int:
     ap.add_argument("--rejoin", action="store_true", help="REJOIN: an agent that heard nobody at the newest instant flies back into range")
     ap.add_argument("--alone", action="store_true", help="HOLD_ALONE: hold/leash only an agent its new point would cut off")
     ap.add_argument("--pre-replan", action="store_true", help="session 22: DECLARE_PRE_REPLAN (test a guarded silent teammate at its pre-re-plan positions too)")
+    ap.add_argument("--pre-replan-missed", type=int, default=2, help="PRE_REPLAN_MISSED (session 22: first run used 1)")
+    ap.add_argument("--pre-replan-seen", action="store_true", help="PRE_REPLAN_SEEN: own position and heard states at the newest instant")
+    ap.add_argument("--pin", action="store_true", help="session 22: PIN_UNAWARE (re-plan with unaware heard teammates pinned)")
+    ap.add_argument("--pin-quiet", action="store_true", help="PIN_QUIET: a copy holding pins declares nobody")
     ap.add_argument("--phased-epoch", default="period", choices=["instant", "period"])
     ap.add_argument("--fail-s", type=int, default=100, help="the missions' failure second (the window starts 30 s later)")
     a = ap.parse_args()
     global FAIL_S
     FAIL_S = a.fail_s
     plan_mod.DECLARE_PRE_REPLAN = a.pre_replan
+    plan_mod.PRE_REPLAN_MISSED = a.pre_replan_missed
+    plan_mod.PRE_REPLAN_SEEN = a.pre_replan_seen
+    plan_mod.PIN_UNAWARE = a.pin
+    plan_mod.PIN_QUIET = a.pin_quiet
     plan_mod.PHASED_EPOCH = a.phased_epoch
     plan_mod.GUARD_LAG_S = a.guard_lag_s
     plan_mod.REJOIN = a.rejoin
@@ -130,7 +139,7 @@ def main() -> int:
     for seed in a.seeds:
         for v, path in enumerate(a.missions):
             base = load_mission(path)
-            twin_seed = suite_twin_seed(seed, v)
+            twin_seed = suite_twin_seed(seed, a.variants[v] if a.variants else v)
             for tup in a.tup:
                 m = base.with_tup(tup)
                 g = greedy_after(m, a.episodes, twin_seed, a.fail_s, 0.0)
@@ -145,7 +154,7 @@ def main() -> int:
                               f"of greedy {np.mean(r['after']) / g.mean():.4f} never {int(np.isnan(r['all_know_s']).sum())} "
                               f"split {int(np.sum(r['split']))} false_end {int(np.sum(r['false_end']))} false_max {int(np.sum(r['false_max']))} ({time.time() - t0:.0f} s)",
                               file=sys.stderr, flush=True)
-    print(json.dumps({"episodes": a.episodes, "pre_replan": a.pre_replan, "guard_lag_s": a.guard_lag_s, "hold": a.hold, "leash": a.leash, "rejoin": a.rejoin, "alone": a.alone, "phased_epoch": a.phased_epoch, "rows": rows}))
+    print(json.dumps({"episodes": a.episodes, "pre_replan": a.pre_replan, "pre_replan_missed": a.pre_replan_missed, "pre_replan_seen": a.pre_replan_seen, "pin": a.pin, "pin_quiet": a.pin_quiet, "guard_lag_s": a.guard_lag_s, "hold": a.hold, "leash": a.leash, "rejoin": a.rejoin, "alone": a.alone, "phased_epoch": a.phased_epoch, "rows": rows}))
     return 0
 
 
