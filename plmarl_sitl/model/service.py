@@ -450,34 +450,6 @@ def assign(sources: np.ndarray, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def pinned_place(grid: ServiceGrid, counts: np.ndarray, pin_xy: np.ndarray, k: int) -> np.ndarray:
-    """(k, 2) the greedy's points on one map counts (K,) with its first picks forced to the
-    candidates nearest pin_xy (P, 2) (session 22 prototype): every later pick is within
-    R_link of an earlier one and 2 d_safe from all, as `ServiceGrid.place`'s."""
-    w = grid.sub_weights(np.asarray(counts, dtype=np.float64))
-    d2 = ((grid.cands[None] - np.asarray(pin_xy, dtype=np.float64)[:, None]) ** 2).sum(-1)
-    chosen = [int(c) for c in d2.argmin(-1)]
-    left = w.copy()
-    near = np.zeros(len(grid.cands), dtype=bool)
-    apart = np.ones(len(grid.cands), dtype=bool)
-
-    def take(c: int) -> None:
-        nonlocal near, apart
-        left[grid.cover_idx[grid.cover_ptr[c]:grid.cover_ptr[c + 1]]] = 0.0
-        dist = np.sqrt((grid.cand_n - grid.cand_n[c]) ** 2 + (grid.cand_e - grid.cand_e[c]) ** 2)
-        near |= dist <= grid.link_m
-        apart &= dist >= grid.apart_m
-
-    for c in chosen:
-        take(c)
-    while len(chosen) < k:
-        score = np.where(near & apart, grid.weight_gains(left), -1.0)
-        c = int(score.argmax())
-        chosen.append(c)
-        take(c)
-    return grid.cands[np.asarray(chosen[:k])]
-
-
 class TeamPlans:
     """Copies of the team plan for B teams x A agents (the twin: A = N; a deployed agent: B = A = 1).
     Everything in a plan is common knowledge (the maps, the launch line, the failed set and
@@ -501,9 +473,6 @@ class TeamPlans:
         # them (failed, epoch, since, points, slot, second saved, the step's epoch), oldest first
         self.steps: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
         self.before: dict[tuple[int, int], list[tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, int, int]]] = {}
-        # Session 22 prototype (twin only; empty unless learning/nn/plan.py's PIN_UNAWARE):
-        # (b, a) -> (identities, (P, 2) positions) a copy's re-plan keeps where they are
-        self.pins: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
 
     def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
@@ -533,9 +502,6 @@ class TeamPlans:
         if t is not None:
             self.maps.append((t, counts))
         todo = [(b, g) for b in range(len(counts)) for g in self._groups(b)]
-        if self.pins:  # session 22 prototype: a pinned copy keeps its plan on new maps
-            todo = [(b, [a for a in g if len(self.pins.get((b, a), ((),))[0]) == 0]) for b, g in todo]
-            todo = [(b, g) for b, g in todo if g]
         for k in sorted({int((self.slot[b, g[0]] >= 0).sum()) for b, g in todo}):
             part = [(b, g) for b, g in todo if int((self.slot[b, g[0]] >= 0).sum()) == k]
             rows = np.array([b for b, _ in part])
@@ -595,25 +561,12 @@ class TeamPlans:
             self.failed[b, a], self.epoch[b, a] = failed, epoch
             return
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
-        pin_ids, pin_xy = self.pins.get((b, a), (np.zeros(0, dtype=np.int64), np.zeros((0, 2))))
-        keep = ~failed[pin_ids] if len(pin_ids) else np.zeros(0, dtype=bool)
-        pin_ids, pin_xy = pin_ids[keep], pin_xy[keep]
-        if len(pin_ids):
-            pts = pinned_place(self.grid, counts[-1][b], pin_xy, len(alive))
-        else:
-            pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
+        pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
         self.points[b, a] = np.nan
         self.points[b, a, : len(alive)] = pts
         self.slot[b, a] = -1
         src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
-        if len(pin_ids):  # the pinned keep rows 0..P-1, the others are assigned the rest
-            free = np.array([j for j in alive if j not in set(pin_ids.tolist())], dtype=np.int64)
-            self.slot[b, a, pin_ids] = np.arange(len(pin_ids))
-            if len(free):
-                fsrc = src[np.searchsorted(alive, free)]
-                self.slot[b, a, free] = len(pin_ids) + assign(fsrc, pts[len(pin_ids):])
-        else:
-            self.slot[b, a, alive] = assign(src, pts)
+        self.slot[b, a, alive] = assign(src, pts)
         self.failed[b, a], self.epoch[b, a] = failed, epoch
         self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
@@ -621,8 +574,6 @@ class TeamPlans:
     def _follow_maps(self, b: int, a: int, after: int) -> None:
         """Copy (b, a) takes the maps of seconds after `after`, as `on_map` would have."""
         k = int((self.slot[b, a] >= 0).sum())
-        if len(self.pins.get((b, a), ((),))[0]):  # session 22 prototype: a pinned copy keeps its plan
-            return
         for s, later in self.maps:
             if s > after:
                 new, served = self.grid.place(later[b : b + 1], k)

@@ -15,16 +15,7 @@ from plmarl_sitl.learning.nn.placement import load_placement_scorer
 from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
-from plmarl_sitl.model.gossip import (
-    DECLARE_AFTER_MISSED,
-    Gossip,
-    clear_hearing,
-    key_of,
-    may_predict,
-    since_of,
-    steady,
-    suspects,
-)
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
 from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.service import (
@@ -37,26 +28,6 @@ from plmarl_sitl.model.service import (
     plan_geometry,
 )
 from plmarl_sitl.model.vehicle import Limits, goto_accel
-
-# Session 22 prototype (twin only, off): a silent teammate the `may_predict` guard blocks (its
-# last message lacked some of the receiver's declarations) is declared when it is in clear
-# hearing wherever it could be: at the receiver's plan-aware prediction (it learnt them) and at
-# its position and point in each plan before those declarations (it did not). See
-# `ServiceTargets._pre_replan_suspects`.
-DECLARE_PRE_REPLAN = False
-# At the newest instant, the links are tested from the agent's own position then and with the
-# teammates it heard then where they said they were (a teammate that learnt late flies behind
-# the prediction, and one passing by jams a link the prediction keeps clear); and the silent
-# teammate is also tested where its last message put it (a copy may have predicted it wrong
-# from the start: each agent's launch line is the one it heard).
-PRE_REPLAN_SEEN = False
-PRE_REPLAN_CHECK_M = 30.0  # ... and only if its copy predicted it within this of where its last message put it
-PRE_REPLAN_MISSED = 2  # instants in a row such a teammate must have missed, each in clear hearing wherever it could be
-# Session 22 prototype (twin only, off): an agent's copy re-plans with the teammates it heard at
-# the newest instant whose message lacked its declarations (they cannot have re-planned) pinned
-# where they were heard, and its other points placed linked to them (`service.pinned_place`).
-PIN_UNAWARE = False
-PIN_QUIET = False  # with PIN_UNAWARE: a copy holding pins declares nobody (its prediction is not the others')
 
 PLACEMENT_SCORER = PROJECT_POLICIES / "pl-marl" / "placement.pt"  # `placement: learned`'s scorer and its card
 
@@ -182,7 +153,6 @@ class ServiceTargets:
         self.map_t = -1
         self.last: torch.Tensor | None = None  # the targets of the last update
         self.replans_done = 0  # copies re-planned (for reports)
-        self._own_at: tuple[int, torch.Tensor | None] = (-1, None)  # PRE_REPLAN_SEEN: (instant, (B, N, 3) own position then)
 
     def update(self, t: int, ego: torch.Tensor, nbr_state: torch.Tensor, nbr_t_rx: torch.Tensor,
                demand: torch.Tensor, *, mask: torch.Tensor | None = None, alive: torch.Tensor | None = None,
@@ -217,73 +187,6 @@ class ServiceTargets:
         self.last = torch.from_numpy(own).to(ego.dtype)
         return self.last
 
-    def _pre_replan_suspects(self, blocked: torch.Tensor, missed: list[int], gossip: Gossip,
-                             seen: tuple[int, torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
-        """(B, N, N) bool: of the silent teammates the `may_predict` guard blocks (blocked), the
-        ones in clear hearing at each missed instant wherever they could be: at the plan-aware
-        prediction (they learnt the declarations their last message lacked) and at their
-        position and point in each plan the receiver held before those declarations (they did
-        not). A live teammate flying between the two is near the segment joining them."""
-        plans = self.plans
-        assert plans is not None and plans.motion is not None
-        out = torch.zeros_like(blocked)
-        known, since = gossip.failed.numpy(), gossip.since.numpy()
-        for e, a, j in zip(*[x.tolist() for x in torch.nonzero(blocked, as_tuple=True)], strict=True):
-            if (known[e, a] != plans.failed[e, a]).any() or (np.where(known[e, a], since[e, a], 0) != plans.since[e, a]).any():
-                continue  # its copy is not settled to what it knows yet (it will be by the next decision)
-            cands = _pre_replan_candidates(plans, e, a, j, gossip.heard_rank[e, a, j])
-            if not cands:
-                continue
-            if seen is not None:  # and where it last said it was, which the copy predicted then
-                last_xy = seen[2][e, a, j, :2].double().numpy().copy()
-                then = int(seen[4][e, a, j])
-                if np.sqrt(((plans.motion.at_array(then)[e, a, j, :2] - last_xy) ** 2).sum()) > PRE_REPLAN_CHECK_M:
-                    continue
-                cands.append(last_xy)
-            ok = True
-            for at in missed:
-                pred = plans.motion.at_array(at)[e, a].copy()  # (n, 6)
-                if seen is not None and at == seen[0]:  # PRE_REPLAN_SEEN: what the agent saw at that instant
-                    _, own_xyz, held_xyz, got, _ = seen
-                    pred[a, :3] = own_xyz[e, a].double().numpy()
-                    rx = got[e, a].numpy()
-                    pred[rx, :3] = held_xyz[e, a, rx].double().numpy()
-                rows = np.repeat(pred[None, :, :3], len(cands) + 1, 0)  # candidate 0: the prediction itself
-                for c, xy in enumerate(cands, 1):
-                    rows[c, j, :2] = xy
-                pos = torch.from_numpy(rows).unsqueeze(1)  # (C, 1, n, 3)
-                own = torch.from_numpy(pred[a, :3]).expand(len(cands) + 1, 1, 3)
-                if not bool(clear_hearing(pos, torch.tensor([a]), own, self.channel, self.comm_m)[:, 0, j].all()):
-                    ok = False
-                    break
-            out[e, a, j] = ok
-        return out
-
-    def _pin_unaware(self, t: int, live: np.ndarray, gossip: Gossip, t_rx: torch.Tensor, held: torch.Tensor) -> np.ndarray:
-        """(B, N) bool: the copies whose pins changed (rolled back to their plan before any
-        re-plan step, to be re-settled with the new pins). A copy's pins: the teammates its agent
-        heard at the newest instant whose message lacked a declaration the agent knows, at
-        the positions they sent."""
-        plans = self.plans
-        assert plans is not None
-        newest = self.instants.last(t)
-        known = gossip.failed  # (B, N, N)
-        told = key_of(gossip.heard_rank) % 2 == 1  # (B, N, N, N) [a, u, j]: u's last message to a knew j failed
-        lacks = (known.unsqueeze(-2) & ~told).any(-1)  # (B, N, N) [a, u]
-        n = known.shape[-1]
-        pin = lacks & (t_rx == float(newest)) & ~known & ~torch.eye(n, dtype=torch.bool)
-        changed = np.zeros(live.shape, dtype=bool)
-        for e, a in zip(*np.nonzero(live), strict=True):
-            ids = np.flatnonzero(pin[e, a].numpy())
-            old = plans.pins.get((int(e), int(a)), (np.zeros(0, dtype=np.int64), None))[0]
-            if np.array_equal(ids, old):
-                continue
-            plans.pins[(int(e), int(a))] = (ids, held[e, a, ids, :2].double().numpy().copy())
-            if plans.steps.get((int(e), int(a))):
-                plans._roll_back(int(e), int(a), 0)
-            changed[e, a] = True
-        return changed
-
     def on_failures(self, t: int, mask: torch.Tensor, alive: torch.Tensor, gossip: Gossip, t_rx: torch.Tensor,
                     ego: torch.Tensor, held: torch.Tensor) -> None:
         """Declare the neighbours out of N_i that are predicted in clear hearing and whose last
@@ -293,20 +196,11 @@ class ServiceTargets:
         assert plans is not None and plans.motion is not None
         n = mask.shape[-1]
         recent = self.instants.recent(t, self.declare_after + 1)
-        if PRE_REPLAN_SEEN and self._own_at[0] != recent[0]:  # its own position at the newest instant, once: back from the first decision after it
-            self._own_at = (recent[0], ego[..., :3] - ego[..., 3:6] * float(t - recent[0]))
         missed = recent[: self.declare_after]  # the instants j must have missed, newest first
         silent = (t_rx >= 0) & (t_rx < missed[-1]) & ~torch.eye(n, dtype=torch.bool) & alive.unsqueeze(-1) & ~gossip.failed
         silent &= (t_rx == missed[0]).any(-1, keepdim=True)  # someone was heard at the newest instant
-        if PIN_UNAWARE and PIN_QUIET and plans.pins:  # a copy with pins predicts a plan of its own: it declares nobody
-            quiet = torch.zeros(silent.shape[:2], dtype=torch.bool)
-            for (e, a), (ids, _) in plans.pins.items():
-                quiet[e, a] = len(ids) > 0
-            silent &= ~quiet.unsqueeze(-1)
-        guard = may_predict(gossip.heard_rank, gossip.rank, self.instants.last(t))
-        blocked = silent & ~guard
-        silent &= guard
-        if len(missed) == self.declare_after and missed[-1] > 0 and (bool(silent.any()) or (DECLARE_PRE_REPLAN and bool(blocked.any()))):
+        silent &= may_predict(gossip.heard_rank, gossip.rank, self.instants.last(t))
+        if len(missed) == self.declare_after and missed[-1] > 0 and bool(silent.any()):
             # Silent at the instants it missed, at each of which the plan-aware prediction
             # says it should have been heard (the tracker's beliefs, 30 s after the last
             # state, declared live teammates failed: docs/RESULTS.md, issue 24).
@@ -321,21 +215,11 @@ class ServiceTargets:
                 for at in missed:
                     st = steady(st, plans.motion.at(at)[..., :3], before, torch.arange(n), self.channel, self.comm_m)
                 sus = sus | st
-            if DECLARE_PRE_REPLAN and len(recent) >= PRE_REPLAN_MISSED and bool(blocked.any()):
-                # silent at the PRE_REPLAN_MISSED newest instants (a live teammate is missed at one when the
-                # prediction of an interferer is off: one that learnt late flies behind it)
-                at_k = self.instants.recent(t, PRE_REPLAN_MISSED)
-                seen = None
-                if PRE_REPLAN_SEEN:  # its own position then and the states it got then
-                    seen = (at_k[0], self._own_at[1], held[..., :3], t_rx == float(at_k[0]), t_rx)
-                sus = sus | self._pre_replan_suspects(blocked & (t_rx < at_k[-1]), at_k, gossip, seen)
             at = torch.full_like(gossip.epoch, self.instants.last(t))
             gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
         known, since = gossip.failed.numpy(), gossip.since.numpy()
         live = alive.numpy()
         stale = live & ((known != plans.failed).any(-1) | (np.where(known, since, 0) != plans.since).any(-1))
-        if PIN_UNAWARE:
-            stale |= self._pin_unaware(t, live, gossip, t_rx, held)
         for e, a in zip(*np.nonzero(stale), strict=True):
             src = None
             if self.sources == "cv":  # p + v (epoch - t_rx) from the held states; itself: back from now
@@ -345,23 +229,3 @@ class ServiceTargets:
                     return xy
             if plans.settle(int(e), int(a), known[e, a].copy(), since[e, a].copy(), src):
                 self.replans_done += 1
-
-
-def _pre_replan_candidates(plans: TeamPlans, e: int, a: int, j: int, heard: torch.Tensor) -> list[np.ndarray] | None:
-    """Copy (e, a)'s candidate positions (xy) of teammate j in each plan it held before a re-plan step
-    that j's last message (its knowledge, heard (n,) ranks) did not know: j's position at the
-    step's epoch and its point in that plan. None when j knew every step, or was not in a plan."""
-    steps, before = plans.steps.get((e, a), []), plans.before.get((e, a), [])
-    jf = (key_of(heard) % 2 == 1).numpy()
-    js = since_of(heard).numpy()
-    k = next((i for i, (f, s) in enumerate(steps) if not (jf[f] & (js[f] <= s)).all()), None)
-    if k is None or plans.motion is None:
-        return None
-    out = []
-    for i in range(k, len(steps)):
-        _, _, _, points, slot, _, epoch = before[i]
-        if slot[j] < 0:
-            return None
-        out.append(plans.motion.at_array(epoch)[e, a, j, :2].copy())
-        out.append(points[slot[j]].copy())
-    return out
