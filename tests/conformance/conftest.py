@@ -166,7 +166,7 @@ def px4_target(request: pytest.FixtureRequest) -> Iterator[Target]:
         link.close()
         b = t.boot  # what docs/CONFORMANCE.md records (pytest -s shows it)
         keys = ("lpn_s", "home_s", "heartbeat_s", "ready_s", "lift_s", "climb_rate", "loiter_after_s", "peak_alt_m", "accel_vx", "failsafe_after_s",
-                "rtl_from_alt_m", "rtl_disarmed_after_s", "gps_loss_modes", "no_gps_failsafe_after_s",
+                "rtl_from_alt_m", "rtl_disarmed_after_s", "landed_z_m", "gps_loss_modes", "no_gps_failsafe_after_s",
                 "gps_back_rtl_after_s", "motor_text_after_s", "fall_m_in_4s", "wall_s")
         print(f"\nPX4 conformance, {request.param}: " + ", ".join(f"{k} {b.get(k)!r}" for k in keys))
     finally:

@@ -252,12 +252,18 @@ def test_offboard_entry_after_stream(px4_link: Link) -> None:
 def test_acceleration_only_setpoint_is_feed_forward(px4_link: Link, px4_target: Target) -> None:
     """afx = 0.5 m/s^2 (type mask 0x0C3F) for 8 s: PX4 feeds an acceleration-only setpoint
     forward with no velocity loop around it, so the airframe's drag (SIH: 1 /s) makes it a
-    ~0.5 m/s drift, not a 4 m/s run. Echoed in POSITION_TARGET_LOCAL_NED (mask 0x0C3F)."""
+    ~0.5 m/s drift, not a 4 m/s run. Echoed in POSITION_TARGET_LOCAL_NED (mask 0x0C3F).
+
+    With no velocity loop nothing cancels a small tilt or thrust bias either: real PX4 SIH's
+    speed settles at 0.5 m/s plus a wander of up to ~0.35 m/s (session 22: vy wandered
+    -0.37..+0.14 m/s under ay = 0 in a run whose vx settled at 0.59-0.71; vx after 5 s in
+    five runs: 0.23-0.29, 0.32-0.40, 0.40-0.54, 0.59-0.71, 0.66-0.80; earlier 0.33-0.65).
+    Hence 0.1-0.9 m/s, still far from a drag-free mass's 2.5-4 m/s."""
     seen: list = []
     _stream(px4_link, 8.0, (0.5, 0.0, 0.0), seen)
     vx = [m.vx for m in seen if m.time_boot_ms / 1000 > seen[0].time_boot_ms / 1000 + 5.0]
     px4_target.boot["accel_vx"] = (min(vx), max(vx))
-    assert vx and all(0.25 <= v <= 0.8 for v in vx), (min(vx), max(vx))  # measured 0.33-0.65; drag-free: 2.5-4
+    assert vx and all(0.1 <= v <= 0.9 for v in vx), (min(vx), max(vx))  # drag-free: 2.5-4
     echo = px4_link.wait("POSITION_TARGET_LOCAL_NED", sim_s=2.0)
     if echo is not None:  # streamed by both on this link; not every PX4 build streams it
         # position and velocity ignored, acceleration used (PX4 leaves the yaw bits clear: 0x3F)
@@ -286,5 +292,12 @@ def test_setpoint_loss_failsafe_rtl(px4_link: Link, px4_target: Target) -> None:
     down = px4_link.wait("HEARTBEAT", lambda h: not h.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED, sim_s=120.0)
     px4_target.boot["rtl_disarmed_after_s"] = px4_link.clock_s - stopped
     assert down is not None, ("not disarmed after the RTL's landing", px4_target.boot["rtl_from_alt_m"], px4_link.texts[-8:])
+    # On the ground at home: PX4 disarms only once its land detector says landed, and says so in
+    # EXTENDED_SYS_STATE. The height is its estimator's (EKF2_HGT_REF GNSS, SIH's GPS height noise
+    # 0.5 m): right after an RTL's landing real PX4 SIH read z = 0.77, 1.40, 1.26, -0.95, -1.00 m
+    # (session 22; 0.83 before), the ground at boot being 0: the height check is 2 m, not 0.5.
+    state = px4_link.wait("EXTENDED_SYS_STATE", sim_s=2.0)
+    assert state is not None and state.landed_state == mav.MAV_LANDED_STATE_ON_GROUND, state
     lpn = px4_link.wait("LOCAL_POSITION_NED", sim_s=2.0)
-    assert lpn is not None and abs(lpn.z) < 0.5 and math.hypot(lpn.x, lpn.y) < 3.0
+    px4_target.boot["landed_z_m"] = None if lpn is None else round(lpn.z, 2)
+    assert lpn is not None and abs(lpn.z) < 2.0 and math.hypot(lpn.x, lpn.y) < 3.0, (lpn, px4_link.texts[-5:])
