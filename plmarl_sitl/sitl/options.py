@@ -54,7 +54,7 @@ class SwarmOptions:
     # then paces only the start-up.
     lockstep: bool = flag("--lockstep", action="store_true", default=False,
                           help="lockstep SITL: vehicle time waits for every agent's answer to each telemetry sample "
-                          "(the agents run with --lockstep), so the run is as fast as the agents compute, never late, "
+                          "(5 Hz of vehicle time; the agents run with --lockstep), so the run is as fast as the agents compute, never late, "
                           "and the same mission and seed give the same metrics.jsonl, events.jsonl and summary "
                           "(emulated autopilots only)")
     straggler_s: float = flag("--straggler", type=float, metavar="S", default=DEFAULT_STRAGGLER_S,

@@ -87,7 +87,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-takeoff", action="store_true", help="attach to an airborne, armed vehicle instead of taking off")
     p.add_argument("--lockstep", action="store_true",
                    help="lockstep SITL (a world run with --lockstep): stamp each setpoint with the telemetry it answers and "
-                        "answer a second's telemetry only after the world's tick for it; decisions never wait on wall time")
+                        "answer a second's telemetry only after the world's tick for it; decisions never wait on wall time; "
+                        "telemetry, and so setpoints, at 5 Hz of vehicle time (10 Hz otherwise)")
     p.add_argument("--start", choices=["wait", "now"], default=None,
                    help="wait: mission clock from the world's start announcement (default with --bus sitl); "
                    "now: start at once (default with --bus direct)")
