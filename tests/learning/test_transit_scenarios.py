@@ -86,7 +86,7 @@ def test_imitation_on_long_transits_runs(monkeypatch) -> None:
     import dataclasses
 
     from plmarl_sitl.learning.nn import Actor, BeliefTracker, make_predictor
-    from plmarl_sitl.learning.train import imitation
+    from plmarl_sitl.learning.train import scenarios
     from plmarl_sitl.learning.train.imitation import ImitationArgs, imitate_oracle
 
     @dataclasses.dataclass(frozen=True)
@@ -95,7 +95,7 @@ def test_imitation_on_long_transits_runs(monkeypatch) -> None:
         transit_episode_s: int = 30
 
     # 30-s episodes on a short strip: the path, not the flight (a 300-s one takes ~50 s here)
-    monkeypatch.setattr(imitation, "ScenarioArgs", ShortTransits)
+    monkeypatch.setattr(scenarios, "ScenarioArgs", ShortTransits)  # what trainer_scenario draws with
 
     mission = load_mission(ROOT / "missions" / "paper_urban.yaml")
     torch.manual_seed(0)

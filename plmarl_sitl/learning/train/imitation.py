@@ -30,7 +30,7 @@ from plmarl_sitl.learning.nn.contract import PolicyForm
 from plmarl_sitl.learning.nn.features import FeatureScales, policy_input
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, random_launch, training_mission
+from plmarl_sitl.learning.train.scenarios import random_launch, trainer_scenario
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.teacher import ReactTargets, joint_track
 from plmarl_sitl.mission import Failure, Mission
@@ -122,9 +122,7 @@ def imitate_oracle(
                        for c in range(args.tup_chunks)]
         for tup, n_eps, env_seed in batches:
             tups.append(tup)
-            m = (training_mission(mission, rng, ScenarioArgs.of(args))
-                 if args.general else mission)
-            m = m.with_tup(tup)
+            m = trainer_scenario(mission, rng, args).with_tup(tup)
             p_fail = args.failure_prob
             if args.failures == "scripted":
                 m, p_fail = scripted_failures(m, rng, args.failure_window_s), 0.0

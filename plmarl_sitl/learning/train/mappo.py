@@ -49,7 +49,7 @@ from plmarl_sitl.learning.nn.features import (
 from plmarl_sitl.learning.nn.perception import Perception
 from plmarl_sitl.learning.nn.policy import Actor, Critic, action_to_accel
 from plmarl_sitl.learning.nn.predictor import make_predictor
-from plmarl_sitl.learning.train.scenarios import ScenarioArgs, random_launch, training_mission
+from plmarl_sitl.learning.train.scenarios import random_launch, trainer_scenario
 from plmarl_sitl.learning.train.seeds import training_twin_seed
 from plmarl_sitl.learning.train.trajectories import mixed_mobility
 from plmarl_sitl.mission import Mission, load_mission
@@ -211,7 +211,7 @@ def validation_set(args: Args, mission: Mission) -> list[tuple[Mission, int]]:
     tups = [int(x) for x in np.linspace(min(args.tup_choices), max(args.tup_choices), args.validation_batches)]
     out = []
     for j, tup in enumerate(tups):
-        scenario = training_mission(mission, rng, ScenarioArgs.of(args)) if args.general else mission
+        scenario = trainer_scenario(mission, rng, args)
         out.append((scenario.with_tup(tup), training_twin_seed(args.seed * 100_003 + 90_000 + j)))
     return out
 
@@ -298,7 +298,7 @@ def train(args: Args, progress=None, on_imitation_round=None) -> dict:  # noqa: 
         ent_coef = linear(args.ent_start, args.ent_end, episodes_done / max(args.episodes, 1))
         tup = int(rng.choice(args.tup_choices))
         p_fail = args.failure_prob if episodes_done >= args.failure_start_episode else 0.0
-        scenario = training_mission(mission, rng, ScenarioArgs.of(args)) if args.general else mission
+        scenario = trainer_scenario(mission, rng, args)
         env = CoverageEnv(scenario.with_tup(tup), B, training_twin_seed(args.seed * 100_003 + it), failure_prob=p_fail,
                           failure_at_s=args.failure_at_s, random_launch=random_launch(scenario, args.general))
         N = env.n

@@ -69,6 +69,13 @@ def random_launch(m: Mission, general: bool) -> bool:
     return general and m.name != TRANSIT_NAME
 
 
+def trainer_scenario(mission: Mission, rng: np.random.Generator, trainer_args) -> Mission:
+    """The scenario a trainer's batch flies (`mappo.Args`, `imitation.ImitationArgs`): with
+    `general`, drawn by `training_mission` with the trainer's shares; else the mission as given
+    (no draw)."""
+    return training_mission(mission, rng, ScenarioArgs.of(trainer_args)) if trainer_args.general else mission
+
+
 def training_mission(base: Mission, rng: np.random.Generator, args: ScenarioArgs = ScenarioArgs()) -> Mission:
     m = _scenario(base, rng, args)
     if args.moving_share > 0 and rng.random() < args.moving_share:  # no draw at all when off: the old stream
