@@ -247,23 +247,17 @@ class _LatticeCover:
     def counts(self) -> np.ndarray:
         return self.cnt.ravel()[self.frame.at].astype(np.int64)
 
-    def _window(self, p: int) -> tuple[slice, slice]:
-        f = self.frame
-        i, j = divmod(p, f.ne)
-        return slice(i + f.k0, i + f.k0 + f.hk), slice(j + f.l0, j + f.l0 + f.hl)
-
     def without(self, p: int, inside: np.ndarray) -> tuple[float, np.ndarray]:
         f = self.frame
-        rs, cs = self._window(p)
-        cnt = self.cnt[rs, cs]
-        cnt[MOVE:f.hk - MOVE, MOVE:f.hl - MOVE] -= f.stencil
-        got = (self.w[rs, cs] * (cnt == 0)).ravel() @ f.share
+        w, cnt, own = f.views(p)
+        own -= f.stencil
+        got = (w * (cnt == 0)).ravel() @ f.share
         return float(got[-1]), got[:-1][inside]
 
     def add(self, p: int) -> None:
         f = self.frame
-        rs, cs = self._window(p)
-        self.cnt[rs, cs][MOVE:f.hk - MOVE, MOVE:f.hl - MOVE] += f.stencil
+        own = f.views(p)[2]
+        own += f.stencil
 
     def screen(self, local: LocalSearch, picks: np.ndarray) -> np.ndarray:
         """`LocalSearch.screen` on the lattice: every point's window at once, one product."""
@@ -308,6 +302,20 @@ class _LatticeFrame:
         self.window = (np.arange(self.hk)[:, None] * self.shape[1] + np.arange(self.hl)[None, :]).ravel()
         self.w = np.zeros(self.shape, dtype=np.float32)
         self.cnt = np.zeros(self.shape, dtype=np.int32)
+        self.held: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # `views`, per candidate visited
+
+    def views(self, p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Candidate p's window of the work arrays w and cnt, and the part of cnt its own cover
+        adds to (views, written in place); kept per candidate, as `LocalSearch.moves_of`: a
+        point is visited by every sweep, start and map, and slicing them anew was ~a fifth of a
+        visit's cover bookkeeping (issue 25.1). The work arrays are never replaced, so the views stay theirs."""
+        held = self.held.get(p)
+        if held is None:
+            i, j = divmod(p, self.ne)
+            rs, cs = slice(i + self.k0, i + self.k0 + self.hk), slice(j + self.l0, j + self.l0 + self.hl)
+            cnt = self.cnt[rs, cs]
+            held = self.held[p] = (self.w[rs, cs], cnt, cnt[MOVE:self.hk - MOVE, MOVE:self.hl - MOVE])
+        return held
 
 
 class SearchPlacement:
