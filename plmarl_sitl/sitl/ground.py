@@ -28,7 +28,6 @@ from plmarl_sitl.deploy.mqtt.schema import Topics
 from plmarl_sitl.deploy.mqtt.wire import Wire
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.channel import CoverageRadius
-from plmarl_sitl.model.coverage import covered_users
 from plmarl_sitl.model.demand import demand_map, grid_shape, is_map_instant, map_period
 from plmarl_sitl.model.graph import algebraic_connectivity, link_mask, weighted_adjacency
 from plmarl_sitl.model.users import UserState, init_users, step_users
@@ -89,7 +88,7 @@ class Ground:
         """Coverage and lambda_2 now, on (N, 3) float32 mission-frame positions."""
         m = self.mission
         users = self.users.xy[0]  # (U, 2)
-        cov = float(covered_users(users, pos, alive, self.radius(-pos[:, 2])).float().mean())
+        cov = float(torch.from_numpy(covered_np(users, pos, alive, self.radius(-pos[:, 2]))).float().mean())
         rx, sinr = link_mask(pos, alive, m.channel, m.radii.comm_m)
         lam2 = float(algebraic_connectivity(weighted_adjacency(rx, sinr), alive))
         return Measure(cov, lam2, int(rx.sum()))
@@ -117,3 +116,16 @@ def sensed_users(users: torch.Tensor, pos: torch.Tensor, alive: torch.Tensor, ra
     dy = u[:, 1][None, :] - p[:, 1:2]
     near = dx * dx + dy * dy <= np.float32(radius_m**2)
     return [u[near[i]].tolist() if a else None for i, a in enumerate(alive.tolist())]
+
+
+def covered_np(users: torch.Tensor, pos: torch.Tensor, alive: torch.Tensor, radius: torch.Tensor) -> np.ndarray:
+    """`model.coverage.covered_users` for one swarm, (U,) bool, in one numpy pass over the
+    (N, U) squared distances instead of its five torch calls per vehicle: the same float32
+    operations (user minus UAV, d_n^2 + d_e^2, compared with r^2 or -1 for a dead UAV), so
+    the same users, bit for bit (tests/sitl/test_ground_sense.py)."""
+    u = users.numpy()
+    p = pos.numpy()
+    r2 = torch.where(alive, radius * radius, torch.full_like(radius, -1.0)).numpy()
+    dn = u[:, 0][None, :] - p[:, 0:1]  # (N, U)
+    de = u[:, 1][None, :] - p[:, 1:2]
+    return (dn * dn + de * de <= r2[:, None]).any(0)

@@ -137,11 +137,12 @@ class Fleet:
     def _free_steps(self, h: float, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """(pos, vel, acc) after `count` free-flight substeps in one call, or None."""
         g = self.guidance
-        if g.drag.any():  # PX4: the command is recomputed from each substep's velocity
-            return free_flight_steps_under(self.pos_np, self.vel_np, g.accel_setpoints_only, h, count, self.limits)
-        acc = g.accel_setpoints_only(self.vel_np)  # no drag: the same in every substep
-        if acc is None:
+        command = g.setpoints_only_command()  # tested once for all `count` substeps
+        if command is None:
             return None
+        if g.drag.any():  # PX4: the command is recomputed from each substep's velocity
+            return free_flight_steps_under(self.pos_np, self.vel_np, command, h, count, self.limits)
+        acc = command(self.vel_np)  # no drag: the same in every substep
         stepped = free_flight_steps(self.pos_np, self.vel_np, acc, h, count, self.limits)
         return None if stepped is None else (stepped[0], stepped[1], acc)
 

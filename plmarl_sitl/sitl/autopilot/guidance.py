@@ -11,6 +11,7 @@ controllers broadcast them.
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 
 import numpy as np
 
@@ -96,6 +97,13 @@ class Guidance:
         acceleration setpoint clearly inside its limit, or has no command (zero). `accel`
         would return the setpoint times a scale factor of exactly 1.0 there (`clip_norm`),
         and +0.0 elsewhere: the same bits (tests/emulator/test_host.py). None otherwise."""
+        command = self.setpoints_only_command()
+        return None if command is None else command(vel)
+
+    def setpoints_only_command(self) -> Callable[[np.ndarray], np.ndarray] | None:
+        """`accel_setpoints_only` as a function of the velocity, its tests done once: for
+        the substeps of one `Fleet.step_many`, between which nothing can change a kind, a
+        target or a limit, only the velocity (under drag). None where it would be None."""
         kind = self.kind
         accel = kind == _ACCEL
         if not (accel | (kind == _IDLE) | (kind == _TOUCHDOWN)).all():
@@ -105,6 +113,9 @@ class Guidance:
         limit = self.max_accel[:, 0] * (1.0 - 1e-9)  # far outside a norm's round-off
         if not (np.isfinite(sq).all() and (sq[accel] <= (limit * limit)[accel]).all()):
             return None
+        flying = accel[:, None]
         if self.drag.any():
-            target = target - self.drag[:, None] * vel
-        return np.where(accel[:, None], target, 0.0)
+            drag = self.drag[:, None]
+            return lambda vel: np.where(flying, target - drag * vel, 0.0)
+        acc = np.where(flying, target, 0.0)
+        return lambda _vel: acc

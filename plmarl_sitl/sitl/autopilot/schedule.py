@@ -21,7 +21,9 @@ class Scheduler:
 
     def __init__(self, phases: int = STREAM_PHASES) -> None:
         self.phases = phases  # 1: every vehicle's streams on the same grid points (lockstep SITL)
-        self._heap: list[tuple[float, int, int, int, int]] = []
+        # (due, tie, (vehicle, msgid), generation): the tie (a counter) makes every entry's
+        # (due, tie) unique, so the heap pops in one order however it is laid out
+        self._heap: list[tuple[float, int, tuple[int, int], int]] = []
         self._tie = itertools.count()
         self._gen: dict[tuple[int, int], int] = {}
         self._interval: dict[tuple[int, int], float] = {}
@@ -44,7 +46,7 @@ class Scheduler:
         grid = STREAM_GRID_S if self.phases > 1 else max(STREAM_GRID_S, 1.0 / hz)
         phase = (vehicle % self.phases) * grid / self.phases
         first = phase + math.ceil((now - phase) / grid - 1e-9) * grid
-        heapq.heappush(self._heap, (first, next(self._tie), vehicle, msgid, gen))
+        heapq.heappush(self._heap, (first, next(self._tie), key, gen))
 
     def rate(self, vehicle: int, msgid: int) -> float:
         iv = self._interval.get((vehicle, msgid))
@@ -57,15 +59,16 @@ class Scheduler:
     def pop_due(self, now: float) -> list[tuple[int, int]]:
         """(vehicle, msgid) pairs due at `now`, each rescheduled one interval later."""
         out = []
-        heap = self._heap
+        heap, gens, intervals, tie = self._heap, self._gen, self._interval, self._tie
         while heap and heap[0][0] <= now + 1e-9:
-            due, _, vi, mid, gen = heapq.heappop(heap)
-            if self._gen.get((vi, mid)) != gen:
+            due, _, key, gen = heap[0]
+            if gens.get(key) != gen:
+                heapq.heappop(heap)
                 continue
-            iv = self._interval[(vi, mid)]
+            iv = intervals[key]
             nxt = due + iv
             if nxt < now - iv:  # far behind (e.g. a huge advance): do not burst
                 nxt = now + iv
-            heapq.heappush(heap, (nxt, next(self._tie), vi, mid, gen))
-            out.append((vi, mid))
+            heapq.heapreplace(heap, (nxt, next(tie), key, gen))  # the pop and the push in one sift
+            out.append(key)
         return out

@@ -47,6 +47,7 @@ RETURNED_M = 0.5  # RTL: this close to home (horizontally), it lands
 TAKEOFF_DONE_M = 0.3
 MAX_PEERS = 8
 _TLOG_STAMP = struct.Struct(">Q")  # a .tlog record: big-endian unix time in us, then the frame
+_MAVLINK_MAGIC = (b"\xfd", b"\xfe")  # the first byte of a MAVLink 2 / 1 frame
 # SETUP_SIGNING: a vehicle's signing timestamp starts this far past the one given (10 us
 # ticks), as ArduPilot's load_signing_key does against replays across a reboot.
 SETUP_SIGNING_AHEAD = 60 * 100_000
@@ -267,7 +268,8 @@ class Vehicle:
 
     def record(self, raw: bytes) -> None:
         """Append one MAVLink frame (or datagram) to the .tlog (`record_all`)."""
-        self.record_all([raw])
+        if self.tlog is not None and raw[:1] in _MAVLINK_MAGIC:
+            self.tlog.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + raw)
 
     def record_all(self, frames: list[bytes]) -> None:
         """Append MAVLink frames to the .tlog, each as 8-byte big-endian unix time in us, then
@@ -275,7 +277,8 @@ class Vehicle:
         for the frames of one datagram; anything not a MAVLink frame is left out."""
         if self.tlog is not None:
             stamp = _TLOG_STAMP.pack(int(time.time() * 1e6))
-            self.tlog.write(b"".join(stamp + f for f in frames if f[:1] in (b"\xfd", b"\xfe")))
+            # stamp + f1 + stamp + f2 ...: the stamp as the separator after an empty first item
+            self.tlog.write(stamp.join([b"", *(f for f in frames if f[:1] in _MAVLINK_MAGIC)]))
 
     def statustext(self, text: str, severity: int = d.MAV_SEVERITY_INFO) -> None:
         if self.texts is not None:
