@@ -486,6 +486,10 @@ class TeamPlans:
         # them (failed, epoch, since, points, slot, second saved, the step's epoch), oldest first
         self.steps: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
         self.before: dict[tuple[int, int], list[tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, int, int]]] = {}
+        # fewest movers: the first plan (second, points, slot) and, per copy, each step's plan at its
+        # epoch (epoch, points, slot), so a step keeps the plan of its epoch, not the copy's of now
+        self.first: tuple[int, np.ndarray, np.ndarray] | None = None
+        self.anchors: dict[tuple[int, int], list[tuple[int, np.ndarray, np.ndarray]]] = {}
 
     def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
@@ -498,6 +502,8 @@ class TeamPlans:
         self.maps = [(t, counts)]
         self.since = np.zeros((b, a, self.n), dtype=np.int64)
         self.steps, self.before = {}, {}
+        if self.fewest_movers:
+            self.first, self.anchors = (t, self.points.copy(), self.slot.copy()), {}
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -571,6 +577,8 @@ class TeamPlans:
         self.since[b, a] = np.where(failed, np.where(self.since[b, a] > 0, self.since[b, a], epoch), 0)
         alive = np.flatnonzero(~failed)
         if alive.size == 0:  # only false declarations get here (the copy's own agent is alive): keep the plan
+            if self.fewest_movers:
+                self.anchors.setdefault((b, a), []).append((int(epoch), *self._plan_at(b, a, epoch)))
             self.failed[b, a], self.epoch[b, a] = failed, epoch
             return
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
@@ -585,6 +593,8 @@ class TeamPlans:
         self.points[b, a, : len(alive)] = pts
         self.slot[b, a] = -1
         self.slot[b, a, alive] = own
+        if self.fewest_movers:
+            self.anchors.setdefault((b, a), []).append((int(epoch), self.points[b, a].copy(), self.slot[b, a].copy()))
         self.failed[b, a], self.epoch[b, a] = failed, epoch
         self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
@@ -606,6 +616,25 @@ class TeamPlans:
             return max(REPLAN_MARGIN, movers_margin(counts))
         return REPLAN_MARGIN
 
+    def _plan_at(self, b: int, a: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:
+        """Copy (b, a)'s plan (points (n, 2), slot (n,)) at second `epoch` before its newest step:
+        its previous step's plan (or the first) with the maps taken up to `epoch`, as `on_map`
+        would have taken them. Common knowledge: it does not depend on when the copy learnt."""
+        prev = self.anchors.get((b, a), [])
+        t0, points, slot = prev[-1] if prev else (self.first[0], self.first[1][b, a], self.first[2][b, a])
+        points, slot = points.copy(), slot.copy()
+        k = int((slot >= 0).sum())
+        for s, later in self.maps:
+            if t0 < s <= epoch:
+                new, served = self.grid.place(later[b : b + 1], k)
+                keep = self.grid.served(later[b : b + 1], points[None, :k])[0]
+                margin = max(REPLAN_MARGIN, movers_margin(later[b])) if prev else REPLAN_MARGIN
+                if served[0] > keep + margin:
+                    moved = assign(points[:k], new[0])
+                    slot[slot >= 0] = moved[slot[slot >= 0]]
+                    points[:k] = new[0]
+        return points, slot
+
     def _fewest_movers(self, b: int, a: int, counts: np.ndarray, alive: np.ndarray,
                        src: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """The prototype's re-plan of copy (b, a) for the survivors alive (m,) on the map counts
@@ -614,10 +643,11 @@ class TeamPlans:
         re-placed greedily (`keep_and_move`), and the full re-solve (today's, assigned by least
         travel from src (m, 2)); the feasible one with the fewest movers whose served users are
         within `movers_margin` of the best wins (the full re-solve last)."""
-        rows = self.slot[b, a, alive]
+        points, slot = self._plan_at(b, a, int(self.steps[(b, a)][-1][1]))
+        rows = slot[alive]
         if (rows < 0).any():  # a survivor without a point in the old plan: nothing to keep
             return None
-        old = self.points[b, a, rows]
+        old = points[rows]
         full, full_served = self.grid.place(counts[None], len(alive))
         options = keep_and_move(self.grid, counts, old, MOVERS_K)  # [(points, movers, served, feasible)]
         best = max([float(full_served[0])] + [o[2] for o in options if o[3]])
@@ -636,6 +666,8 @@ class TeamPlans:
         stack, steps = self.before[(b, a)], self.steps[(b, a)]
         was_failed, was_epoch, was_since, points, slot, saved_t, left = stack[k]
         del stack[k:], steps[k:]
+        if self.fewest_movers:
+            del self.anchors.setdefault((b, a), [])[k:]
         self.failed[b, a], self.epoch[b, a], self.since[b, a] = was_failed, was_epoch, was_since
         self.points[b, a], self.slot[b, a] = points, slot
         self._follow_maps(b, a, saved_t)

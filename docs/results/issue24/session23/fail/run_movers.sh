@@ -1,5 +1,6 @@
 #!/bin/sh
-# session 23: the fewest-movers re-plan (service.FEWEST_MOVERS), two margins fixed before any result:
+# session 23: the fewest-movers re-plan (service.FEWEST_MOVERS), v2: the old plan is the plan of the step's epoch
+# (common knowledge). Two margins fixed before any result:
 #   m1: MOVERS_MARGIN 1 user (REPLAN_MARGIN), m2: 2 % of the map's users (4.8 of 240)
 # tuning seeds 7, 8; T_up 50 (replan, instant) then T_up 15 (replan; base too)
 cd "$(dirname "$0")/../../../../.." || exit 1
