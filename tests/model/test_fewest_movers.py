@@ -57,3 +57,35 @@ def test_a_disconnected_keep_is_not_feasible_and_a_mover_bridges_it() -> None:
     opts = keep_and_move(grid, counts, far, 1)
     assert opts[0][3] is False
     assert opts[1][3] is True and len(opts[1][1]) == 1
+
+
+def test_copies_that_learn_before_and_after_a_new_map_keep_the_same_plan() -> None:
+    """Two copies of a 4-UAV plan learn UAV 1's failure (declared at instant 60): copy 0 at
+    second 60, copy 1 at second 90, after a new map (second 75) that moved its plan. The
+    fewest-movers step keeps the plan of the epoch, not the copy's plan of now, so both end
+    with the same points and slots."""
+    from plmarl_sitl.model.plan_motion import PlanMotion
+    from plmarl_sitl.model.service import ServiceGrid, TeamPlans
+    from plmarl_sitl.model.vehicle import Limits
+
+    grid = ServiceGrid(1000.0, 1000.0, 100.0, 100.0, 350.0, 20.0)
+    counts = np.zeros(100)
+    for cell in (33, 35, 55, 53):
+        counts[cell] = 60
+    later = counts.copy()
+    later[55], later[66] = 0, 60  # one cluster moves a cell diagonally
+    plans = TeamPlans(grid, 4, PlanMotion(Limits(20.0, 5.0, 30.0, 150.0), 100.0, 30.0, 3, lambda t: t % 15 == 0))
+    plans.fewest_movers = True
+    line = np.stack([np.full(4, 500.0), 440.0 + 40.0 * np.arange(4)], -1)
+    plans.start(np.stack([line, line])[None], counts[None])
+    failed, since = np.array([False, True, False, False]), np.array([0, 60, 0, 0])
+    plans.motion.advance(60, plans.all_targets())
+    assert plans.settle(0, 0, failed, since)
+    plans.motion.advance(75, plans.all_targets())
+    before = plans.points[0, 1].copy()
+    plans.on_map(later[None], 75)
+    assert not np.array_equal(before, plans.points[0, 1])  # the map moved copy 1's (unaware) plan
+    plans.motion.advance(90, plans.all_targets())
+    assert plans.settle(0, 1, failed, since)
+    assert np.array_equal(plans.slot[0, 0], plans.slot[0, 1]) and plans.slot[0, 0, 1] == -1
+    assert np.array_equal(np.nan_to_num(plans.points[0, 0]), np.nan_to_num(plans.points[0, 1]))
