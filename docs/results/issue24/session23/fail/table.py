@@ -1,6 +1,6 @@
-"""Session 22: the variants against the base on the same 40 episodes (seeds 7, 8; decompose.py JSON, `replan` way).
+"""Session 22 (used again in session 23): the variants against the base on the same 40 episodes (seeds 7, 8; decompose.py JSON, `replan` way).
 
-    python docs/results/issue24/session22/fail/table.py BASE.json NAME=VARIANT.json ...
+    python docs/results/issue24/session23/fail/table.py BASE.json NAME=VARIANT.json ...
 """
 import json
 import sys
