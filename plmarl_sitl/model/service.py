@@ -57,18 +57,6 @@ LAUNCH_SNAP_M = 0.5
 # 1 216 of 3 600 cells, bincount 0.46 ms, lattice ~0.2 ms; 47 cells: 0.06 ms against ~0.2)
 LATTICE_GAINS_FRAC = 0.125
 REPLAN_MARGIN = 1.0  # users: a new plan replaces the old one only when it serves more than this many more
-# Twin prototype (issue 24, session 23), off by default: a failure re-plan that moves as few
-# survivors as it needs. With it on, `TeamPlans.replan` compares the survivors' old points
-# (no mover), the old points with 1..MOVERS_K survivors re-placed greedily, and the full
-# re-solve, and takes the one with the fewest movers that is connected, spaced, and serves
-# within max(MOVERS_MARGIN, MOVERS_MARGIN_FRAC x the map's users) of the best of them. The
-# same margin is then the hysteresis of that copy's later maps (a plan kept at a failure is
-# not replaced at the next map for what it gave up). All of it is common knowledge (the old
-# plan, the failed set, the map of the epoch), so copies that know the same agree.
-FEWEST_MOVERS = False
-MOVERS_K = 2
-MOVERS_MARGIN = REPLAN_MARGIN  # users
-MOVERS_MARGIN_FRAC = 0.0  # of the map's users
 
 
 class Placer(Protocol):
@@ -475,7 +463,6 @@ class TeamPlans:
     def __init__(self, grid: ServiceGrid, n: int, motion: PlanMotion | None = None) -> None:
         self.grid, self.n = grid, n
         self.motion = motion  # the plan-aware prediction; None: no failure re-plans
-        self.fewest_movers = FEWEST_MOVERS  # the session-23 prototype (off: the full re-solve)
         self.points: np.ndarray | None = None  # (B, A, n, 2) each copy's points
         self.slot: np.ndarray | None = None  # (B, A, n) row of each identity, per agent's copy
         self.failed: np.ndarray | None = None  # (B, A, n) bool: the failed set the copy was re-planned for
@@ -486,10 +473,6 @@ class TeamPlans:
         # them (failed, epoch, since, points, slot, second saved, the step's epoch), oldest first
         self.steps: dict[tuple[int, int], list[tuple[np.ndarray, int]]] = {}
         self.before: dict[tuple[int, int], list[tuple[np.ndarray, int, np.ndarray, np.ndarray, np.ndarray, int, int]]] = {}
-        # fewest movers: the first plan (second, points, slot) and, per copy, each step's plan at its
-        # epoch (epoch, points, slot), so a step keeps the plan of its epoch, not the copy's of now
-        self.first: tuple[int, np.ndarray, np.ndarray] | None = None
-        self.anchors: dict[tuple[int, int], list[tuple[int, np.ndarray, np.ndarray]]] = {}
 
     def start(self, launch: np.ndarray, counts: np.ndarray, t: int = 0) -> None:
         """launch (B, A, n, 2) each agent's `launch_line`, counts (B, K) the first map."""
@@ -502,8 +485,6 @@ class TeamPlans:
         self.maps = [(t, counts)]
         self.since = np.zeros((b, a, self.n), dtype=np.int64)
         self.steps, self.before = {}, {}
-        if self.fewest_movers:
-            self.first, self.anchors = (t, self.points.copy(), self.slot.copy()), {}
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -527,7 +508,7 @@ class TeamPlans:
             new, served = self.grid.place(counts[rows], k)
             old = self.grid.served(counts[rows], np.stack([self.points[b, g[0], :k] for b, g in part]))
             for (b, g), pts, gain, keep in zip(part, new, served, old, strict=True):
-                if gain > keep + self._hysteresis(b, g[0], counts[b]):
+                if gain > keep + REPLAN_MARGIN:
                     self._move_to(b, g, pts)
 
     def _move_to(self, b: int, copies: list[int], new: np.ndarray) -> None:
@@ -577,24 +558,15 @@ class TeamPlans:
         self.since[b, a] = np.where(failed, np.where(self.since[b, a] > 0, self.since[b, a], epoch), 0)
         alive = np.flatnonzero(~failed)
         if alive.size == 0:  # only false declarations get here (the copy's own agent is alive): keep the plan
-            if self.fewest_movers:
-                self.anchors.setdefault((b, a), []).append((int(epoch), *self._plan_at(b, a, epoch)))
             self.failed[b, a], self.epoch[b, a] = failed, epoch
             return
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
-        src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
-        kept = self._fewest_movers(b, a, counts[-1][b], alive, src) if self.fewest_movers else None
-        if kept is None:
-            pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
-            own = assign(src, pts)
-        else:
-            pts, own = kept
+        pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
         self.points[b, a] = np.nan
         self.points[b, a, : len(alive)] = pts
         self.slot[b, a] = -1
-        self.slot[b, a, alive] = own
-        if self.fewest_movers:
-            self.anchors.setdefault((b, a), []).append((int(epoch), self.points[b, a].copy(), self.slot[b, a].copy()))
+        src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
+        self.slot[b, a, alive] = assign(src, pts)
         self.failed[b, a], self.epoch[b, a] = failed, epoch
         self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
@@ -605,59 +577,8 @@ class TeamPlans:
         for s, later in self.maps:
             if s > after:
                 new, served = self.grid.place(later[b : b + 1], k)
-                keep = self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0]
-                if served[0] > keep + self._hysteresis(b, a, later[b]):
+                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0] + REPLAN_MARGIN:
                     self._move_to(b, [a], new[0])
-
-    def _hysteresis(self, b: int, a: int, counts: np.ndarray) -> float:
-        """Users a new map's plan must gain to replace copy (b, a)'s: REPLAN_MARGIN, or with the
-        fewest-movers prototype on a copy that has re-planned at a failure, its margin."""
-        if self.fewest_movers and self.epoch[b, a] > 0:
-            return max(REPLAN_MARGIN, movers_margin(counts))
-        return REPLAN_MARGIN
-
-    def _plan_at(self, b: int, a: int, epoch: int) -> tuple[np.ndarray, np.ndarray]:
-        """Copy (b, a)'s plan (points (n, 2), slot (n,)) at second `epoch` before its newest step:
-        its previous step's plan (or the first) with the maps taken up to `epoch`, as `on_map`
-        would have taken them. Common knowledge: it does not depend on when the copy learnt."""
-        prev = self.anchors.get((b, a), [])
-        t0, points, slot = prev[-1] if prev else (self.first[0], self.first[1][b, a], self.first[2][b, a])
-        points, slot = points.copy(), slot.copy()
-        k = int((slot >= 0).sum())
-        for s, later in self.maps:
-            if t0 < s <= epoch:
-                new, served = self.grid.place(later[b : b + 1], k)
-                keep = self.grid.served(later[b : b + 1], points[None, :k])[0]
-                margin = max(REPLAN_MARGIN, movers_margin(later[b])) if prev else REPLAN_MARGIN
-                if served[0] > keep + margin:
-                    moved = assign(points[:k], new[0])
-                    slot[slot >= 0] = moved[slot[slot >= 0]]
-                    points[:k] = new[0]
-        return points, slot
-
-    def _fewest_movers(self, b: int, a: int, counts: np.ndarray, alive: np.ndarray,
-                       src: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """The prototype's re-plan of copy (b, a) for the survivors alive (m,) on the map counts
-        (K,): (points (m, 2), row of each survivor), or None for the full re-solve. Candidates:
-        the survivors' points in the copy's plan before this step with 0..MOVERS_K of them
-        re-placed greedily (`keep_and_move`), and the full re-solve (today's, assigned by least
-        travel from src (m, 2)); the feasible one with the fewest movers whose served users are
-        within `movers_margin` of the best wins (the full re-solve last)."""
-        points, slot = self._plan_at(b, a, int(self.steps[(b, a)][-1][1]))
-        rows = slot[alive]
-        if (rows < 0).any():  # a survivor without a point in the old plan: nothing to keep
-            return None
-        old = points[rows]
-        full, full_served = self.grid.place(counts[None], len(alive))
-        options = keep_and_move(self.grid, counts, old, MOVERS_K)  # [(points, movers, served, feasible)]
-        best = max([float(full_served[0])] + [o[2] for o in options if o[3]])
-        for pts, movers, served, feasible in options:
-            if feasible and served >= best - movers_margin(counts):
-                own = np.arange(len(alive))
-                if len(movers) > 1:  # the movers take the new points by least travel
-                    own[movers] = np.asarray(movers)[assign(src[movers], pts[movers])]
-                return pts, own
-        return full[0], assign(src, full[0])
 
     def _roll_back(self, b: int, a: int, k: int) -> None:
         """Copy (b, a) returns to its plan before its re-plan step k, with the maps taken since
@@ -666,8 +587,6 @@ class TeamPlans:
         stack, steps = self.before[(b, a)], self.steps[(b, a)]
         was_failed, was_epoch, was_since, points, slot, saved_t, left = stack[k]
         del stack[k:], steps[k:]
-        if self.fewest_movers:
-            del self.anchors.setdefault((b, a), [])[k:]
         self.failed[b, a], self.epoch[b, a], self.since[b, a] = was_failed, was_epoch, was_since
         self.points[b, a], self.slot[b, a] = points, slot
         self._follow_maps(b, a, saved_t)
@@ -688,68 +607,5 @@ class TeamPlans:
         return np.where((self.slot >= 0)[..., None], pts, np.nan)
 
 
-def movers_margin(counts: np.ndarray) -> float:
-    """Users (the fewest-movers prototype): a plan with fewer movers within this of the best is taken."""
-    return max(MOVERS_MARGIN, MOVERS_MARGIN_FRAC * float(np.sum(counts)))
-
-
-def _components(pts: np.ndarray, link_m: float) -> np.ndarray:
-    """(m,) the component label of each point (m, 2) of the graph 'within link_m'."""
-    m = len(pts)
-    near = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1)) <= link_m
-    label = np.arange(m)
-    for _ in range(m):
-        label = np.where(near, label[None, :], m).min(-1)
-    return label
-
-
-def keep_and_move(grid: ServiceGrid, counts: np.ndarray, old: np.ndarray, k_max: int) -> list[tuple]:
-    """The fewest-movers prototype's kept plans on one map counts (K,) from the points old (m, 2)
-    (a plan's, on candidates): [(points (m, 2), movers (list of rows, in the order moved),
-    served users, feasible)] for 0..k_max movers. Each step moves the row, and to the candidate,
-    that first leave the fewest link components (R_link, as `place`), then serve the most users
-    with the others fixed, keeping 2 d_safe from them; ties to the lowest row, then candidate.
-    Feasible: one component, every pair 2 d_safe apart."""
-    w = grid.sub_weights(counts)
-    pts, movers, out = old.astype(np.float64).copy(), [], []
-    for step in range(k_max + 1):
-        served = float(grid.served(counts[None], pts[None])[0])
-        d = np.sqrt(((pts[:, None] - pts[None]) ** 2).sum(-1))
-        apart = (d[~np.eye(len(pts), dtype=bool)] >= grid.apart_m).all()
-        out.append((pts.copy(), list(movers), served, bool(apart and (_components(pts, grid.link_m) == 0).all())))
-        if step == k_max:
-            break
-        best = None
-        for r in range(len(pts)):
-            if r in movers:
-                continue
-            others = np.delete(pts, r, 0)
-            at = grid._candidate_index(others)
-            hit = np.zeros(w.shape, dtype=bool)
-            if at is not None:
-                hit[_gather(grid.cover_ptr, grid.cover_idx, at)[1]] = True
-            else:
-                hit[grid.tiles.within(others, grid.r2)[1]] = True
-            gain = grid.weight_gains(np.where(hit, 0.0, w))  # (C,) sub-point units
-            dist = np.sqrt((grid.cand_n[:, None] - others[:, 0]) ** 2 + (grid.cand_e[:, None] - others[:, 1]) ** 2)  # (C, m-1)
-            label = _components(others, grid.link_m)
-            touch = [(dist[:, label == lab] <= grid.link_m).any(-1) for lab in np.unique(label)]
-            comps = len(touch) + 1 - np.sum(touch, 0)  # components with the candidate added
-            allowed = (dist >= grid.apart_m).all(-1)
-            total = (w * hit).sum() + gain  # the users served with the candidate, sub-point units
-            key = np.where(allowed, comps * (w.sum() + 1.0) - total, np.inf)  # fewest components, then the most served
-            cand = int(key.argmin())  # ties: the lowest candidate
-            if np.isfinite(key[cand]) and (best is None or key[cand] < best[0]):
-                best = (key[cand], r, cand)
-        if best is None:
-            break
-        _, r, cand = best
-        if np.array_equal(grid.cands[cand], pts[r]):  # its own point is its best: nobody needs to move
-            break
-        pts[r] = grid.cands[cand]
-        movers.append(r)
-    return out
-
-
-__all__ = ["GRID_M", "LAUNCH_SNAP_M", "LINK_FRAC", "REPLAN_MARGIN", "FEWEST_MOVERS", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line",
+__all__ = ["GRID_M", "LAUNCH_SNAP_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line",
            "mission_launch_xy"]
