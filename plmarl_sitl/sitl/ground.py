@@ -4,7 +4,8 @@ All of it is the twin's code on the true mission-frame positions, so the same se
 the same users as `CoverageEnv(mission, 1, seed)`:
 
 * users step once per mission second (`model.users.step_users`, the twin's generator use);
-* coverage C(t) (`model.coverage.covered_users`) and lambda_2 of the link graph;
+* coverage C(t) (`covered_np`: `model.coverage.covered_users`' operations in one pass) and
+  lambda_2 of the link graph;
 * each vehicle's sensed users (within R_s of its true position) go to `sense/<id>`;
 * the user-density map (`model.demand.demand_map`) goes to the retained `demand` topic for
   every map instant (`model.demand.is_map_instant`: where the twin refreshes its map).
@@ -88,6 +89,7 @@ class Ground:
         """Coverage and lambda_2 now, on (N, 3) float32 mission-frame positions."""
         m = self.mission
         users = self.users.xy[0]  # (U, 2)
+        # the mean is torch's, as the twin's: numpy's float32 sum need not add in the same order
         cov = float(torch.from_numpy(covered_np(users, pos, alive, self.radius(-pos[:, 2]))).float().mean())
         rx, sinr = link_mask(pos, alive, m.channel, m.radii.comm_m)
         lam2 = float(algebraic_connectivity(weighted_adjacency(rx, sinr), alive))

@@ -268,8 +268,7 @@ class Vehicle:
 
     def record(self, raw: bytes) -> None:
         """Append one MAVLink frame (or datagram) to the .tlog (`record_all`)."""
-        if self.tlog is not None and raw[:1] in _MAVLINK_MAGIC:
-            self.tlog.write(_TLOG_STAMP.pack(int(time.time() * 1e6)) + raw)
+        self.record_all([raw])
 
     def record_all(self, frames: list[bytes]) -> None:
         """Append MAVLink frames to the .tlog, each as 8-byte big-endian unix time in us, then
