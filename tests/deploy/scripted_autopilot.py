@@ -30,6 +30,7 @@ class ScriptedAutopilot:
         self._tasks: list[asyncio.Task] = []
         self._server: asyncio.Server | None = None
         self._udp: asyncio.DatagramTransport | None = None
+        self.addr: tuple[str, int] | None = None  # UDP: the client's address, once it has sent
 
     def heartbeat(self) -> bytes:
         return self.codec.encode(self.codec.mav.heartbeat_encode(
@@ -95,6 +96,7 @@ class ScriptedAutopilot:
                 self.transport = transport
 
             def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+                ap.addr = addr  # the client's, for what a subclass sends unasked
                 self.transport.sendto(ap.heartbeat(), addr)  # type: ignore[attr-defined]
                 for frame in ap.answers(data, mav):
                     self.transport.sendto(frame, addr)  # type: ignore[attr-defined]

@@ -7,8 +7,8 @@ arming (488.170 m, z 0.357: one noisy GPS fix), ended AUTO.TAKEOFF within NAV_MC
 the target on its own estimate, and held AUTO.LOITER at z -58.58 for minutes, 58.6 m above
 the home the agent had read. The agent waited for 59 m until its bound and the swarm failed.
 
-A scripted PX4 peer on a real UDP socket replays that: PX4's heartbeat, modes and command
-answers, a climb that ends in AUTO.LOITER 58.6 m up. The emulator cannot show it (its home
+A scripted PX4 peer on a real UDP socket (`ScriptedAutopilot` with PX4's heartbeat and
+modes) replays that: a climb that ends in AUTO.LOITER 58.6 m up. The emulator cannot show it (its home
 has no GPS noise, and its PX4 loiters at the take-off setpoint)."""
 
 from __future__ import annotations
@@ -20,12 +20,13 @@ from pathlib import Path
 
 import pytest
 
-from plmarl_sitl.deploy.mavlink.codec import Codec, dialect
+from plmarl_sitl.deploy.mavlink.codec import dialect
 from plmarl_sitl.deploy.mavlink.personality import PX4
 from plmarl_sitl.mission import load_mission
 
 from .agent_process import agent_argv, run_agent, stop_at
 from .conftest import MISSION
+from .scripted_autopilot import ScriptedAutopilot
 
 pytestmark = [pytest.mark.integration, pytest.mark.timeout(90)]
 
@@ -35,56 +36,47 @@ HELD_M = 58.6  # where the real PX4 held, above the home the agent had read
 CLIMB_MPS = 3.0  # PX4 MPC_TKO_SPEED's order
 
 
-class ScriptedPX4:
-    """PX4 as the agent sees it over MAVLink during start-up and take-off: heartbeats with
-    PX4's modes, every command acknowledged, HOME_POSITION on request, LOCAL_POSITION_NED
-    at 10 Hz of vehicle time. NAV_TAKEOFF switches to AUTO.TAKEOFF and climbs; at HELD_M it
-    ends AUTO.TAKEOFF in AUTO.LOITER and holds there."""
+class ScriptedPX4(ScriptedAutopilot):
+    """PX4 as the agent sees it over UDP during start-up and take-off: PX4's heartbeat and
+    modes, every command acknowledged and HOME_POSITION on request (`ScriptedAutopilot`),
+    LOCAL_POSITION_NED at 10 Hz of vehicle time. NAV_TAKEOFF switches to AUTO.TAKEOFF and
+    climbs; at HELD_M it ends AUTO.TAKEOFF in AUTO.LOITER and holds there."""
 
     def __init__(self, home: tuple[float, float, float]) -> None:
-        self.codec = Codec(1, d.MAV_COMP_ID_AUTOPILOT1, None, allow_unsigned=())
-        self.home = home
+        super().__init__(home=home)
         self.mode = PX4.mode(PX4.boot_mode)
         self.armed = False
         self.z = 0.0
         self.climbing = False
         self.modes_seen: list[str] = [self.mode.name]
         self.t0 = time.monotonic()
-        self.addr: tuple[str, int] | None = None
-        self.transport: asyncio.DatagramTransport | None = None
         self.task: asyncio.Task | None = None
-
-    def boot_ms(self) -> int:
-        return int((time.monotonic() - self.t0) * SPEEDUP * 1000)
+        self._applied = 0  # how many of `commands` the state has taken
 
     def set_mode(self, name: str) -> None:
         self.mode = PX4.mode(name)
         self.modes_seen.append(name)
 
-    def send(self, msg) -> None:  # noqa: ANN001 - a pymavlink message
-        if self.transport is not None and self.addr is not None:
-            self.transport.sendto(self.codec.encode(msg), self.addr)
-
-    def heartbeat(self):  # noqa: ANN201
+    def heartbeat(self) -> bytes:
         base = PX4.base_mode_flags if self.mode.base_flags is None else self.mode.base_flags
         if self.armed:
             base |= d.MAV_MODE_FLAG_SAFETY_ARMED
         status = d.MAV_STATE_ACTIVE if self.armed else d.MAV_STATE_STANDBY
-        return self.codec.mav.heartbeat_encode(d.MAV_TYPE_QUADROTOR, d.MAV_AUTOPILOT_PX4, base, self.mode.custom_mode, status, 3)
+        return self.codec.encode(self.codec.mav.heartbeat_encode(
+            d.MAV_TYPE_QUADROTOR, d.MAV_AUTOPILOT_PX4, base, self.mode.custom_mode, status, 3))
 
-    def on_command(self, m) -> None:  # noqa: ANN001
-        self.send(self.codec.mav.command_ack_encode(m.command, d.MAV_RESULT_ACCEPTED, 0, 0, 255, 190))
-        if m.command == d.MAV_CMD_COMPONENT_ARM_DISARM:
-            self.armed = m.param1 == 1.0
-        elif m.command == d.MAV_CMD_NAV_TAKEOFF and self.armed:
-            self.set_mode("AUTO.TAKEOFF")
-            self.climbing = True
-        elif m.command == d.MAV_CMD_DO_SET_MODE:
-            self.set_mode(PX4.mode_name(PX4.custom_mode_from_set_mode(m.param2, m.param3)))
-        elif m.command == d.MAV_CMD_REQUEST_MESSAGE and m.param1 == d.MAVLINK_MSG_ID_HOME_POSITION:
-            lat, lon, alt = self.home
-            self.send(self.codec.mav.home_position_encode(int(lat * 1e7), int(lon * 1e7), int(alt * 1000), 0.0, 0.0, 0.0,
-                                                          [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0))
+    def answers(self, data: bytes, mav) -> list[bytes]:  # noqa: ANN001 - pymavlink's parser
+        out = super().answers(data, mav)  # acknowledges and records each command
+        for command, params in self.commands[self._applied:]:
+            if command == d.MAV_CMD_COMPONENT_ARM_DISARM:
+                self.armed = params[0] == 1.0
+            elif command == d.MAV_CMD_NAV_TAKEOFF and self.armed:
+                self.set_mode("AUTO.TAKEOFF")
+                self.climbing = True
+            elif command == d.MAV_CMD_DO_SET_MODE:
+                self.set_mode(PX4.mode_name(PX4.custom_mode_from_set_mode(params[1], params[2])))
+        self._applied = len(self.commands)
+        return out
 
     async def fly(self) -> None:
         dt = 0.1  # vehicle seconds per sample
@@ -98,34 +90,24 @@ class ScriptedPX4:
                 if self.z <= -HELD_M:  # "Takeoff complete": PX4 holds where its take-off ended
                     self.climbing, vz = False, 0.0
                     self.set_mode("AUTO.LOITER")
-            self.send(self.codec.mav.local_position_ned_encode(self.boot_ms(), 0.0, 0.0, self.z, 0.0, 0.0, vz))
+            if self._udp is None or self.addr is None:
+                continue
+            boot_ms = int((time.monotonic() - self.t0) * SPEEDUP * 1000)
+            self._udp.sendto(self.codec.encode(self.codec.mav.local_position_ned_encode(boot_ms, 0.0, 0.0, self.z, 0.0, 0.0, vz)),
+                             self.addr)
             beat += 1
             if beat % 10 == 0:  # 1 Hz of vehicle time, as PX4
-                self.send(self.heartbeat())
+                self._udp.sendto(self.heartbeat(), self.addr)
 
     async def serve(self) -> int:
-        ap = self
-        mav = Codec(1, 1, None, allow_unsigned=()).mav
-
-        class Proto(asyncio.DatagramProtocol):
-            def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-                first = ap.addr is None
-                ap.addr = addr
-                if first:
-                    ap.send(ap.heartbeat())
-                for m in mav.parse_buffer(data) or []:
-                    if m.get_type() == "COMMAND_LONG":
-                        ap.on_command(m)
-
-        self.transport, _ = await asyncio.get_running_loop().create_datagram_endpoint(Proto, local_addr=("127.0.0.1", 0))
+        port = await self.serve_udp()
         self.task = asyncio.create_task(self.fly())
-        return self.transport.get_extra_info("sockname")[1]
+        return port
 
     def close(self) -> None:
         if self.task is not None:
             self.task.cancel()
-        if self.transport is not None:
-            self.transport.close()
+        super().close()
 
 
 def test_px4_ending_its_takeoff_short_of_the_agents_band_hands_over_to_offboard(policy_dir: Path) -> None:

@@ -53,11 +53,10 @@ LOCKSTEP_TELEMETRY_HZ = 5.0
 # which comes after TELEMETRY_HZ is back). At N = 100 the climb's 10 Hz samples were most of
 # the swarm's start-up CPU (issue 25); a companion asks for what it needs, as here.
 CLIMB_TELEMETRY_HZ = 2.0
-# The climb is over this close below the take-off altitude, once level, or (PX4) once the
-# autopilot has ended AUTO.TAKEOFF itself: PX4 ends it as soon as it is within NAV_MC_ALT_RAD
-# (0.8 m by default) and a real PX4 SIH has held 0.6 m short for minutes (docs/RESULTS.md,
-# session 18), and 1.4 m short of the height this agent reads when it set its home again at
-# arming (session 24); ArduPilot ends at the altitude.
+# The climb is over this close below the take-off altitude, once level (or, on PX4, once PX4
+# has ended AUTO.TAKEOFF itself: `_take_off`). Not tighter: PX4 ends AUTO.TAKEOFF as soon as it
+# is within NAV_MC_ALT_RAD (0.8 m by default) and a real PX4 SIH has held 0.6 m short for
+# minutes (docs/RESULTS.md, session 18); ArduPilot ends at the altitude.
 TAKEOFF_REACHED_M = 1.0
 TELEMETRY_TIMEOUT_S = 5.0  # wall: flying, a vehicle silent this long is lost
 # Lockstep: the world may hold the clock (and so the telemetry) while it waits out a
@@ -337,36 +336,26 @@ class VehicleSession:
             self.flying = True
         log.info("taking off to %.0f m above home", alt_tgt)
         slowed = await self.view.stream("LOCAL_POSITION_NED", CLIMB_TELEMETRY_HZ)  # refused: the climb at the full rate
-        said_done = self._takeoff_mode_ended(p)
+        # PX4 judges its take-off on its own estimate against the AMSL target it was given, so
+        # the height read here against home can stay more than TAKEOFF_REACHED_M short for good
+        # (a real SIH held 1.4 m short: it set its home again at arming, on one noisy GPS fix).
+        # So its own end of the take-off mode counts too: the take-off mode, then the hold mode.
+        # Watched at every sample, climbing or not, so the take-off mode is seen; the hold mode
+        # counts only after it, so a heartbeat from before the command is not taken for the end.
+        seen_takeoff = False
 
         def climbed() -> bool:
-            ended = said_done()  # at every sample: it must see AUTO.TAKEOFF while the vehicle climbs
+            nonlocal seen_takeoff
+            state = self.view.latest_state()
+            mode = None if state is None else state.mode
+            seen_takeoff = seen_takeoff or (p.takeoff_mode is not None and mode == p.takeoff_mode)
+            ended = seen_takeoff and mode == p.hold_mode and state is not None and state.armed
             level = abs(float(self.decision.ego[5])) < 0.3
             return level and (self.height_above_home() >= alt_tgt - TAKEOFF_REACHED_M or ended)
 
         await self._wait_until("takeoff", climbed, self.cfg.takeoff_timeout_s)
         if slowed:  # the offboard switch and the mission need the full rate: not optional
             await link.set_message_interval("LOCAL_POSITION_NED", self.telemetry_hz)
-
-    def _takeoff_mode_ended(self, p: Personality) -> Callable[[], bool]:
-        """A test that the autopilot has ended its own take-off mode (PX4: AUTO.TAKEOFF, then
-        its hold mode, "Takeoff complete"). PX4 judges the altitude on its own estimate against
-        the AMSL target it was given, so the height this agent reads against home can stay
-        more than TAKEOFF_REACHED_M short for good: a real PX4 SIH held 1.4 m short until the
-        agent gave up (it set its home again at arming, on one noisy GPS fix). The hold mode counts
-        only after the take-off mode was seen, so a heartbeat from before the command is not
-        taken for the end. Without a take-off mode (ArduPilot's GUIDED take-off): never."""
-        seen_takeoff = False
-
-        def ended() -> bool:
-            nonlocal seen_takeoff
-            state = self.view.latest_state()
-            if p.takeoff_mode is None or state is None:
-                return False
-            seen_takeoff = seen_takeoff or state.mode == p.takeoff_mode
-            return seen_takeoff and state.mode == p.hold_mode and state.armed
-
-        return ended
 
     async def start(self) -> None:
         """Find the autopilot, then take off (or attach) and switch to the offboard mode."""
