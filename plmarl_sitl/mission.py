@@ -31,6 +31,10 @@ Coordination = Literal["team", "local"]
 # from several starts with local improvement (`search`), or a greedy whose picks a learnt scorer
 # ranks (`learned`, policies/pl-marl/placement.pt).
 Placement = Literal["greedy", "search", "learned"]
+# How a survivor's copy of the team plan changes when it learns that teammates failed
+# (model/service.py::TeamPlans.replan): the whole plan re-solved for the survivors, or the first
+# plan mended, each failed UAV's point by its own neighbours (model/repairs.py).
+FailureReplan = Literal["resolve", "local"]
 
 
 @dataclass(frozen=True)
@@ -254,6 +258,7 @@ class Mission:
     events: tuple[Event, ...] = ()
     coordination: Coordination = "team"
     placement: Placement = "search"
+    failure_replan: FailureReplan = "resolve"
     # Metres a UAV's plan point moves toward the centroid of the users it senses
     # (model/sensed_track.py: follow a moving crowd between demand maps); 0: off.
     track_sensed_m: float = field(default=0.0, metadata={"min": 0.0})
@@ -312,6 +317,9 @@ class Mission:
 
     def with_placement(self, placement: str) -> Mission:
         return dataclasses.replace(self, placement=placement)
+
+    def with_failure_replan(self, how: str) -> Mission:
+        return dataclasses.replace(self, failure_replan=how)
 
     def with_track_sensed(self, metres: float) -> Mission:
         return dataclasses.replace(self, track_sensed_m=float(metres))

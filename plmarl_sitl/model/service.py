@@ -65,6 +65,14 @@ class Placer(Protocol):
     def place(self, grid: ServiceGrid, counts: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]: ...
 
 
+class Repairer(Protocol):
+    """A failure re-plan that mends the first plan instead of re-solving it (model/repairs.py):
+    the survivors' points (m, 2) in identity order, or None (re-solve)."""
+
+    def __call__(self, grid: ServiceGrid, counts: np.ndarray, first: np.ndarray, failed: np.ndarray,
+                 src: np.ndarray) -> np.ndarray | None: ...
+
+
 class ServiceGrid:
     """The mission's constants of the plan (area, cells, coverage radius, R_comm, d_safe).
 
@@ -318,6 +326,15 @@ class ServiceGrid:
         hit[owner // n, pt] = True
         return (w * hit).sum(-1) / (self.sub * self.sub)
 
+    def covered(self, points: np.ndarray) -> np.ndarray:
+        """(S,) bool: the sub-points some of the points (m, 2) cover (as `served` counts them)."""
+        flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        at = self._candidate_index(flat)
+        pt = _gather(self.cover_ptr, self.cover_idx, at)[1] if at is not None else self.tiles.within(flat, self.r2)[1]
+        hit = np.zeros(len(self.subpts), dtype=bool)
+        hit[pt] = True
+        return hit
+
     def _candidate_index(self, xy: np.ndarray) -> np.ndarray | None:
         """(P,) candidate index of each point (P, 2) if every point is exactly a candidate, else None."""
         ij = np.rint(xy / GRID_M)
@@ -460,9 +477,15 @@ class TeamPlans:
     failure re-plan a copy holds fewer points than identities. slot[j] is identity j's row,
     -1 for an identity the copy knows to have failed."""
 
-    def __init__(self, grid: ServiceGrid, n: int, motion: PlanMotion | None = None) -> None:
+    def __init__(self, grid: ServiceGrid, n: int, motion: PlanMotion | None = None,
+                 repairer: Repairer | None = None) -> None:
         self.grid, self.n = grid, n
         self.motion = motion  # the plan-aware prediction; None: no failure re-plans
+        # how a failure re-plan is made: None, the whole plan re-solved for the survivors; else
+        # the first plan mended (`failure_replan: local`, model/repairs.py), re-solved only
+        # where the repairer gives up
+        self.repairer = repairer
+        self.first: tuple[int, np.ndarray, np.ndarray] | None = None  # (second, points (B, n, 2), slot (B, A, n))
         self.points: np.ndarray | None = None  # (B, A, n, 2) each copy's points
         self.slot: np.ndarray | None = None  # (B, A, n) row of each identity, per agent's copy
         self.failed: np.ndarray | None = None  # (B, A, n) bool: the failed set the copy was re-planned for
@@ -485,6 +508,7 @@ class TeamPlans:
         self.maps = [(t, counts)]
         self.since = np.zeros((b, a, self.n), dtype=np.int64)
         self.steps, self.before = {}, {}
+        self.first = (t, pts.copy(), self.slot.copy())
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -561,12 +585,19 @@ class TeamPlans:
             self.failed[b, a], self.epoch[b, a] = failed, epoch
             return
         counts = [c for s, c in self.maps if s <= epoch] or [self.maps[0][1]]
-        pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
+        everyone = np.arange(self.n)
+        src = self.motion.sources(b, a, epoch, everyone) if sources is None else np.round(sources / ROUND_M) * ROUND_M
+        pts = None
+        if self.repairer is not None:
+            pts = self.repairer(self.grid, counts[-1][b], self._first_plan_at(b, a, epoch), failed, src)
+            own = np.arange(len(alive))  # a repair keeps identity order
+        if pts is None:
+            pts = self.grid.place(counts[-1][b : b + 1], len(alive))[0][0]
+            own = assign(src[alive], pts)
         self.points[b, a] = np.nan
         self.points[b, a, : len(alive)] = pts
         self.slot[b, a] = -1
-        src = self.motion.sources(b, a, epoch, alive) if sources is None else np.round(sources[alive] / ROUND_M) * ROUND_M
-        self.slot[b, a, alive] = assign(src, pts)
+        self.slot[b, a, alive] = own
         self.failed[b, a], self.epoch[b, a] = failed, epoch
         self._follow_maps(b, a, epoch)
         self.motion.replay(b, a, epoch, self.all_targets()[b, a])
@@ -579,6 +610,19 @@ class TeamPlans:
                 new, served = self.grid.place(later[b : b + 1], k)
                 if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0] + REPLAN_MARGIN:
                     self._move_to(b, [a], new[0])
+
+    def _first_plan_at(self, b: int, a: int, epoch: int) -> np.ndarray:
+        """(n, 2) identity j's point in copy (b, a)'s first plan as the maps up to `epoch` moved it
+        (`on_map`'s rule): what a copy that never learnt of a failure flies. Common knowledge."""
+        assert self.first is not None
+        t0, points, slot = self.first[0], self.first[1][b].copy(), self.first[2][b, a].copy()
+        for s, later in self.maps:
+            if t0 < s <= epoch:
+                new, served = self.grid.place(later[b : b + 1], self.n)
+                if served[0] > self.grid.served(later[b : b + 1], points[None])[0] + REPLAN_MARGIN:
+                    slot = assign(points, new[0])[slot]
+                    points = new[0]
+        return points[slot]
 
     def _roll_back(self, b: int, a: int, k: int) -> None:
         """Copy (b, a) returns to its plan before its re-plan step k, with the maps taken since
@@ -607,5 +651,5 @@ class TeamPlans:
         return np.where((self.slot >= 0)[..., None], pts, np.nan)
 
 
-__all__ = ["GRID_M", "LAUNCH_SNAP_M", "LINK_FRAC", "REPLAN_MARGIN", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line",
+__all__ = ["GRID_M", "LAUNCH_SNAP_M", "LINK_FRAC", "REPLAN_MARGIN", "Repairer", "ServiceGrid", "TeamPlans", "assign", "grid_counts", "launch_line",
            "mission_launch_xy"]

@@ -32,7 +32,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, service_grid
+from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, repairer_of, service_grid
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, clear_hearing, steady_links
 from plmarl_sitl.model.service import TeamPlans, grid_counts, mission_launch_xy
@@ -72,7 +72,7 @@ class AgentPlan:
         self.channel, self.comm_m = mission.channel, float(mission.radii.comm_m)
         self.declare_after = DECLARE_AFTER_MISSED
         self.knowledge = knowledge if knowledge is not None else Knowledge(me)  # the neighbour table's
-        self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants))
+        self.plans = TeamPlans(self.grid, self.n, motion_of(mission, self.instants), repairer_of(mission))
         self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.launch: np.ndarray | None = None  # (n, 2) the launch line fitted through the heard states
         self.first_k: int | None = None  # the first decision's second (its signalling instant)

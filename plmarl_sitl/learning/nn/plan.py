@@ -18,8 +18,10 @@ from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
 from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
 from plmarl_sitl.model.plan_motion import PlanMotion
+from plmarl_sitl.model.repairs import local_repairs
 from plmarl_sitl.model.service import (
     Placer,
+    Repairer,
     ServiceGrid,
     TeamPlans,
     grid_counts,
@@ -96,6 +98,11 @@ def motion_of(mission, instants: SignallingInstants) -> PlanMotion:  # noqa: ANN
     return PlanMotion(limits, float(alt), float(start_alt), int(mission.timing.decision_every_s), instants.is_instant)
 
 
+def repairer_of(mission) -> Repairer | None:  # noqa: ANN001 - Mission
+    """How the mission's failure re-plans mend the plan (`failure_replan`): None re-solves it."""
+    return local_repairs if mission.failure_replan == "local" else None
+
+
 class ServiceTargets:
     """Per twin agent, the offset-free target (its plan point), (B, N, 2) metres.
 
@@ -170,7 +177,7 @@ class ServiceTargets:
             # The plan-aware prediction only where failures can be learnt (the twin's gossip given):
             # training's plan teacher calls without and does not pay for it.
             motion = motion_of(self.mission, self.instants) if self.replans and gossip is not None else None
-            self.plans = TeamPlans(self.grid, n, motion)
+            self.plans = TeamPlans(self.grid, n, motion, repairer_of(self.mission))
             self.plans.start(launch, counts, t)
             self.map_t = t - t % self.period
         else:
