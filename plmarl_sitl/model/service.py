@@ -570,10 +570,11 @@ class TeamPlans:
         return True
 
     def replan(self, b: int, a: int, failed: np.ndarray, epoch: int, sources: np.ndarray | None = None) -> None:
-        """One re-plan step of copy (b, a): the failed set failed (n,) at epoch: re-place one
-        point per survivor on the map in force at the epoch and assign them by least travel
-        from the survivors' plan-aware predicted positions at the epoch; then the maps taken
-        since. The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources`
+        """One re-plan step of copy (b, a): the failed set failed (n,) at epoch: the first plan
+        mended by the `repairer` (survivors keep identity order), or, without one or where it
+        gives up, one point per survivor re-placed on the map in force at the epoch and assigned
+        by least travel from the survivors' plan-aware predicted positions at the epoch; then
+        the maps taken since. The prediction is re-flown from the epoch (`PlanMotion.replay`). `sources`
         (n, 2) replaces the predicted positions (the constant-velocity ablation)."""
         assert self.motion is not None and self.points is not None and self.slot is not None
         self.before.setdefault((b, a), []).append((self.failed[b, a].copy(), int(self.epoch[b, a]), self.since[b, a].copy(),
