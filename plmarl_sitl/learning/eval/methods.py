@@ -20,7 +20,7 @@ METHOD_HELP = {
     "pl-marl-learned": "the PL-MARL policy on the team plan with the learnt placement (placement: learned)",
     "service-track": "the plan follower whose point moves toward the users the UAV senses, at most 30 m and within the plan's link and spacing bounds (track_sensed_m: 30, model/sensed_track.py): it follows moving crowds between demand maps (issue 24.3, session 19)",
     "pl-marl-track": "the PL-MARL policy on the team plan's point moved toward its sensed users, at most 30 m (track_sensed_m: 30)",
-    "pl-marl-local-repairs": "the PL-MARL policy on the team plan mended locally after failures (failure_replan: local, model/repairs.py): each failed UAV's point taken over by at most two of its own neighbours (issue 24, session 25)",
+    "pl-marl-local-repairs": "the PL-MARL policy on the team plan mended locally after failures (failure_replan: local, model/repairs.py): each failed UAV's point taken over by at most two of its own neighbours (issue 24, session 25; not the default: it loses on a failure in transit, docs/RESULTS.md)",
     "service-local-repairs": "the plan follower on the team plan mended locally after failures (failure_replan: local)",
     "service-fixed": "the plan follower without failure re-plans (the team plan of before issue 24; an ablation)",
     "service-local": "the plan follower on a neighbourhood plan (coordination: local, model/local_plan.py): each UAV solves a plan of its own region only, a cost that does not grow with N or the area (not the default: see docs/RESULTS.md)",
