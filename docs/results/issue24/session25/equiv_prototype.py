@@ -1,5 +1,7 @@
 """Equivalence: the product's failure_replan: local vs the s24-local-prototype's switches, same episodes.
-Run from a checkout: PYTHONPATH=. python /tmp/s25/equiv.py {proto|product} SEED OUT.npy"""
+Run from a checkout (the tag s24-local-prototype for proto, this commit for product):
+    PYTHONPATH=. python docs/results/issue24/session25/equiv_prototype.py {proto|product} SEED OUT.npy
+and compare the two .npy files (session 25: np.array_equal True, 16 episodes x 300 s)."""
 import sys
 import numpy as np
 from plmarl_sitl.learning.eval.evaluate import controller_factory, run_method
