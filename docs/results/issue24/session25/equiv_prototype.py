@@ -3,7 +3,9 @@ Run from a checkout (the tag s24-local-prototype for proto, this commit for prod
     PYTHONPATH=. python docs/results/issue24/session25/equiv_prototype.py {proto|product} SEED OUT.npy
 and compare the two .npy files (session 25: np.array_equal True, 16 episodes x 300 s)."""
 import sys
+
 import numpy as np
+
 from plmarl_sitl.learning.eval.evaluate import controller_factory, run_method
 from plmarl_sitl.learning.nn.io import load_policy
 from plmarl_sitl.mission import load_mission
