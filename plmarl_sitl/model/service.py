@@ -315,25 +315,25 @@ class ServiceGrid:
     def served(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray:
         """(B,) users the points (B, n, 2) serve on maps counts (B, K)."""
         w = self._weights(counts)
-        b, n = points.shape[:2]
-        flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-        at = self._candidate_index(flat)
-        if at is not None:  # points on candidates (a plan's): their cover lists, the same pairs
-            owner, pt = _gather(self.cover_ptr, self.cover_idx, at)
-        else:
-            owner, pt = self.tiles.within(flat, self.r2)
+        n = points.shape[1]
+        owner, pt = self._point_covers(points)
         hit = np.zeros(w.shape, dtype=bool)
         hit[owner // n, pt] = True
         return (w * hit).sum(-1) / (self.sub * self.sub)
 
     def covered(self, points: np.ndarray) -> np.ndarray:
         """(S,) bool: the sub-points some of the points (m, 2) cover (as `served` counts them)."""
+        hit = np.zeros(len(self.subpts), dtype=bool)
+        hit[self._point_covers(points)[1]] = True
+        return hit
+
+    def _point_covers(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(point, sub-point) pairs of the points (..., 2), flattened, and the sub-points each covers."""
         flat = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         at = self._candidate_index(flat)
-        pt = _gather(self.cover_ptr, self.cover_idx, at)[1] if at is not None else self.tiles.within(flat, self.r2)[1]
-        hit = np.zeros(len(self.subpts), dtype=bool)
-        hit[pt] = True
-        return hit
+        if at is not None:  # points on candidates (a plan's): their cover lists, the same pairs
+            return _gather(self.cover_ptr, self.cover_idx, at)
+        return self.tiles.within(flat, self.r2)
 
     def _candidate_index(self, xy: np.ndarray) -> np.ndarray | None:
         """(P,) candidate index of each point (P, 2) if every point is exactly a candidate, else None."""
@@ -608,9 +608,15 @@ class TeamPlans:
         k = int((self.slot[b, a] >= 0).sum())
         for s, later in self.maps:
             if s > after:
-                new, served = self.grid.place(later[b : b + 1], k)
-                if served[0] > self.grid.served(later[b : b + 1], self.points[b, a : a + 1, :k])[0] + REPLAN_MARGIN:
-                    self._move_to(b, [a], new[0])
+                new = self._replacing(later[b], self.points[b, a, :k])
+                if new is not None:
+                    self._move_to(b, [a], new)
+
+    def _replacing(self, counts: np.ndarray, points: np.ndarray) -> np.ndarray | None:
+        """`on_map`'s rule for one copy: the new plan (k, 2) of the map counts (K,) if it serves
+        more than REPLAN_MARGIN users more than the points (k, 2) held, else None."""
+        new, served = self.grid.place(counts[None], len(points))
+        return new[0] if served[0] > self.grid.served(counts[None], points[None])[0] + REPLAN_MARGIN else None
 
     def _first_plan_at(self, b: int, a: int, epoch: int) -> np.ndarray:
         """(n, 2) identity j's point in copy (b, a)'s first plan as the maps up to `epoch` moved it
@@ -618,11 +624,10 @@ class TeamPlans:
         assert self.first is not None
         t0, points, slot = self.first[0], self.first[1][b].copy(), self.first[2][b, a].copy()
         for s, later in self.maps:
-            if t0 < s <= epoch:
-                new, served = self.grid.place(later[b : b + 1], self.n)
-                if served[0] > self.grid.served(later[b : b + 1], points[None])[0] + REPLAN_MARGIN:
-                    slot = assign(points, new[0])[slot]
-                    points = new[0]
+            new = self._replacing(later[b], points) if t0 < s <= epoch else None
+            if new is not None:  # each identity the successor of its point, as `_move_to`
+                slot = assign(points, new)[slot]
+                points = new
         return points[slot]
 
     def _roll_back(self, b: int, a: int, k: int) -> None:
