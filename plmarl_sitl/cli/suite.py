@@ -41,11 +41,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "method flies the same episodes, so this is the test of the design) and the episodes PL-MARL wins and "
         "loses; failure families add the transient against the same best reference "
         "(trough, time to plateau; definitions in plmarl_sitl/learning/eval/transient.py). "
-        "greedy and clairvoyant ignore signalling, so they run once per family and serve every T_up.\n\n"
+        "greedy and clairvoyant ignore signalling, so they run once per family and serve every T_up. "
+        "results.json keeps every episode's coverage (and, on failure families, its level from 30 s after the "
+        "failure), so --compare A,B can test any other pair, then or later (--results).\n\n"
         "Methods: " + methods_help() + ". ('oracle' is still accepted for greedy, for one release.)",
         epilog="examples:\n  plmarl suite all --episodes 30 --tup 5,15,50 --out runs/suite\n"
         "  plmarl suite random,launch --episodes 10 --json\n"
-        "  plmarl suite random,failure --methods service,pl-marl,greedy,clairvoyant --tup 15 --episodes 10\n  plmarl suite --list",
+        "  plmarl suite random,failure --methods service,pl-marl,greedy,clairvoyant --tup 15 --episodes 10\n"
+        "  plmarl suite failure_2of6 --methods pl-marl,pl-marl-local-repairs,greedy --tup 50 --compare pl-marl-local-repairs,pl-marl\n"
+        "  plmarl suite --results runs/suite --compare pl-marl,service   # any pair of a run already made\n"
+        "  plmarl suite --list",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("families", nargs="?", default=None, help="'all' or a comma list of family names (see --list)")
@@ -62,6 +67,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--from-s", type=int, default=50, help="steady-state window starts after this many seconds (default: 50)")
     p.add_argument("--out", default=None, help="write results.json, results.md and PNG plots here")
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout (no traces)")
+    p.add_argument("--compare", default=None, metavar="A,B",
+                   help="also compare method A with method B on the same episodes, per family and T_up (paired "
+                   "Wilcoxon, Mann-Whitney, wins/losses; on failure families also from 30 s after the failure); "
+                   "with --results, compare them in a run already made instead of running")
+    p.add_argument("--results", type=Path, default=None, metavar="PATH",
+                   help="with --compare: a run's results.json (or its --out directory); nothing is run")
     p.set_defaults(func=run)
 
 
@@ -76,12 +87,23 @@ def run(args: argparse.Namespace) -> int:
     from plmarl_sitl.errors import UserError
     from plmarl_sitl.learning.eval.evaluate import needed_policies
     from plmarl_sitl.learning.eval.suite import decisions, load_suite, run_suite, select
+    from plmarl_sitl.learning.eval.suite_compare import compare_methods, comparison_md, load_results, parse_pair
     from plmarl_sitl.learning.eval.suite_report import print_summary, write_outputs
     from plmarl_sitl.learning.nn.features import FeatureScales
     from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.learning.pipeline import git_commit
     from plmarl_sitl.machine import machine_info
 
+    pair = parse_pair(args.compare) if args.compare is not None else None
+    if args.results is not None:
+        if pair is None:
+            raise UserError("--results reads a run for --compare A,B: name the two methods")
+        if args.families is not None:
+            raise UserError("--results compares a run already made: give no families to run")
+        res = load_results(args.results)
+        return _print_comparison(res, compare_methods(res, *pair), as_json=args.json)
+    if pair is not None and not set(pair) <= set(args.methods):
+        raise UserError(f"--compare {args.compare}: both methods must be among --methods ({','.join(args.methods)})")
     torch.set_num_threads(1)
     spec, families = load_suite(args.suite_file)
     if args.list:
@@ -119,10 +141,23 @@ def run(args: argparse.Namespace) -> int:
         "date": started, "wall_s": round(time.time() - t0, 1),
         "torch_threads": 1,
     })
+    if pair is not None:
+        res["comparison"] = compare_methods(res, *pair)
     if args.out:
         write_outputs(res, list(spec.scaling), Path(args.out))
     if args.json:
         print(json.dumps({k: v for k, v in res.items() if k != "traces"}))
     else:
         print_summary(res)
+        if pair is not None:
+            print()
+            print(comparison_md(res, res["comparison"]))
+    return 0
+
+
+def _print_comparison(res: dict, rows: list[dict], *, as_json: bool) -> int:
+    from plmarl_sitl.learning.eval.suite_compare import comparison_md
+
+    print(json.dumps({"seed": res.get("seed"), "from_s": res.get("from_s"), "comparison": rows}) if as_json
+          else comparison_md(res, rows))
     return 0

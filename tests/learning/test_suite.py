@@ -135,7 +135,7 @@ def test_suite_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str
     _short_mission(tmp_path, 20, "short_a")
     _short_mission(tmp_path, 20, "short_b", "launch: {north_m: 150, east_m: 150}\n")
     _short_mission(tmp_path, 20, "short_n6", "n_uavs: 6\nusers: {count: 360, layout: lattice, cluster_centers: []}\n")
-    _short_mission(tmp_path, 110, "fail")  # failure at 100 s, one 10-s plateau window after it
+    _short_mission(tmp_path, 140, "fail")  # failure at 100 s, 10 s of the window from 30 s after it
     (tmp_path / "suite.yaml").write_text(
         "families:\n"
         "  - {name: two, about: two variants, missions: [short_a.yaml, short_b.yaml]}\n"
@@ -184,6 +184,37 @@ def test_suite_json_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert "## Summary" in md and "## Failure transient" in md and "best reference" in md
     assert "not a ceiling" in md  # the report says what a reference is
     assert set(json.loads((out / "results.json").read_text())["traces"]) == {"two", "six", "fail"}
+    # Every episode's value is kept, so any pair compares later: PL-MARL against service, read
+    # back from results.json, gives the run's own paired figures exactly.
+    assert all(len(r["coverage_per_episode"]) == r["episodes"] for r in doc["rows"])
+    assert all(len(t["after_target_per_episode"]) == 2 for t in doc["transients"])
+    capsys.readouterr()
+    assert main(["suite", "--results", str(out), "--compare", "pl-marl,service", "--json"]) == 0
+    later = json.loads(capsys.readouterr().out)["comparison"]
+    ran = {(p["family"], p["tup"]): p for p in doc["p_values"] if p["versus"] == "service"}
+    assert [(c["family"], c["tup"]) for c in later] == cells
+    for c in later:
+        assert {k: c[k] for k in ("p", "p_paired", "wins", "losses")} == {k: ran[(c["family"], c["tup"])][k] for k in ("p", "p_paired", "wins", "losses")}
+    assert [("after_failure" in c) for c in later] == [False, False, False, True]
+
+
+def test_compare_says_what_is_wrong(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    row = {"family": "f", "tup": 15, "episodes": 2, "coverage_mean": 0.5}
+    old = {"seed": 0, "from_s": 50, "methods": ["a", "b"], "rows": [{**row, "method": "a"}, {**row, "method": "b"}]}
+    (tmp_path / "results.json").write_text(json.dumps(old))
+    (tmp_path / "bad.json").write_text("{not json")
+    for argv, says in (
+        (["--results", str(tmp_path), "--compare", "a,b"], "keeps no per-episode values"),
+        (["--results", str(tmp_path), "--compare", "a,c"], "method 'c' is not in this run (it ran: a, b)"),
+        (["--results", str(tmp_path / "bad.json"), "--compare", "a,b"], "is not a suite result document"),
+        (["--results", str(tmp_path / "none"), "--compare", "a,b"], "no suite results at"),
+        (["--results", str(tmp_path)], "name the two methods"),
+        (["--results", str(tmp_path), "--compare", "a"], "two different methods"),
+        (["fail", "--methods", "pl-marl,service", "--compare", "pl-marl,greedy"], "both methods must be among --methods"),
+    ):
+        assert main(["suite", *argv]) == 2, argv
+        err = capsys.readouterr().err
+        assert says in err and "Traceback" not in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_the_defaults_are_the_projects_files_from_any_directory(tmp_path: Path) -> None:

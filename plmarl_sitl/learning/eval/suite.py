@@ -29,7 +29,7 @@ from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, ru
 from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import ABOUT, REFERENCES, best_reference, pairwise_wins
 from plmarl_sitl.learning.eval.stats import compare, mean_ci95
-from plmarl_sitl.learning.eval.transient import failure_transient
+from plmarl_sitl.learning.eval.transient import after_target_levels, failure_transient
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.learning.train.seeds import EVAL_SEED_BASE, suite_twin_seed
 from plmarl_sitl.mission import Mission, load_mission
@@ -208,7 +208,11 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
             lam, lam_ci = mean_ci95(r.lambda2)
             row = {"family": family.name, "n_uavs": n[0] if len(n) == 1 else n, "tup": tup, "method": method,
                    "episodes": int(r.coverage.size), "coverage_mean": mean, "coverage_ci95": list(ci),
-                   "coverage_full_mean": float(r.coverage_full.mean()), "lambda2_mean": lam, "lambda2_ci95": list(lam_ci)}
+                   "coverage_full_mean": float(r.coverage_full.mean()), "lambda2_mean": lam, "lambda2_ci95": list(lam_ci),
+                   # Every episode's value, in the family's episode order (the same for every method), at
+                   # full precision (a paired test counts exact ties), so any two methods can be compared
+                   # after the run (`plmarl suite --compare`).
+                   "coverage_per_episode": [float(x) for x in r.coverage]}
             if best is not None:
                 fm, fci = mean_ci95(r.coverage / np.maximum(best.coverage, 1e-9))
                 row.update({"fraction_of_best_mean": fm, "fraction_of_best_ci95": list(fci), "best_reference": best.label(),
@@ -223,7 +227,9 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
             fail_s = family.spec.failure_at_s or (FAILURE_AT_S if family.spec.failure_prob > 0 else None)
             if fail_s is not None and best is not None and fail_s < horizon:
                 t = failure_transient(r.trace, best.trace, int(fail_s))
-                transients.append({"family": family.name, "tup": tup, "method": method, **t})
+                after = after_target_levels(r.trace, int(fail_s))
+                transients.append({"family": family.name, "tup": tup, "method": method, **t,
+                                   "after_target_per_episode": [None if np.isnan(x) else float(x) for x in after]})
     traces = {f"{m}@{t}": [round(float(x), 4) for x in r.trace.mean(0)] for (m, t), r in runs.items()}
     return {"rows": rows, "p_values": p_values, "transients": transients, "references": references,
             "traces": {family.name: traces}}

@@ -61,6 +61,12 @@ def settle_times(trace: np.ndarray, levels: np.ndarray, fail_s: int) -> np.ndarr
     return first
 
 
+def after_target_levels(trace: np.ndarray, fail_s: int) -> np.ndarray:
+    """(E,) mean C over [t_f + TARGET_S, T] per episode (nan when the episode ends before)."""
+    late = trace[:, fail_s - 1 + TARGET_S :]
+    return late.mean(1) if late.shape[1] else np.full(trace.shape[0], np.nan)
+
+
 def failure_transient(trace: np.ndarray, reference_trace: np.ndarray, fail_s: int) -> dict:
     """Summary over episodes of one method's transient (traces (E, T), the same episodes)."""
     horizon = trace.shape[1]
@@ -73,8 +79,8 @@ def failure_transient(trace: np.ndarray, reference_trace: np.ndarray, fail_s: in
     trough, trough_ci = mean_ci95(post.min(1))
     frac, frac_ci = mean_ci95(post.mean(1) / np.maximum(reference_post.mean(1), 1e-9))
     # Issue 24's criterion: the level held from TARGET_S after the failure, against the reference's.
-    late, late_r = trace[:, fail_s - 1 + TARGET_S :], reference_trace[:, fail_s - 1 + TARGET_S :]
-    after, after_ci = mean_ci95(late.mean(1) / np.maximum(late_r.mean(1), 1e-9)) if late.shape[1] else (float("nan"), (float("nan"),) * 2)
+    late, late_r = after_target_levels(trace, fail_s), after_target_levels(reference_trace, fail_s)
+    after, after_ci = mean_ci95(late / np.maximum(late_r, 1e-9)) if trace.shape[1] >= fail_s + TARGET_S else (float("nan"), (float("nan"),) * 2)
     return {
         "failure_at_s": fail_s,
         "pre_failure_mean": float(trace[:, max(fail_s - 1 - PRE_S, 0) : fail_s - 1].mean()),
