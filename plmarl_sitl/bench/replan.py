@@ -11,8 +11,10 @@ assignment). Per episode also the second some survivor first knows a failure and
 second all know all (`detect_s_median`, `all_know_s_median`, `all_know_never`), and with
 `--greedy` the fraction of the greedy reference's coverage from 30 s after the failure. Per episode, at `--check-s` seconds after the failure and
 at the end: whether all survivors hold the same assignment (points and slots), whether they
-all know every failure, how many live UAVs were declared failed; and the mean coverage
-from 30 s after the failure. Seeds are from the evaluation range (learning/train/seeds.py).
+all know every failure, how many live UAVs were declared failed; over the whole episode, how
+many live UAVs some live copy held failed at some second (`live_declared_ever`: a false
+declaration that was taken back later counts too); and the mean coverage from 30 s after the
+failure. Seeds are from the evaluation range (learning/train/seeds.py).
 
     python -m plmarl_sitl.bench.replan missions/suite/failure_transit.yaml --tup 15 50 --episodes 20 --seed 41 --json
 """
@@ -64,6 +66,12 @@ def agreement(ctl: ServiceController, env: CoverageEnv) -> tuple[np.ndarray, np.
     return np.array(same), np.array(know), np.array(false)
 
 
+def live_declared(failed: torch.Tensor, alive: torch.Tensor) -> np.ndarray:
+    """(B, N) bool: each identity alive and held failed by some live copy (failed (B, N, N)
+    [i, j]: i holds j failed; alive (B, N))."""
+    return (failed & alive.unsqueeze(-1) & alive.unsqueeze(1)).any(1).numpy()
+
+
 def run(mission: Mission, way: str, episodes: int, seed: int, fail_s: int, check_s: int,
         failure_prob: float) -> dict:
     env = CoverageEnv(mission, episodes, seed, failure_prob=failure_prob)
@@ -73,6 +81,9 @@ def run(mission: Mission, way: str, episodes: int, seed: int, fail_s: int, check
     cover, checked = [], None
     first_known = np.full(episodes, np.nan)  # second some survivor first knows a failure
     all_known = np.full(episodes, np.nan)  # second every survivor first knows every failure
+    # (episode, identity): a live UAV some live copy held failed at some second (a false
+    # declaration, made or merged; counted over the whole episode, not only at the two checks)
+    declared_live = np.zeros((episodes, env.n), dtype=bool)
     with torch.inference_mode():
         while not env.done:
             if way == "instant" and bool((~env.alive).any()):  # the true failed set, declared by every survivor at once
@@ -88,6 +99,7 @@ def run(mission: Mission, way: str, episodes: int, seed: int, fail_s: int, check
             some = (known.any(-1) & alive).any(-1).numpy()
             every = ((known == (~alive).unsqueeze(1)).all(-1) | ~alive).all(-1).numpy() & (~alive).any(-1).numpy()
             first_known[np.isnan(first_known) & some] = obs.t
+            declared_live |= live_declared(env.gossip.failed, alive)
             all_known[np.isnan(all_known) & every] = obs.t
             if checked is None and obs.t >= fail_s + check_s and way != "fixed":
                 checked = agreement(ctl, env)
@@ -100,6 +112,8 @@ def run(mission: Mission, way: str, episodes: int, seed: int, fail_s: int, check
         out["detect_s_median"] = float(np.nanmedian(first_known - fail_s)) if np.isfinite(first_known).any() else None
         out["all_know_s_median"] = float(np.nanmedian(all_known - fail_s)) if np.isfinite(all_known).any() else None
         out["all_know_never"] = int(np.isnan(all_known).sum())
+        out["live_declared_ever"] = int(declared_live.sum())
+        out["per_episode_live_declared_ever"] = [int(x) for x in declared_live.sum(1)]
     if way != "fixed":
         end = agreement(ctl, env)
         for name, (same, know, false) in (("check", checked), ("end", end)):

@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from plmarl_sitl.bench.replan import live_declared
 from plmarl_sitl.learning.eval.controllers import ServiceController
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.gossip import Gossip, key_of, rank_of, since_of
@@ -190,3 +191,19 @@ def test_a_failure_is_declared_at_the_first_missed_instant_and_known_soon_after(
         assert (all_[:, dead][declared] >= 100).all(), (tup, all_)  # then known by all within two instants
         if tup == 15:
             assert int((all_[:, dead] < instant + tup).sum()) >= 6, (tup, all_)  # most by the next one
+
+
+def test_a_false_declaration_is_a_live_uav_held_failed_by_a_live_copy() -> None:
+    """`bench.replan` counts false declarations over the whole episode with this: a live UAV
+    declared by a live copy counts; a dead UAV's declaration, or one only a dead copy holds, does not."""
+    g = Gossip(1, 4)
+    alive = torch.tensor([[True, True, True, False]])
+    assert not live_declared(g.failed, alive).any()
+    failed = torch.zeros(1, 4, 4, dtype=torch.bool)
+    failed[0, 0, 3] = True  # a true declaration (3 is dead)
+    failed[0, 3, 1] = True  # held only by the dead copy 3
+    g.declare(failed, torch.tensor([[50, 0, 0, 50]]))
+    assert live_declared(g.failed, alive).tolist() == [[False, False, False, False]]
+    failed[0, 1, 2] = True  # live copy 1 holds live UAV 2 failed
+    g.declare(failed, torch.tensor([[50, 100, 0, 50]]))
+    assert live_declared(g.failed, alive).tolist() == [[False, False, True, False]]
