@@ -509,6 +509,7 @@ class TeamPlans:
         self.since = np.zeros((b, a, self.n), dtype=np.int64)
         self.steps, self.before = {}, {}
         self.first = (t, pts.copy(), self.slot.copy())
+        self._first_cache: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}  # `_first_plan_at`'s
         if self.motion is not None:
             self.motion.start(launch, t)
 
@@ -622,13 +623,22 @@ class TeamPlans:
         """(n, 2) identity j's point in copy (b, a)'s first plan as the maps up to `epoch` moved it
         (`on_map`'s rule): what a copy that never learnt of a failure flies. Common knowledge."""
         assert self.first is not None
-        t0, points, slot = self.first[0], self.first[1][b].copy(), self.first[2][b, a].copy()
-        for s, later in self.maps:
-            new = self._replacing(later[b], points) if t0 < s <= epoch else None
-            if new is not None:  # each identity the successor of its point, as `_move_to`
-                slot = assign(points, new)[slot]
-                points = new
-        return points[slot]
+        t0 = self.first[0]
+        taken = [(s, later) for s, later in self.maps if t0 < s <= epoch]
+        # The first plan's points and where each of its rows went depend on the team and the
+        # maps taken by the epoch only, not on the copy: computed once for all copies (each
+        # `grid.place` is a whole placement), again only if a late map of before the epoch came.
+        key = (b, epoch, len(taken))
+        if key not in self._first_cache:
+            points, row = self.first[1][b].copy(), np.arange(self.n)
+            for _, later in taken:
+                new = self._replacing(later[b], points)
+                if new is not None:  # each identity the successor of its point, as `_move_to`
+                    row = assign(points, new)[row]
+                    points = new
+            self._first_cache[key] = (points, row)
+        points, row = self._first_cache[key]
+        return points[row[self.first[2][b, a]]]
 
     def _roll_back(self, b: int, a: int, k: int) -> None:
         """Copy (b, a) returns to its plan before its re-plan step k, with the maps taken since
