@@ -30,6 +30,7 @@ from plmarl_sitl.learning.eval.controllers import LearnedController, ServiceCont
 from plmarl_sitl.learning.train.seeds import suite_twin_seed
 from plmarl_sitl.mission import Mission, load_mission
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, steady, suspects
+from plmarl_sitl.model.gossip import heard as heard_link
 from plmarl_sitl.twin.env import CoverageEnv
 
 PROG = "python -m plmarl_sitl.bench.declare"
@@ -54,7 +55,8 @@ def plans_of(ctl):  # noqa: ANN001, ANN201
 
 def count(obs, env: CoverageEnv, plans, t: int, prev: int | None, mission: Mission, tally: dict) -> None:  # noqa: ANN001
     """Add the live pairs predicted in clear hearing at instant t and those of them missed,
-    and the same for the steady links (heard at the previous instant `prev`)."""
+    and the same for the steady links and the links predicted clear enough (`heard`; both
+    heard at the previous instant `prev`)."""
     n = env.n
     pred = plans.motion.at(t)[..., :3]
     own = pred[:, torch.arange(n), torch.arange(n)]
@@ -70,6 +72,9 @@ def count(obs, env: CoverageEnv, plans, t: int, prev: int | None, mission: Missi
         st = steady(live & heard & was, pred, plans.motion.at(prev)[..., :3], torch.arange(n), mission.channel, comm)
         tally["steady_tests"] += int(st.sum())
         tally["steady_missed"] += int((st & miss).sum())
+        hl = heard_link(live & heard & was, pred, torch.arange(n), mission.channel, comm)
+        tally["heard_tests"] += int(hl.sum())
+        tally["heard_missed"] += int((hl & miss).sum())
     tally["rx_prev"] = obs.nbr_t_rx.clone()
 
 
@@ -78,7 +83,8 @@ def run(mission: Mission, method: str, episodes: int, seed: int, declare_after: 
     ctl = controller(method, mission, declare_after)
     ctl.reset()
     obs = env.observe()
-    tally = {"clear_tests": 0, "clear_missed": 0, "steady_tests": 0, "steady_missed": 0, "rx_prev": None}
+    tally = {"clear_tests": 0, "clear_missed": 0, "steady_tests": 0, "steady_missed": 0, "heard_tests": 0, "heard_missed": 0,
+             "rx_prev": None}
     prev = None
     with torch.inference_mode():
         while not env.done:

@@ -23,9 +23,9 @@ declared by a copy that mispredicted it, is taken back once heard; a dead UAV se
 A failure is declared by a neighbour from missed signalling instants: at each decision
 while j has missed the `DECLARE_AFTER_MISSED` newest instants (1 since session 13; the
 neighbour table still drops j from N_i after `drop_after_missed`), j is *suspected failed*
-when it was predicted in clear hearing at each of them (`suspects`) or on a steady link
-(`steady`): a neighbour that flew out of range is predicted out of range and is not
-declared. And only when the plan that predicts j is the plan j flew (`may_predict`: j's
+when it was predicted in clear hearing at each of them (`suspects`), or, heard at the
+instant before, on a steady link (`steady`) or on a link predicted clear enough (`heard`): a
+neighbour that flew out of range is predicted out of range and is not declared. And only when the plan that predicts j is the plan j flew (`may_predict`: j's
 last message knew the receiver's declarations before that instant), and by a receiver that
 still hears someone (an agent alone cannot tell a dead neighbour from its own isolation).
 The twin holds every agent's knowledge in one `Gossip`; the deployed agent holds its own
@@ -129,6 +129,36 @@ def steady_links(pred_now: torch.Tensor, pred_prev: torch.Tensor, me: torch.Tens
     return moved & self_moved & ok & (d2 <= (comm_m - STEADY_RANGE_M) ** 2)
 
 
+# A link heard at the previous instant is also evidence when the prediction at the missed
+# instant keeps it HEARD_RANGE_M inside R_comm and HEARD_MARGIN_DB above the SINR threshold,
+# however far its ends moved (`steady` asks for <= STEADY_MOVE_M): the channel is a function of
+# the positions, and the plan-aware prediction puts a teammate flying its plan where it is. Clear
+# hearing's 6 dB alone left failures nobody declared: a survivor that heard the failed UAV at
+# 180-215 m, predicted 4.5-5.9 dB above the threshold after both had moved (docs/RESULTS.md,
+# session 26). The link was heard at the previous instant, so the interference a predicted
+# margin leaves out (a teammate off its point) was already below it then.
+HEARD_RANGE_M = 20.0
+HEARD_MARGIN_DB = 3.0
+
+
+def heard(heard_prev: torch.Tensor, pred_now: torch.Tensor, me: torch.Tensor, channel: Channel,
+          comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: receiver a's teammates heard at the previous instant (heard_prev
+    (..., A, M)) whose link j -> a the prediction at the missed instant keeps clear enough
+    (`heard_links`)."""
+    return heard_prev & heard_links(pred_now, me, channel, comm_m)
+
+
+def heard_links(pred_now: torch.Tensor, me: torch.Tensor, channel: Channel, comm_m: float) -> torch.Tensor:
+    """(..., A, M) bool: the links j -> a the prediction pred_now (..., A, M, 3) (a's own row its
+    own nominal) keeps HEARD_RANGE_M inside R_comm and HEARD_MARGIN_DB above the SINR threshold
+    (a function of the prediction alone)."""
+    idx = me.view(*([1] * (pred_now.dim() - 3)), -1, 1, 1).expand(*pred_now.shape[:-3], -1, 1, 3)
+    own_now = torch.take_along_dim(pred_now, idx, -2)[..., 0, :]
+    sinr_a, d2 = _links(pred_now, me, own_now, channel)
+    return (d2 <= (comm_m - HEARD_RANGE_M) ** 2) & (sinr_a >= db_to_lin(channel.sinr_threshold_db + HEARD_MARGIN_DB))
+
+
 # A knowledge entry, one int per (knower, identity): the rank 2^32 x key + (2^32 - 1 - since),
 # key = 2 x incarnation + (1 if declared failed), since = the signalling instant the
 # declaration names (0 when not failed). The merge is the max of ranks: a newer incarnation
@@ -228,6 +258,6 @@ class Gossip:
         self.rank = alive_again(torch.maximum(self.rank, heard), got | itself)
 
 
-__all__ = ["DECLARE_AFTER_MISSED", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
-           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "clear_hearing", "steady_links", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
+__all__ = ["DECLARE_AFTER_MISSED", "HEARD_MARGIN_DB", "HEARD_RANGE_M", "MAX_SWARM", "NOTHING", "STEADY_MARGIN_DB", "STEADY_MOVE_M", "STEADY_RANGE_M",
+           "SUSPECT_MARGIN_DB", "SUSPECT_RANGE_FRAC", "Gossip", "clear_hearing", "heard", "heard_links", "steady_links", "Known", "Knowledge", "SINCE_MASK", "alive_again", "key_of", "rank_of", "since_of", "may_predict",
            "steady", "suspects"]

@@ -10,7 +10,17 @@ import torch
 from plmarl_sitl.bench.replan import live_declared
 from plmarl_sitl.learning.eval.controllers import ServiceController
 from plmarl_sitl.mission import load_mission
-from plmarl_sitl.model.gossip import Gossip, key_of, rank_of, since_of
+from plmarl_sitl.model.gossip import (
+    HEARD_MARGIN_DB,
+    HEARD_RANGE_M,
+    SUSPECT_MARGIN_DB,
+    Gossip,
+    clear_hearing,
+    heard,
+    key_of,
+    rank_of,
+    since_of,
+)
 from plmarl_sitl.twin.env import CoverageEnv
 
 
@@ -153,6 +163,29 @@ def test_a_steady_link_heard_before_and_missed_now_is_evidence_of_a_failure() ->
     assert edge.tolist() == [[[False, False, True]]]
     unheard = steady(torch.tensor([[[False, False, True]]]), pred(0.0, 300.0, -200.0), pred(0.0, 300.0, -200.0), me, ch, comm)
     assert unheard.tolist() == [[[False, False, True]]]
+
+
+def test_a_link_heard_before_and_predicted_clear_enough_is_evidence_however_far_it_moved() -> None:
+    """`heard`: a teammate heard at the previous instant whose link the prediction at the missed
+    instant keeps HEARD_RANGE_M inside R_comm and HEARD_MARGIN_DB above the threshold, wherever it
+    came from; the teammate at 220 m with a UAV 130 m behind the receiver (5.4 dB) is not in clear
+    hearing (6 dB), so before session 26 its silence was no evidence."""
+    ch = load_mission("missions/paper_urban.yaml").channel
+    comm = 350.0
+    me = torch.tensor([0])
+
+    def pred(*xs: float) -> torch.Tensor:  # (1, 1, n, 3): identities on a line at 100 m altitude
+        return torch.tensor([[[[0.0, x, -100.0] for x in xs]]], dtype=torch.float64)
+
+    heard_prev = torch.tensor([[[False, True, True]]])
+    near = pred(0.0, 220.0, -130.0)  # 1: 5.4 dB above the threshold
+    assert heard(heard_prev, near, me, ch, comm).tolist() == [[[False, True, True]]]
+    assert clear_hearing(near, me, near[:, :, 0], ch, comm).tolist() == [[[False, False, True]]]
+    assert heard(heard_prev, pred(0.0, 240.0, -100.0), me, ch, comm).tolist() == [[[False, False, True]]]  # 1: 2.4 dB
+    edge = pred(0.0, comm - HEARD_RANGE_M + 10.0, -200.0)  # 1: 5.2 dB, but 10 m from R_comm
+    assert heard(heard_prev, edge, me, ch, comm).tolist() == [[[False, False, True]]]
+    assert heard(torch.tensor([[[False, False, True]]]), near, me, ch, comm).tolist() == [[[False, False, True]]]
+    assert HEARD_MARGIN_DB < SUSPECT_MARGIN_DB
 
 
 def test_a_failure_is_declared_at_the_first_missed_instant_and_known_soon_after() -> None:

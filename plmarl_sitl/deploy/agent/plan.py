@@ -17,7 +17,8 @@ that map: the plan the twin, which hears them at once, started with.
 Failures (issue 24, model/gossip.py) as the twin's `ServiceTargets.on_failures`: at each
 decision, a neighbour silent at the `DECLARE_AFTER_MISSED` newest instants whose misses
 are booked (the table's `closed`; in lockstep the newest instant, as in the twin), that the
-plan-aware prediction put in clear hearing at each (or on a steady link), and whose last
+plan-aware prediction put in clear hearing at each (or, heard at the instant before, on a
+steady link or one predicted clear enough), and whose last
 message knew this agent's declarations before then, is declared failed at the newest
 signalling instant; the knowledge the table merged from received states and these
 declarations (with the refutations of identities heard again, model/knowledge.py), as of
@@ -34,7 +35,7 @@ import torch
 
 from plmarl_sitl.learning.nn.plan import SignallingInstants, heard_launch, motion_of, repairer_of, service_grid
 from plmarl_sitl.mission import Mission
-from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, clear_hearing, steady_links
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, NOTHING, Knowledge, clear_hearing, heard_links, steady_links
 from plmarl_sitl.model.service import TeamPlans, grid_counts, mission_launch_xy
 
 
@@ -164,14 +165,17 @@ class AgentPlan:
                 pred = self.plans.motion.at_array(at)[..., :3]
                 sus = sus & self.links.get(("clear", at), (pred,), lambda p=pred: clear_hearing(
                     torch.from_numpy(p), me, torch.from_numpy(p)[:, :, self.me], self.channel, self.comm_m)[0, 0].numpy())
-            if len(recent) > self.declare_after:  # or heard at the instant before, on a steady link (model/gossip.py::steady)
-                st = silent_v & (rx == recent[-1])
+            if len(recent) > self.declare_after:  # or heard at the instant before, on a steady link or one
+                # predicted clear enough (model/gossip.py::steady, ::heard)
+                st = hl = silent_v & (rx == recent[-1])
                 before = self.plans.motion.at_array(recent[-1])[..., :3]
                 for at in missed:
                     now = self.plans.motion.at_array(at)[..., :3]
                     st = st & self.links.get(("steady", at, recent[-1]), (now, before), lambda n=now: steady_links(
                         torch.from_numpy(n), torch.from_numpy(before), me, self.channel, self.comm_m)[0, 0].numpy())
-                sus = sus | st
+                    hl = hl & self.links.get(("heard", at), (now,), lambda n=now: heard_links(
+                        torch.from_numpy(n), me, self.channel, self.comm_m)[0, 0].numpy())
+                sus = sus | st | hl
             ids = np.flatnonzero(sus)
             if len(ids):
                 self.knowledge.learn(k, known.declared([int(j) for j in ids], self.instants.last(k)))

@@ -15,7 +15,7 @@ from plmarl_sitl.learning.nn.placement import load_placement_scorer
 from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
-from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, may_predict, steady, suspects
+from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, heard, may_predict, steady, suspects
 from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.repairs import local_repairs
@@ -216,12 +216,14 @@ class ServiceTargets:
                 pred = plans.motion.at(at)[..., :3]
                 own = pred[:, torch.arange(n), torch.arange(n)]  # (B, N, 3): each agent's own nominal then
                 sus = suspects(sus, pred, torch.arange(n), own, self.channel, self.comm_m)
-            if len(recent) > self.declare_after:  # or heard at the instant before, on a link the prediction keeps steady
-                st = silent & (t_rx == recent[-1])
+            if len(recent) > self.declare_after:  # or heard at the instant before, on a link the prediction keeps steady or clear enough
+                st = hl = silent & (t_rx == recent[-1])
                 before = plans.motion.at(recent[-1])[..., :3]
                 for at in missed:
-                    st = steady(st, plans.motion.at(at)[..., :3], before, torch.arange(n), self.channel, self.comm_m)
-                sus = sus | st
+                    now = plans.motion.at(at)[..., :3]
+                    st = steady(st, now, before, torch.arange(n), self.channel, self.comm_m)
+                    hl = heard(hl, now, torch.arange(n), self.channel, self.comm_m)
+                sus = sus | st | hl
             at = torch.full_like(gossip.epoch, self.instants.last(t))
             gossip.declare(sus, torch.where(sus.any(-1), at, torch.zeros_like(at)))
         known, since = gossip.failed.numpy(), gossip.since.numpy()
