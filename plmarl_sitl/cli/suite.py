@@ -101,7 +101,10 @@ def run(args: argparse.Namespace) -> int:
         if args.families is not None:
             raise UserError("--results compares a run already made: give no families to run")
         res = load_results(args.results)
-        return _print_comparison(res, compare_methods(res, *pair), as_json=args.json)
+        rows = compare_methods(res, *pair)
+        print(json.dumps({"seed": res.get("seed"), "from_s": res.get("from_s"), "comparison": rows}) if args.json
+              else comparison_md(res, rows))
+        return 0
     if pair is not None and not set(pair) <= set(args.methods):
         raise UserError(f"--compare {args.compare}: both methods must be among --methods ({','.join(args.methods)})")
     torch.set_num_threads(1)
@@ -152,12 +155,4 @@ def run(args: argparse.Namespace) -> int:
         if pair is not None:
             print()
             print(comparison_md(res, res["comparison"]))
-    return 0
-
-
-def _print_comparison(res: dict, rows: list[dict], *, as_json: bool) -> int:
-    from plmarl_sitl.learning.eval.suite_compare import comparison_md
-
-    print(json.dumps({"seed": res.get("seed"), "from_s": res.get("from_s"), "comparison": rows}) if as_json
-          else comparison_md(res, rows))
     return 0

@@ -74,6 +74,12 @@ def _links(predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
     return sinr_a, (d * d).sum(-1)
 
 
+def _own_rows(pred: torch.Tensor, me: torch.Tensor) -> torch.Tensor:
+    """(..., A, 3) each receiver's own row of the prediction pred (..., A, M, 3): its nominal."""
+    idx = me.view(*([1] * (pred.dim() - 3)), -1, 1, 1).expand(*pred.shape[:-3], -1, 1, 3)
+    return torch.take_along_dim(pred, idx, -2)[..., 0, :]
+
+
 def suspects(dropped: torch.Tensor, predicted_pos: torch.Tensor, me: torch.Tensor, own_pos: torch.Tensor,
              channel: Channel, comm_m: float) -> torch.Tensor:
     """(..., A, M) bool: receiver a's dropped neighbours (dropped (..., A, M)) that it should
@@ -118,9 +124,7 @@ def steady_links(pred_now: torch.Tensor, pred_prev: torch.Tensor, me: torch.Tens
                  channel: Channel, comm_m: float) -> torch.Tensor:
     """(..., A, M) bool: the links j -> a `steady` finds steady, for every j (a function of the
     two predictions alone)."""
-    idx = me.view(*([1] * (pred_now.dim() - 3)), -1, 1, 1).expand(*pred_now.shape[:-3], -1, 1, 3)
-    own_now = torch.take_along_dim(pred_now, idx, -2)[..., 0, :]
-    own_prev = torch.take_along_dim(pred_prev, idx, -2)[..., 0, :]
+    own_now, own_prev = _own_rows(pred_now, me), _own_rows(pred_prev, me)
     s_now, d2 = _links(pred_now, me, own_now, channel)
     s_prev, _ = _links(pred_prev, me, own_prev, channel)
     moved = ((pred_now - pred_prev) ** 2).sum(-1) <= STEADY_MOVE_M ** 2  # (..., A, M)
@@ -153,9 +157,7 @@ def heard_links(pred_now: torch.Tensor, me: torch.Tensor, channel: Channel, comm
     """(..., A, M) bool: the links j -> a the prediction pred_now (..., A, M, 3) (a's own row its
     own nominal) keeps HEARD_RANGE_M inside R_comm and HEARD_MARGIN_DB above the SINR threshold
     (a function of the prediction alone)."""
-    idx = me.view(*([1] * (pred_now.dim() - 3)), -1, 1, 1).expand(*pred_now.shape[:-3], -1, 1, 3)
-    own_now = torch.take_along_dim(pred_now, idx, -2)[..., 0, :]
-    sinr_a, d2 = _links(pred_now, me, own_now, channel)
+    sinr_a, d2 = _links(pred_now, me, _own_rows(pred_now, me), channel)
     return (d2 <= (comm_m - HEARD_RANGE_M) ** 2) & (sinr_a >= db_to_lin(channel.sinr_threshold_db + HEARD_MARGIN_DB))
 
 
