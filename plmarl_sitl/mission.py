@@ -258,7 +258,7 @@ class Mission:
     events: tuple[Event, ...] = ()
     coordination: Coordination = "team"
     placement: Placement = "search"
-    failure_replan: FailureReplan = "resolve"
+    failure_replan: FailureReplan = "local"  # on station; a failure in transit is re-solved (model/repairs.py)
     # Metres a UAV's plan point moves toward the centroid of the users it senses
     # (model/sensed_track.py: follow a moving crowd between demand maps); 0: off.
     track_sensed_m: float = field(default=0.0, metadata={"min": 0.0})

@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  plmarl suite all --episodes 30 --tup 5,15,50 --out runs/suite\n"
         "  plmarl suite random,launch --episodes 10 --json\n"
         "  plmarl suite random,failure --methods service,pl-marl,greedy,clairvoyant --tup 15 --episodes 10\n"
-        "  plmarl suite failure_2of6 --methods pl-marl,pl-marl-local-repairs,greedy --tup 50 --compare pl-marl-local-repairs,pl-marl\n"
+        "  plmarl suite failure_2of6 --methods pl-marl,pl-marl-resolve,greedy --tup 50 --compare pl-marl,pl-marl-resolve\n"
         "  plmarl suite --results runs/suite --compare pl-marl,service   # any pair of a run already made\n"
         "  plmarl suite --list",
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -11,10 +11,18 @@ R_link of it in the first plan) move. The survivors who detect a failure first-h
 neighbours, so a copy that knows of one failure moves only UAVs that know of it too, and
 every other survivor keeps the point the uninformed copies also give it.
 
+Only on station. A repair keeps the first plan, which is right while the survivors fly it. A
+failure in transit (the survivors still far from their points) is re-solved: the re-solve assigns
+the survivors by their predicted positions, and a repair would keep an assignment made for a
+swarm that has lost a member on the way (session 25: local repairs alone lost 0.008-0.012 there).
+So a copy repairs only if every survivor's predicted position at the failure's epoch is within
+STATION_M of its point in the first plan; otherwise it re-solves, as `failure_replan: resolve`
+does. This is the default since session 27 (docs/RESULTS.md).
+
 Everything a repair reads is common knowledge (the first plan followed through the maps up to
 the failure's epoch, the failed set, the map, the predicted positions), so copies that know the
-same failures hold the same plan. Measured in the twin on tuning seeds 19-22 (session 24) and
-23-26 (session 25): docs/RESULTS.md.
+same failures hold the same plan. Measured in the twin on tuning seeds 19-22 (session 24),
+23-26 (session 25) and 34-36 (session 27): docs/RESULTS.md.
 """
 from __future__ import annotations
 
@@ -26,6 +34,10 @@ from plmarl_sitl.model.service import ServiceGrid, assign
 
 MOVERS_K = 2  # survivors a repair may move: each mover is a UAV leaving a served spot
 REPAIR_MARGIN = 1.0  # users: an option with fewer movers is taken if it serves within this of the best
+# A repair only while every survivor is predicted this close to its first-plan point: 15 s of
+# flight at the 20 m/s speed limit. In the failure-in-transit family (1 km transit) the survivors
+# are 359-1029 m away at the failure; on station the largest seen was 269 m (tuning seed 34).
+STATION_M = 300.0
 
 
 class Option(NamedTuple):
@@ -115,6 +127,13 @@ def repair(grid: ServiceGrid, counts: np.ndarray, pts: np.ndarray, ident: np.nda
     return new, who, [int(who[r]) for r in movers]
 
 
+def on_station(first: np.ndarray, failed: np.ndarray, src: np.ndarray) -> bool:
+    """Every survivor's predicted position src (n, 2) within STATION_M of its point in the
+    first plan first (n, 2): the swarm flies that plan, so mending it is right."""
+    live = ~failed
+    return bool((((src[live] - first[live]) ** 2).sum(-1) <= STATION_M**2).all())
+
+
 def local_repairs(grid: ServiceGrid, counts: np.ndarray, first: np.ndarray, failed: np.ndarray,
                   src: np.ndarray) -> np.ndarray | None:
     """The first plan first (n, 2) (row j: identity j's point, followed through the maps up to
@@ -122,7 +141,10 @@ def local_repairs(grid: ServiceGrid, counts: np.ndarray, first: np.ndarray, fail
     the map counts (K,): each repair moves only that identity's neighbours, the survivors within
     R_link of it in `first`. src (n, 2): every identity's predicted position at the epoch.
     (m, 2) the survivors' points in identity order, or None (a failed identity without a live
-    neighbour, or a repair without a feasible option: the caller re-solves the whole plan)."""
+    neighbour, a repair without a feasible option, or a survivor more than STATION_M from its
+    point in `first`: the caller re-solves the whole plan)."""
+    if not on_station(first, failed, src):
+        return None
     pts, ident = first.copy(), np.arange(len(first))
     for f in np.flatnonzero(failed):
         near = np.sqrt(((first - first[f]) ** 2).sum(-1)) <= grid.link_m

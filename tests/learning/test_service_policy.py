@@ -81,3 +81,14 @@ def test_the_shipped_service_policy_is_the_export_of_the_paper_mission() -> None
             torch.zeros(5, 1, 3))
     torch.testing.assert_close(shipped.policy(*args, target), fresh(*args, target))
     assert shipped.card["cruise_alt_m"] == fresh.cruise_alt
+
+
+def test_the_local_repairs_methods_are_aliases_of_the_default_since_it_repairs(capsys) -> None:  # noqa: ANN001
+    """Session 27 made local repairs the default: `*-local-repairs` name the default for one
+    release (a one-line note), `*-resolve` fly the old default."""
+    from plmarl_sitl.learning.eval.methods import METHOD_HELP, parse_methods
+
+    assert parse_methods("pl-marl-local-repairs,service-local-repairs,pl-marl-resolve") == ["pl-marl", "service", "pl-marl-resolve"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "'pl-marl-local-repairs' is now 'pl-marl'" in err[0] and "pl-marl-resolve" in err[0]
+    assert {"pl-marl-resolve", "service-resolve"} <= set(METHOD_HELP) and "pl-marl-local-repairs" not in METHOD_HELP

@@ -1,6 +1,7 @@
-"""Local failure repairs (`failure_replan: local`, model/repairs.py): each failed UAV's point is
-dropped and only its neighbours in the first plan may move; copies that know the same failures
-hold the same plan; the re-solve is kept for where no repair is feasible."""
+"""Local failure repairs (`failure_replan: local`, the default, model/repairs.py): each failed UAV's
+point is dropped and only its neighbours in the first plan may move; copies that know the same
+failures hold the same plan; the re-solve is kept for where no repair is feasible and for a swarm
+not yet on station (a failure in transit)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,15 @@ import pytest
 from plmarl_sitl.learning.nn.plan import repairer_of, service_grid
 from plmarl_sitl.mission import load_mission
 from plmarl_sitl.model.plan_motion import PlanMotion
-from plmarl_sitl.model.repairs import MOVERS_K, keep_and_move, link_components, local_repairs, repair
+from plmarl_sitl.model.repairs import (
+    MOVERS_K,
+    STATION_M,
+    keep_and_move,
+    link_components,
+    local_repairs,
+    on_station,
+    repair,
+)
 from plmarl_sitl.model.service import ServiceGrid, TeamPlans, grid_counts
 from plmarl_sitl.model.vehicle import Limits
 from plmarl_sitl.twin.env import CoverageEnv
@@ -33,10 +42,10 @@ def neighbours(grid: ServiceGrid, p0: np.ndarray, f: int, failed: set[int]) -> l
     return [i for i in range(len(p0)) if d[i] <= grid.link_m and i != f and i not in failed]
 
 
-def test_the_default_re_solves_and_local_is_chosen_by_the_mission() -> None:
+def test_the_default_repairs_and_the_re_solve_is_chosen_by_the_mission() -> None:
     m = load_mission(MISSION)
-    assert m.failure_replan == "resolve" and repairer_of(m) is None
-    assert repairer_of(m.with_failure_replan("local")) is local_repairs
+    assert m.failure_replan == "local" and repairer_of(m) is local_repairs
+    assert repairer_of(m.with_failure_replan("resolve")) is None
 
 
 def test_a_repair_moves_only_allowed_rows_and_at_most_movers_k(first_plan) -> None:  # noqa: ANN001
@@ -94,6 +103,23 @@ def test_no_live_neighbour_gives_the_re_solve_back(first_plan) -> None:  # noqa:
     assert local_repairs(grid, counts, p0, failed, src) is None
 
 
+def test_a_swarm_not_on_station_is_re_solved(first_plan) -> None:  # noqa: ANN001
+    """A failure in transit: one survivor predicted farther than STATION_M from its first-plan
+    point gives the re-solve back; the same failure on station is repaired. A failed UAV's own
+    position does not count."""
+    grid, counts, p0, src = first_plan
+    failed = np.zeros(6, dtype=bool)
+    failed[0] = True
+    assert on_station(p0, failed, src) and local_repairs(grid, counts, p0, failed, src) is not None
+    far = src.copy()
+    far[3] = p0[3] + [STATION_M + 1.0, 0.0]
+    assert not on_station(p0, failed, far) and local_repairs(grid, counts, p0, failed, far) is None
+    near = src.copy()
+    near[3] = p0[3] + [STATION_M - 1.0, 0.0]
+    near[0] = p0[0] + [5 * STATION_M, 0.0]  # the failed one, wherever it was
+    assert on_station(p0, failed, near)
+
+
 def plans(repairer) -> TeamPlans:  # noqa: ANN001
     """Four UAVs over four crowds of a 1 km square, a plan copy per agent of one team."""
     grid = ServiceGrid(1000.0, 1000.0, 100.0, 100.0, 350.0, 20.0)
@@ -136,13 +162,13 @@ def test_a_bad_failure_replan_value_is_one_clear_error(tmp_path) -> None:  # noq
         load_mission(path)
 
 
-def test_the_twin_flies_local_repairs_as_a_method() -> None:
-    """`service-local-repairs` is `service` with failure_replan: local: the same episode, the same
+def test_the_twin_flies_the_re_solve_as_a_method() -> None:
+    """`service-resolve` is `service` with failure_replan: resolve: the same episode, the same
     coverage until the failure (100 s), another after it (a real twin episode, T_up 50)."""
     from plmarl_sitl.learning.eval.evaluate import controller_factory, run_method
 
     m = load_mission("missions/suite/failure_2of6_b.yaml").with_tup(50)
-    base, local = (run_method(m, controller_factory(meth, {}), 1, 8, batch=1).trace[0]
-                   for meth in ("service", "service-local-repairs"))
-    assert np.array_equal(base[:100], local[:100])
-    assert not np.array_equal(base[100:], local[100:])
+    local, whole = (run_method(m, controller_factory(meth, {}), 1, 8, batch=1).trace[0]
+                    for meth in ("service", "service-resolve"))
+    assert np.array_equal(local[:100], whole[:100])
+    assert not np.array_equal(local[100:], whole[100:])

@@ -44,7 +44,7 @@ class MethodRun:
 
 def needed_policies(methods: list[str]) -> set[str]:
     need = {m for m in methods if m in LEARNT}
-    if {"dead-reckoning", "pl-marl-learned", "pl-marl-track", "pl-marl-local-repairs"} & set(methods):
+    if {"dead-reckoning", "pl-marl-learned", "pl-marl-track", "pl-marl-resolve"} & set(methods):
         need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker; pl-marl-learned its plan
     return need
 
@@ -85,13 +85,13 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
     if method == "pl-marl-track":
         lp = loaded["pl-marl"]
         return lambda env: LearnedController(lp.tracker, lp.policy, tracking(env.mission))
-    if method == "service-local-repairs":  # failure re-plans by local repairs (issue 24, session 25)
+    if method == "service-resolve":  # failure re-plans re-solve the whole plan (the default until session 27)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
-        return lambda env: ServiceController(env.mission.with_failure_replan("local"))
-    if method == "pl-marl-local-repairs":
+        return lambda env: ServiceController(env.mission.with_failure_replan("resolve"))
+    if method == "pl-marl-resolve":
         lp = loaded["pl-marl"]
-        return lambda env: LearnedController(lp.tracker, lp.policy, env.mission.with_failure_replan("local"))
+        return lambda env: LearnedController(lp.tracker, lp.policy, env.mission.with_failure_replan("resolve"))
     if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 

@@ -20,8 +20,8 @@ METHOD_HELP = {
     "pl-marl-learned": "the PL-MARL policy on the team plan with the learnt placement (placement: learned)",
     "service-track": "the plan follower whose point moves toward the users the UAV senses, at most 30 m and within the plan's link and spacing bounds (track_sensed_m: 30, model/sensed_track.py): it follows moving crowds between demand maps (issue 24.3, session 19)",
     "pl-marl-track": "the PL-MARL policy on the team plan's point moved toward its sensed users, at most 30 m (track_sensed_m: 30)",
-    "pl-marl-local-repairs": "the PL-MARL policy on the team plan mended locally after failures (failure_replan: local, model/repairs.py): each failed UAV's point taken over by at most two of its own neighbours (issue 24, session 25; not the default: it loses on a failure in transit, docs/RESULTS.md)",
-    "service-local-repairs": "the plan follower on the team plan mended locally after failures (failure_replan: local)",
+    "pl-marl-resolve": "the PL-MARL policy on the team plan re-solved whole after every failure (failure_replan: resolve: the default until session 27; an ablation of the default's local repairs, model/repairs.py)",
+    "service-resolve": "the plan follower on the team plan re-solved whole after every failure (failure_replan: resolve; an ablation)",
     "service-fixed": "the plan follower without failure re-plans (the team plan of before issue 24; an ablation)",
     "service-local": "the plan follower on a neighbourhood plan (coordination: local, model/local_plan.py): each UAV solves a plan of its own region only, a cost that does not grow with N or the area (not the default: see docs/RESULTS.md)",
     "greedy": "greedy clairvoyant placement with global knowledge (a reference; called 'oracle' before)",
@@ -29,7 +29,12 @@ METHOD_HELP = {
     "heuristic": "hand-written decentralised controller, local sensing only",
 }
 ALL_METHODS = tuple(METHOD_HELP)
-DEPRECATED_METHODS = {"oracle": "greedy"}  # old name -> new name, accepted for one release
+# old name -> (new name, why), each accepted for one release
+DEPRECATED_METHODS = {
+    "oracle": ("greedy", "greedy clairvoyant placement: a reference, not a bound"),
+    "pl-marl-local-repairs": ("pl-marl", "local failure repairs are the default since session 27; pl-marl-resolve is the old default"),
+    "service-local-repairs": ("service", "local failure repairs are the default since session 27; service-resolve is the old default"),
+}
 # Methods that plan with global knowledge and never read the signalled states: their episodes
 # do not depend on T_up, so a sweep runs them once (tests/learning/test_suite.py checks it).
 GLOBAL_KNOWLEDGE = ("greedy", "clairvoyant")
@@ -42,11 +47,10 @@ def methods_help() -> str:
 
 def canonical_method(name: str) -> str:
     """The method's current name; a deprecated alias is mapped, with a one-line note on stderr."""
-    new = DEPRECATED_METHODS.get(name)
-    if new is None:
+    if name not in DEPRECATED_METHODS:
         return name
-    print(f"note: method {name!r} is now {new!r} (greedy clairvoyant placement: a reference, not a bound); "
-          f"{name!r} is accepted for one more release", file=sys.stderr)
+    new, why = DEPRECATED_METHODS[name]
+    print(f"note: method {name!r} is now {new!r} ({why}); {name!r} is accepted for one more release", file=sys.stderr)
     return new
 
 
