@@ -262,6 +262,9 @@ class Mission:
     # Metres a UAV's plan point moves toward the centroid of the users it senses
     # (model/sensed_track.py: follow a moving crowd between demand maps); 0: off.
     track_sensed_m: float = field(default=0.0, metadata={"min": 0.0})
+    # Metres from its plan point beyond which a learnt policy's UAV flies the plan follower's
+    # command, the motion its teammates predict it by (model/plan_follower.py); 0: the policy everywhere.
+    transit_plan_m: float = field(default=0.0, metadata={"min": 0.0})
 
     def __post_init__(self) -> None:
         for i, ev in enumerate(self.events):
@@ -323,6 +326,9 @@ class Mission:
 
     def with_track_sensed(self, metres: float) -> Mission:
         return dataclasses.replace(self, track_sensed_m=float(metres))
+
+    def with_transit_plan(self, metres: float) -> Mission:
+        return dataclasses.replace(self, transit_plan_m=float(metres))
 
     def with_tup(self, tup_s: int) -> Mission:
         return dataclasses.replace(self, signalling=dataclasses.replace(self.signalling, tup_s=tup_s))

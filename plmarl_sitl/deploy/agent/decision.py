@@ -9,7 +9,9 @@ nothing reads their beliefs sooner: `Decision.track`), and every tau seconds per
 demand map, and the agent's point of the team plan (`plan.AgentPlan`) for a policy that
 takes it, moved toward its sensed users by the mission's `track_sensed_m`, as one
 `PolicyInputs`) and run `policy.pt` on it through the typed call
-(`learning/nn/contract.py::PolicyCall`) -> an acceleration, held until the next decision.
+(`learning/nn/contract.py::PolicyCall`) -> an acceleration, held until the next decision
+(farther than the mission's `transit_plan_m` from the plan point, the plan follower's instead:
+model/plan_follower.py).
 The inputs are the twin's (`learning/nn/perception.py`, checked by the replay test): f
 latches `model.signalling.silent_in_range` on the beliefs of the decision at which the twin
 sees a drop (`failure.FailureFlag`; the twin uses `FailureFlags`) and the map is the newest
@@ -42,6 +44,7 @@ from plmarl_sitl.learning.nn.contract import PolicyInputs
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.mission import Mission
 from plmarl_sitl.model.coverage import SENSING_FEATURES, sensing_features
+from plmarl_sitl.model.plan_follower import PlanFollower
 from plmarl_sitl.model.sensed_track import SlackCache, mission_toward_sensed
 
 log = logging.getLogger("plmarl.agent")
@@ -68,6 +71,7 @@ class Decision:
         self.plan = agent_plan(mission, me, table.knowledge) if self.form.takes_plan else None
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.point: torch.Tensor | None = None  # the policy's target input then: the point moved toward the sensed users
+        self.follower = PlanFollower(mission)  # in transit (mission `transit_plan_m`) its command, not the policy's
         self.slack = SlackCache()  # the plan tree's slack, kept while the plan's points stay (model/sensed_track.py)
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
@@ -207,7 +211,7 @@ class Decision:
         self.untracked.append((k, self.table.state, self.table.t_rx, None))
         self.track()
         inputs = self.perceive(k, ego, mask)
-        a = self.policy(inputs)
+        a = self.follower.in_transit(self.policy(inputs), ego, self.target)  # the plan follower's in transit, as the twin
         if bool(inputs.fail) and not self.fail:
             log.warning("f = 1 at t = %d s (dropped: %s)", k, self.table.dropped)
         self.fail = bool(inputs.fail)

@@ -16,6 +16,7 @@ from plmarl_sitl.learning.nn.contract import PolicyCall
 from plmarl_sitl.learning.nn.perception import Perception, plan_points
 from plmarl_sitl.learning.nn.plan import ServiceTargets
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED
+from plmarl_sitl.model.plan_follower import PlanFollower
 from plmarl_sitl.model.sensed_track import mission_toward_sensed
 from plmarl_sitl.twin.env import Observation
 
@@ -24,13 +25,18 @@ class LearnedController:
     def __init__(self, tracker: nn.Module, policy: nn.Module, mission=None, sources: str = "plan") -> None:  # noqa: ANN001 - Mission
         self.policy = PolicyCall(policy)
         self.perceive = Perception(tracker, self.policy.form, float(policy.r_comm), mission, sources)
+        # in transit (the mission's transit_plan_m from the plan point) the plan follower's command
+        self.follower = PlanFollower(mission) if mission is not None else None
 
     def reset(self) -> None:
         self.perceive.reset()
 
     @torch.no_grad()
     def act(self, obs: Observation) -> torch.Tensor:
-        return self.policy(self.perceive(obs))
+        accel = self.policy(self.perceive(obs))
+        if self.follower is None:
+            return accel
+        return self.follower.in_transit(accel, obs.ego, self.perceive.plan_point)
 
 
 class ServiceController:

@@ -9,11 +9,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from plmarl_sitl.model.channel import mission_coverage
 from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.local_plan import LocalPlan, heard_launch_line
+from plmarl_sitl.model.plan_follower import PlanFollower
 from plmarl_sitl.model.service import mission_launch_xy, plan_geometry
-from plmarl_sitl.model.vehicle import goto_accel
 
 
 def local_plan_of(mission) -> LocalPlan:  # noqa: ANN001 - Mission
@@ -26,19 +25,15 @@ class LocalTargets:
     the first decision and at each new map (every `demand.refresh_s`), held in between."""
 
     def __init__(self, mission) -> None:  # noqa: ANN001 - Mission
-        vm = mission.vehicle_model()
-        self.alt, _ = mission_coverage(mission)
+        self.follower = PlanFollower(mission)
         self.plan = local_plan_of(mission)
         self.nominal = mission_launch_xy(mission)  # the mission's launch line (model/service.py::launch_line)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
-        self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
-        self.tau = int(mission.timing.decision_every_s)
         self.reset()
 
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to `target` (..., 2) at the altitude of the largest coverage radius and stop (as `ServiceTargets.accel`)."""
-        goal = torch.cat([target, torch.full_like(target[..., :1], -self.alt)], -1)
-        return goto_accel(ego[..., :3], ego[..., 3:], goal, self.v_max, self.a_max, time_const=self.tau)
+        return self.follower.accel(ego, target)
 
     def reset(self) -> None:
         self.map_t = -1

@@ -17,6 +17,7 @@ from plmarl_sitl.model.demand import map_period
 from plmarl_sitl.model.events import EventSchedule
 from plmarl_sitl.model.gossip import DECLARE_AFTER_MISSED, Gossip, heard, may_predict, steady, suspects
 from plmarl_sitl.model.placement import LearnedPlacement, SearchPlacement
+from plmarl_sitl.model.plan_follower import PlanFollower
 from plmarl_sitl.model.plan_motion import PlanMotion
 from plmarl_sitl.model.repairs import local_repairs
 from plmarl_sitl.model.service import (
@@ -29,7 +30,7 @@ from plmarl_sitl.model.service import (
     mission_launch_xy,
     plan_geometry,
 )
-from plmarl_sitl.model.vehicle import Limits, goto_accel
+from plmarl_sitl.model.vehicle import Limits
 
 PLACEMENT_SCORER = PROJECT_POLICIES / "pl-marl" / "placement.pt"  # `placement: learned`'s scorer and its card
 
@@ -115,12 +116,9 @@ class ServiceTargets:
 
     def __init__(self, mission, replan: bool = True, sources: str = "plan",  # noqa: ANN001 - Mission
                  declare_after: int = DECLARE_AFTER_MISSED) -> None:
-        vm = mission.vehicle_model()
-        self.alt, _ = mission_coverage(mission)
+        self.follower = PlanFollower(mission)
         self.grid = service_grid(mission)
         self.period = map_period(mission.demand.refresh_s, mission.timing.decision_every_s)
-        self.v_max, self.a_max = float(vm.max_speed_mps), float(vm.max_accel_mps2)
-        self.tau = int(mission.timing.decision_every_s)
         self.comm_m = float(mission.radii.comm_m)
         self.channel = mission.channel
         self.declare_after = int(declare_after)  # missed instants before a declaration (model/gossip.py)
@@ -147,8 +145,7 @@ class ServiceTargets:
     def accel(self, ego: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """Fly to the plan point `target` (..., 2) at the altitude of the largest coverage radius
         and stop there: the plan teacher of imitation, and `ServiceController`."""
-        goal = torch.cat([target, torch.full_like(target[..., :1], -self.alt)], -1)
-        return goto_accel(ego[..., :3], ego[..., 3:], goal, self.v_max, self.a_max, time_const=self.tau)
+        return self.follower.accel(ego, target)
 
     def copy_points(self) -> torch.Tensor | None:
         """(B, N, n, 2) float64: every identity's point in each agent's copy of the plan (NaN: failed);
