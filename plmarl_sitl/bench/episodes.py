@@ -26,7 +26,8 @@ Per episode (a "survivor" is a UAV alive at that moment; a copy is one UAV's kno
 `--set key=value` changes every mission of the run (`SETTABLE`: each key one Mission.with_*
 method); a method that sets the same key itself (service-resolve, pl-marl-resolve) keeps its own.
 greedy and clairvoyant ignore signalling, so as in the suite they fly once per family and serve
-every T_up. With two or more methods, each is compared with the first on the same episodes
+every T_up; they read true states and declare nothing, so their dead UAVs count as undeclared.
+With two or more methods, each is compared with the first on the same episodes
 (`stats.compare`: paired Wilcoxon, Mann-Whitney U, wins/losses).
 """
 
@@ -321,8 +322,7 @@ def results_md(doc: dict) -> str:
 # ---------------------------------------------------------------------- command line
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog=PROG, description=__doc__.split("\n\n")[0] + ". Definitions: the module's docstring "
-        "(plmarl_sitl/bench/episodes.py).",
+        prog=PROG, description=__doc__,  # what each measure is, and how the episodes are the suite's
         epilog="example:\n  OMP_NUM_THREADS=1 python -m plmarl_sitl.bench.episodes failure_2of6,failure_transit "
         "--methods pl-marl,service --tup 15 50 --episodes 30 --seed 38 --set failure_replan=resolve --out runs/episodes",
         formatter_class=argparse.RawDescriptionHelpFormatter)
