@@ -137,14 +137,9 @@ class Declarations:
 
     def look(self, env: CoverageEnv, t: int) -> None:
         alive = env.alive
-        held = survivors_hold(env)  # (B, N) UAV j held failed by some survivor
+        held = held_pairs(env).any(1)  # (B, N): UAV j held failed by some survivor
         self.false_ids |= held & alive
         self.first = torch.where(held & ~alive & self.first.isnan(), torch.full_like(self.first, float(t)), self.first)
-
-
-def survivors_hold(env: CoverageEnv) -> torch.Tensor:
-    """(B, N) bool: UAV j is held failed by the copy of some survivor other than j."""
-    return held_pairs(env).any(1)
 
 
 def held_pairs(env: CoverageEnv) -> torch.Tensor:
