@@ -85,12 +85,9 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from plmarl_sitl.errors import UserError
-    from plmarl_sitl.learning.eval.evaluate import needed_policies
-    from plmarl_sitl.learning.eval.suite import decisions, load_suite, run_suite, select
+    from plmarl_sitl.learning.eval.suite import decisions, load_policies, load_suite, run_suite, select
     from plmarl_sitl.learning.eval.suite_compare import compare_methods, comparison_md, load_results, parse_pair
     from plmarl_sitl.learning.eval.suite_report import print_summary, write_outputs
-    from plmarl_sitl.learning.nn.features import FeatureScales
-    from plmarl_sitl.learning.nn.io import load_policy
     from plmarl_sitl.learning.pipeline import git_commit
     from plmarl_sitl.machine import machine_info
 
@@ -117,15 +114,7 @@ def run(args: argparse.Namespace) -> int:
     if args.families is None:
         raise UserError("name the families to run ('all' or a comma list; see plmarl suite --list)")
     chosen = [families[n] for n in select(spec, args.families)]
-    # Policies are checked against every mission they will fly (area, vehicle, buffer length).
-    loaded: dict = {}
-    checked: set = set()
-    for m in (m for fam in chosen for m in fam.missions):
-        key = (FeatureScales.from_mission(m), m.signalling.buffer_len)
-        if key not in checked:
-            checked.add(key)
-            for meth in sorted(needed_policies(args.methods)):
-                loaded.setdefault(meth, load_policy(Path(args.policies) / meth, m))
+    loaded = load_policies(chosen, args.methods, args.policies)
     total = sum(decisions(f, args.episodes, args.tup, args.methods) for f in chosen)
     # The commit and date of the code that runs: read at the start, since a long suite can
     # outlast a commit made beside it.

@@ -25,12 +25,13 @@ import numpy as np
 
 from plmarl_sitl.config import ConfigError, load_yaml
 from plmarl_sitl.errors import UserError
-from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, run_method
+from plmarl_sitl.learning.eval.evaluate import MethodRun, controller_factory, needed_policies, run_method
 from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE
 from plmarl_sitl.learning.eval.references import ABOUT, REFERENCES, best_reference, pairwise_wins
 from plmarl_sitl.learning.eval.stats import compare, mean_ci95
 from plmarl_sitl.learning.eval.transient import after_target_levels, failure_transient
-from plmarl_sitl.learning.nn.io import LoadedPolicy
+from plmarl_sitl.learning.nn.features import FeatureScales
+from plmarl_sitl.learning.nn.io import LoadedPolicy, load_policy
 from plmarl_sitl.learning.train.seeds import EVAL_SEED_BASE, suite_twin_seed
 from plmarl_sitl.mission import Mission, load_mission
 
@@ -132,6 +133,26 @@ def family_tups(family: LoadedFamily, tups: list[int]) -> list[int]:
     return list(family.spec.tup) or list(tups)
 
 
+def failure_second(family: LoadedFamily) -> float | None:
+    """The second the family's UAVs fail at (its failure_at_s, else FAILURE_AT_S when it
+    draws failures); None for a family without failures."""
+    return family.spec.failure_at_s or (FAILURE_AT_S if family.spec.failure_prob > 0 else None)
+
+
+def load_policies(families: list[LoadedFamily], methods: list[str], directory: str | Path) -> dict[str, LoadedPolicy]:
+    """The trained policies the methods need, from directory/<method>, each checked against
+    every mission it will fly (area, vehicle, buffer length): PolicyFileError otherwise."""
+    loaded: dict[str, LoadedPolicy] = {}
+    checked: set = set()
+    for m in (m for fam in families for m in fam.missions):
+        key = (FeatureScales.from_mission(m), m.signalling.buffer_len)
+        if key not in checked:
+            checked.add(key)
+            for meth in sorted(needed_policies(methods)):
+                loaded.setdefault(meth, load_policy(Path(directory) / meth, m))
+    return loaded
+
+
 def twin_seeds(run_seed: int, episodes: int, family: LoadedFamily, batch: int = BATCH) -> list[list[int]]:
     """Every twin seed the family uses, per mission variant (all >= EVAL_SEED_BASE)."""
     return [
@@ -224,7 +245,7 @@ def summarise(family: LoadedFamily, runs: dict[tuple[str, int], MethodRun], meth
                 p_values.append({"family": family.name, "tup": tup, "method": "pl-marl", "versus": method, **c})
             rows.append(row)
             horizon = r.trace.shape[1]
-            fail_s = family.spec.failure_at_s or (FAILURE_AT_S if family.spec.failure_prob > 0 else None)
+            fail_s = failure_second(family)
             if fail_s is not None and best is not None and fail_s < horizon:
                 t = failure_transient(r.trace, best.trace, int(fail_s))
                 after = after_target_levels(r.trace, int(fail_s))
