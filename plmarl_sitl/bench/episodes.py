@@ -46,7 +46,7 @@ from typing import get_args
 import numpy as np
 import torch
 
-from plmarl_sitl.cmdline import progress, table_console
+from plmarl_sitl.cmdline import comma_list, progress, table_console
 from plmarl_sitl.config import PROJECT_POLICIES, PROJECT_SUITE
 from plmarl_sitl.errors import UserError, run_reporting
 from plmarl_sitl.learning.eval.evaluate import controller_factory
@@ -101,6 +101,7 @@ SETTABLE: dict[str, tuple[Callable[[Mission, object], Mission], Callable[[str], 
     "coordination": (Mission.with_coordination, _choice(get_args(Coordination))),
     "placement": (Mission.with_placement, _choice(get_args(Placement))),
     "track_sensed_m": (Mission.with_track_sensed, _non_negative),
+    "transit_plan_m": (Mission.with_transit_plan, _non_negative),
 }
 
 
@@ -319,13 +320,13 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog=PROG, description=__doc__,  # what each measure is, and how the episodes are the suite's
         epilog="example:\n  OMP_NUM_THREADS=1 python -m plmarl_sitl.bench.episodes failure_2of6,failure_transit "
-        "--methods pl-marl,service --tup 15 50 --episodes 30 --seed 38 --set failure_replan=resolve --out runs/episodes",
+        "--methods pl-marl,service --tup 15,50 --episodes 30 --seed 38 --set failure_replan=resolve --out runs/episodes",
         formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("families", help="a comma list of suite family names (plmarl suite --list), or all")
     ap.add_argument("--methods", default="pl-marl,service", help="comma list, the first is the one compared against "
                     "(plmarl suite's methods; default: pl-marl,service)")
-    ap.add_argument("--tup", type=int, nargs="+", default=[15, 50],
-                    help="T_up values for families that pin none (default: 15 50)")
+    ap.add_argument("--tup", type=comma_list(int, "T_up", positive=True), default=[15, 50],
+                    help="comma list of T_up values for families that pin none, as plmarl suite (default: 15,50)")
     ap.add_argument("--episodes", type=int, default=30, help="episodes per family and T_up (default: 30)")
     ap.add_argument("--seed", type=int, default=0, help="suite run seed: the suite's evaluation seeds (default: 0)")
     ap.add_argument("--from-s", type=int, default=50, help="coverage counts t > this (default: 50, as the suite)")
@@ -345,8 +346,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(str(exc)) from None
     sets = parse_sets(args.set)
-    if args.episodes < 1 or any(t < 1 for t in args.tup):
-        raise UserError("--episodes and --tup must be >= 1")
+    if args.episodes < 1:
+        raise UserError("--episodes must be >= 1")
     torch.set_num_threads(1)
     spec, families = load_suite(args.suite_file)
     chosen = [families[n] for n in select(spec, args.families)]
