@@ -35,8 +35,9 @@ EPISODE_S = 95  # four demand maps (t = 0, 30, 60, 90)
 
 
 def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, placement: str = "greedy",
-           track_m: float = 0.0) -> dict[str, int]:
+           track_m: float = 0.0, transit_m: float = 0.0) -> dict[str, int]:
     m = dataclasses.replace(load_mission(MISSION), n_uavs=4).with_tup(TUP).with_placement(placement).with_track_sensed(track_m)
+    m = m.with_transit_plan(transit_m)
     m = dataclasses.replace(m, timing=dataclasses.replace(m.timing, episode_s=EPISODE_S))
     lp = load_policy(policy_dir, m)
     n, tau, topics = m.n_uavs, m.timing.decision_every_s, Topics()
@@ -120,6 +121,9 @@ def replay(policy_dir: Path, seed: int, fail_at: float, *, late: bool = False, p
                 assert np.array_equal(dec.plan.plans.slot[0, 0], ctl.perceive.plan.plans.slot[0, i]), (t, i)
                 seen["replanned"] = seen.get("replanned", 0) + int(dec.plan.plans.failed[0, 0].any())
             assert torch.allclose(torch.tensor(dec.accel), accel[0, i], atol=1e-4), (t, i, dec.accel, accel[0, i])
+            if lp.takes_plan:  # in transit (transit_plan_m) the plan follower's command
+                far = float((state[i, :2] - dec.target).norm()) > transit_m > 0
+                seen["transit"] = seen.get("transit", 0) + int(far)
             assert inbox.rx.malformed == 0
             seen["decisions"] += 1
             seen["f"] += dec.fail
@@ -156,6 +160,14 @@ def test_agent_follows_its_sensed_users_as_the_twin() -> None:
     seen = replay(ROOT / "policies" / "pl-marl", 1, 70.0, track_m=30.0)
     assert seen["decisions"] > 90 and seen["plan"] == seen["decisions"], seen
     assert seen["tracked"] > seen["decisions"] // 2, seen
+
+
+def test_agent_flies_the_plan_follower_in_transit_as_the_twin() -> None:
+    """`transit_plan_m` (model/plan_follower.py): beyond it from its plan point the agent's
+    command is the plan follower's, within it the policy's; both the twin's at every decision."""
+    seen = replay(ROOT / "policies" / "pl-marl", 1, 70.0, transit_m=50.0)
+    assert seen["decisions"] > 90 and seen["plan"] == seen["decisions"], seen
+    assert 0 < seen["transit"] < seen["decisions"], seen  # both commands were flown
 
 
 def test_flag_booked_late_still_equals_the_twins(v2_policy_dir: Path) -> None:
