@@ -32,6 +32,8 @@ LEARNT = ("pl-marl", "gru", "tag-mappo")
 # `service-track` and `pl-marl-track`: metres the plan point follows the sensed users (model/sensed_track.py),
 # chosen on training-seed probes (docs/RESULTS.md, session 19); a mission's own track_sensed_m > 0 is kept
 TRACK_METHOD_M = 30.0
+# pl-marl-transit's distance: the policy's reach on station (a point moved <= 30 m) with room (session 28)
+TRANSIT_METHOD_M = 50.0
 
 
 @dataclass
@@ -44,7 +46,7 @@ class MethodRun:
 
 def needed_policies(methods: list[str]) -> set[str]:
     need = {m for m in methods if m in LEARNT}
-    if {"dead-reckoning", "pl-marl-learned", "pl-marl-track", "pl-marl-resolve"} & set(methods):
+    if {"dead-reckoning", "pl-marl-learned", "pl-marl-track", "pl-marl-resolve", "pl-marl-transit"} & set(methods):
         need.add("pl-marl")  # dead reckoning = the PL-MARL policy with a constant-velocity tracker; pl-marl-learned its plan
     return need
 
@@ -92,6 +94,9 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
     if method == "pl-marl-resolve":
         lp = loaded["pl-marl"]
         return lambda env: LearnedController(lp.tracker, lp.policy, env.mission.with_failure_replan("resolve"))
+    if method == "pl-marl-transit":  # the plan follower's command in transit (model/plan_follower.py)
+        lp = loaded["pl-marl"]
+        return lambda env: LearnedController(lp.tracker, lp.policy, in_transit(env.mission))
     if method == "service-fixed":  # the plan follower without failure re-plans (before issue 24)
         from plmarl_sitl.learning.eval.controllers import ServiceController
 
@@ -113,6 +118,12 @@ def controller_factory(method: str, loaded: dict[str, LoadedPolicy]) -> MakeCont
 def tracking(mission: Mission) -> Mission:
     """The mission with its plan point following the sensed users (its own track_sensed_m, else TRACK_METHOD_M)."""
     return mission if mission.track_sensed_m > 0 else mission.with_track_sensed(TRACK_METHOD_M)
+
+
+def in_transit(mission: Mission) -> Mission:
+    """The mission with a learnt policy's UAV flying the plan follower's command in transit (its own
+    transit_plan_m, else TRANSIT_METHOD_M)."""
+    return mission if mission.transit_plan_m > 0 else mission.with_transit_plan(TRANSIT_METHOD_M)
 
 
 def run_method(
