@@ -12,8 +12,11 @@ flying their plan, and from those predictions it declares a silent teammate fail
 learnt policy steers in transit: on a far launch it flew a median 50 m and a 90th percentile
 130 m off the nominal 30-60 s after take-off (docs/RESULTS.md, session 28), so a message
 missed there became a false declaration of a live teammate, and a re-plan assigned points from
-where nobody was. On station, within the policy's reach of its point (the imitation teacher
-moves a point up to 30 m toward the users its UAV senses), the policy decides. The twin's
+where nobody was. On station the policy decides. 300 m, the station radius of the local repairs
+(model/repairs.py::STATION_M), is the distance measured to help (long strips, far launches) and
+cost nothing elsewhere; at 50 m it also took over after each new map of walking crowds (their
+points move 50-90 m), where the policy follows its crowd better. Off by default: with it the
+learnt predictor no longer matters in transit (docs/RESULTS.md, session 28). The twin's
 `LearnedController` and the deployed agent's `Decision` both call it, on the plan's own point
 (not the one moved toward the sensed users).
 """

@@ -26,14 +26,16 @@ from plmarl_sitl.learning.eval.stats import compare, mean_ci95
 from plmarl_sitl.learning.nn.io import LoadedPolicy, script
 from plmarl_sitl.learning.train.predictor import dead_reckoning_tracker
 from plmarl_sitl.mission import Mission
+from plmarl_sitl.model.repairs import STATION_M
 from plmarl_sitl.twin.rollout import MakeController, rollout
 
 LEARNT = ("pl-marl", "gru", "tag-mappo")
 # `service-track` and `pl-marl-track`: metres the plan point follows the sensed users (model/sensed_track.py),
 # chosen on training-seed probes (docs/RESULTS.md, session 19); a mission's own track_sensed_m > 0 is kept
 TRACK_METHOD_M = 30.0
-# pl-marl-transit's distance: the policy's reach on station (a point moved <= 30 m) with room (session 28)
-TRANSIT_METHOD_M = 50.0
+# pl-marl-transit's distance: the product's "on station" (model/repairs.py::STATION_M; session 28: at 50 m the
+# plan follower also took over after every new map of walking crowds, whose points move 50-90 m)
+TRANSIT_METHOD_M = STATION_M
 
 
 @dataclass

@@ -22,7 +22,7 @@ METHOD_HELP = {
     "pl-marl-track": "the PL-MARL policy on the team plan's point moved toward its sensed users, at most 30 m (track_sensed_m: 30)",
     "pl-marl-resolve": "the PL-MARL policy on the team plan re-solved whole after every failure (failure_replan: resolve: the default until session 27; an ablation of the default's local repairs, model/repairs.py)",
     "service-resolve": "the plan follower on the team plan re-solved whole after every failure (failure_replan: resolve; an ablation)",
-    "pl-marl-transit": "the PL-MARL policy on station, the plan follower's command in transit: beyond 50 m from its plan point (transit_plan_m: 50, model/plan_follower.py; for long transits, not the default: see docs/RESULTS.md, session 28)",
+    "pl-marl-transit": "the PL-MARL policy on station, the plan follower's command in transit: beyond 300 m from its plan point (transit_plan_m: 300, model/plan_follower.py; for long transits, not the default: see docs/RESULTS.md, session 28)",
     "service-fixed": "the plan follower without failure re-plans (the team plan of before issue 24; an ablation)",
     "service-local": "the plan follower on a neighbourhood plan (coordination: local, model/local_plan.py): each UAV solves a plan of its own region only, a cost that does not grow with N or the area (not the default: see docs/RESULTS.md)",
     "greedy": "greedy clairvoyant placement with global knowledge (a reference; called 'oracle' before)",
