@@ -71,7 +71,9 @@ class Decision:
         self.plan = agent_plan(mission, me, table.knowledge) if self.form.takes_plan else None
         self.target: torch.Tensor | None = None  # that point at the last decision
         self.point: torch.Tensor | None = None  # the policy's target input then: the point moved toward the sensed users
-        self.follower = PlanFollower(mission)  # in transit (mission `transit_plan_m`) its command, not the policy's
+        # In transit (mission `transit_plan_m`) a learnt policy's UAV flies the plan follower's command; a file
+        # that is the plan follower already (policies/service, card `learnt: false`) flies its own everywhere.
+        self.follower = PlanFollower(mission if lp.card.get("learnt", True) else mission.with_transit_plan(0.0))
         self.slack = SlackCache()  # the plan tree's slack, kept while the plan's points stay (model/sensed_track.py)
         self.new_map: torch.Tensor | None = None  # the map's cells when a decision of this second first used it (trace)
         self.vm = mission.vehicle_model()
