@@ -8,6 +8,7 @@ docs/MISSIONS.md that is not what `python -m plmarl_sitl.mission_reference` writ
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import sys
 import types
@@ -259,9 +260,13 @@ def render() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Write docs/MISSIONS.md (or, with --check, exit 1 if it is not current)."""
-    argv = sys.argv[1:] if argv is None else argv
+    ap = argparse.ArgumentParser(prog="python -m plmarl_sitl.mission_reference",
+                                 description=f"Write the mission YAML reference ({OUT.name}) from the mission schema "
+                                 "and the descriptions in this module.")
+    ap.add_argument("--check", action="store_true", help="write nothing; exit 1 if the file is not current")
+    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     text = render()
-    if "--check" in argv:
+    if args.check:
         current = OUT.read_text() if OUT.exists() else ""
         if current != text:
             print(f"{OUT} is not current: run python -m plmarl_sitl.mission_reference", file=sys.stderr)
