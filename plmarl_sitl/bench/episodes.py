@@ -20,8 +20,8 @@ Per episode (a "survivor" is a UAV alive at that moment; a copy is one UAV's kno
 * detect_s: mean delay (s) from each declared dead UAV's failure to its first declaration by a
   survivor (None: none declared). A controller declares at its decisions, so this is read
   right after each decision;
-* split_share: share of the episode's seconds with lambda_2 < SPLIT_LAMBDA2 (the live swarm
-  split in two or more parts).
+* split_share: share of the seconds after --from-s with lambda_2 < SPLIT_LAMBDA2 (the live
+  swarm split in two or more parts; the window of the suite's lambda_2).
 
 `--set key=value` changes every mission of the run (`SETTABLE`: each key one Mission.with_*
 method); a method that sets the same key itself (service-resolve, pl-marl-resolve) keeps its own.
@@ -183,7 +183,7 @@ def fly_batch(mission: Mission, make: MakeController, episodes: int, seed: int, 
         "dead_declared": declared_dead.sum(-1).numpy(),
         "undeclared_end": (dead & ~pairs.any(1)).sum(-1).numpy(),
         "detect_s": nanmean_rows(delay.numpy()),
-        "split_share": (torch.cat(lam, -1) < SPLIT_LAMBDA2).double().mean(-1).numpy(),
+        "split_share": (torch.cat(lam, -1)[:, from_s:] < SPLIT_LAMBDA2).double().mean(-1).numpy(),  # the suite's window
     }
 
 
