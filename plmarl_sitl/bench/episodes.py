@@ -23,8 +23,8 @@ Per episode (a "survivor" is a UAV alive at that moment; a copy is one UAV's kno
 * split_share: share of the seconds after --from-s with lambda_2 < SPLIT_LAMBDA2 (the live
   swarm split in two or more parts; the window of the suite's lambda_2).
 
-`--set key=value` changes every mission of the run (`SETTABLE`: each key one Mission.with_*
-method); a method that sets the same key itself (service-resolve, pl-marl-resolve) keeps its own.
+`--set key=value` changes every mission of the run: any mission key as in its YAML (dotted for a
+nested one), the value checked by the mission schema itself (`apply_sets`); a method that sets the same key itself (service-resolve, pl-marl-resolve) keeps its own.
 greedy and clairvoyant ignore signalling, so as in the suite they fly once per family and serve
 every T_up; they read true states and declare nothing, so their dead UAVs count as undeclared.
 With two or more methods, each is compared with the first on the same episodes
@@ -41,13 +41,13 @@ import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import get_args
 
 import numpy as np
 import torch
+import yaml
 
 from plmarl_sitl.cmdline import comma_list, progress, table_console
-from plmarl_sitl.config import PROJECT_POLICIES, PROJECT_SUITE
+from plmarl_sitl.config import PROJECT_POLICIES, PROJECT_SUITE, ConfigError, to_dict
 from plmarl_sitl.errors import UserError, run_reporting
 from plmarl_sitl.learning.eval.evaluate import controller_factory
 from plmarl_sitl.learning.eval.methods import GLOBAL_KNOWLEDGE, parse_methods
@@ -69,7 +69,7 @@ from plmarl_sitl.learning.eval.transient import TARGET_S, after_target_levels
 from plmarl_sitl.learning.nn.io import LoadedPolicy
 from plmarl_sitl.learning.pipeline import git_commit
 from plmarl_sitl.machine import machine_info
-from plmarl_sitl.mission import Coordination, FailureReplan, Mission, Placement
+from plmarl_sitl.mission import Mission, mission_from_dict
 from plmarl_sitl.twin.env import CoverageEnv
 from plmarl_sitl.twin.rollout import MakeController
 
@@ -80,52 +80,46 @@ MEASURES = ("coverage", "after_failure30", "false_ids", "false_end", "dead", "de
 
 
 # ---------------------------------------------------------------------- mission variants (--set)
-def _choice(values: tuple[str, ...]) -> Callable[[str], str]:
-    def parse(text: str) -> str:
-        if text not in values:
-            raise ValueError(f"choose from {', '.join(values)}")
-        return text
-    return parse
-
-
-def _non_negative(text: str) -> float:
-    value = float(text)
-    if not value >= 0:
-        raise ValueError("must be a number >= 0")
-    return value
-
-
-# key -> (the Mission method that sets it, the value's parser: ValueError says what is allowed)
-SETTABLE: dict[str, tuple[Callable[[Mission, object], Mission], Callable[[str], object]]] = {
-    "failure_replan": (Mission.with_failure_replan, _choice(get_args(FailureReplan))),
-    "coordination": (Mission.with_coordination, _choice(get_args(Coordination))),
-    "placement": (Mission.with_placement, _choice(get_args(Placement))),
-    "track_sensed_m": (Mission.with_track_sensed, _non_negative),
-    "transit_plan_m": (Mission.with_transit_plan, _non_negative),
-}
+# A value is checked by the mission schema itself (config.from_dict: types, choices, bounds, cross-field
+# checks), on a mission with nothing else set, so a bad one fails before any episode flies.
+PROBE = Mission(name="set")
 
 
 def parse_sets(items: list[str]) -> dict[str, object]:
-    """['key=value', ...] -> {key: value}; a one-line UserError for an unknown key or a bad value."""
+    """['key=value', ...] (key a mission key as in its YAML, dotted for nested ones; value YAML) ->
+    {key: value}; a one-line UserError for an unknown key or a bad value."""
     out: dict[str, object] = {}
     for item in items:
         key, eq, text = item.partition("=")
         key, text = key.strip(), text.strip()
         if not eq or not key:
-            raise UserError(f"--set {item!r}: give key=value (keys: {', '.join(SETTABLE)})")
-        if key not in SETTABLE:
-            raise UserError(f"--set {item!r}: unknown key {key!r} (keys: {', '.join(SETTABLE)})")
+            raise UserError(f"--set {item!r}: give key=value, a mission key as in its YAML (docs/MISSIONS.md)")
         try:
-            out[key] = SETTABLE[key][1](text)
-        except ValueError as exc:
-            raise UserError(f"--set {item!r}: bad value {text!r} for {key}: {exc}") from None
+            value = yaml.safe_load(text)
+        except yaml.YAMLError:
+            value = text
+        try:
+            apply_sets(PROBE, {key: value})
+        except ConfigError as exc:
+            if exc.reason.startswith("unknown key"):
+                raise UserError(f"--set {item!r}: unknown key {key!r} {exc.reason.removeprefix('unknown key').strip()}") from None
+            raise UserError(f"--set {item!r}: bad value {text!r} for {key}: {exc.reason}") from None
+        out[key] = value
     return out
 
 
 def apply_sets(mission: Mission, sets: dict[str, object]) -> Mission:
+    """The mission with each dotted key set, rebuilt through the schema (ConfigError naming the key)."""
+    data = to_dict(mission)
     for key, value in sets.items():
-        mission = SETTABLE[key][0](mission, value)
-    return mission
+        *parents, leaf = key.split(".")
+        node = data
+        for i, part in enumerate(parents):
+            if not isinstance(node.get(part), dict):
+                raise ConfigError(".".join(parents[: i + 1]), "unknown key (not a section of the mission)")
+            node = node[part]
+        node[leaf] = value
+    return mission_from_dict(data)
 
 
 # ---------------------------------------------------------------------- one batch of episodes
@@ -331,7 +325,8 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0, help="suite run seed: the suite's evaluation seeds (default: 0)")
     ap.add_argument("--from-s", type=int, default=50, help="coverage counts t > this (default: 50, as the suite)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help=f"change every mission (repeatable); keys: {', '.join(SETTABLE)}")
+                    help="change every mission (repeatable): any mission key as in its YAML, dotted for a nested one, "
+                    "e.g. failure_replan=resolve, transit_plan_m=300, signalling.drop_after_missed=2 (docs/MISSIONS.md)")
     ap.add_argument("--suite-file", default=str(PROJECT_SUITE), help="default: the project's missions/suite/suite.yaml")
     ap.add_argument("--policies", default=str(PROJECT_POLICIES), help="directory of <method>/ policies "
                     "(default: the project's policies/)")
