@@ -53,7 +53,11 @@ class Perception:
         self.flags = FailureFlags(r_comm)
         self.plan = ServiceTargets.of(mission, True, sources) if form.takes_plan else None
         self.point: torch.Tensor | None = None  # the policy's target input at the last call (B, N, 2)
-        self.plan_point: torch.Tensor | None = None  # the plan's own point then (not moved toward the sensed users)
+
+    @property
+    def plan_point(self) -> torch.Tensor | None:
+        """(B, N, 2) the plan's own point at the last call (not moved toward the sensed users); None without a plan."""
+        return None if self.plan is None else self.plan.last
 
     def reset(self) -> None:
         self.beliefs.reset()
@@ -73,6 +77,5 @@ class Perception:
         if self.plan is not None:
             target = self.plan.update(obs.t, obs.ego, obs.nbr_state, obs.nbr_t_rx, obs.demand, mask=obs.nbr_mask,
                                       alive=obs.alive, gossip=obs.gossip)
-            self.plan_point = target
             self.point = target = mission_toward_sensed(self.mission, target, obs.ego, obs.sense, lambda: plan_points(self.plan))
         return PolicyInputs(obs.ego, belief, obs.nbr_mask, obs.sense, fail, demand, target)
