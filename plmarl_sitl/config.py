@@ -44,8 +44,15 @@ class ConfigError(UserError, ValueError):
         self.path = path
         self.reason = reason
         self.source = source
-        prefix = ": ".join(x for x in (source, path) if x)
-        super().__init__(f"{prefix}: {reason}" if prefix else reason)
+        prefix = ": ".join(_one_line(x) for x in (source, path) if x)
+        super().__init__(f"{prefix}: {_one_line(reason)}" if prefix else _one_line(reason))
+
+
+def _one_line(text: str) -> str:
+    """text with its control characters escaped: a YAML key may hold a newline (`"\\n": 1`), and the
+    error naming it must stay one line."""
+    return text if text.isprintable() else "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                                                   for c in text)
 
 
 def _join(path: str, key: str | int) -> str:
